@@ -1,0 +1,61 @@
+"""The ``xshells`` command line.
+
+Each subcommand lives beside the code it drives, in a module that exposes
+``register(subparsers)``; this file only collects them. A subcommand's
+handler returns an exit code. Errors that the user can fix are raised as
+:class:`xshells.errors.InputError` and printed as one line, never as a
+traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import InputError
+
+# module path -> imported lazily so that ``xshells --help`` stays fast
+SUBCOMMANDS = [
+    "xshells.rod.cli",
+    "xshells.section.cli",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="xshells",
+        description="Design, simulate and fabricate X-shells (deployable elastic gridshells).",
+    )
+    from . import __version__
+
+    parser.add_argument("--version", action="version", version=f"xshells {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:  # a subcommand still being built
+            if exc.name != name:
+                raise
+            continue
+        mod.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except InputError as exc:
+        print(f"xshells {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"xshells {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
