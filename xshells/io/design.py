@@ -1,0 +1,354 @@
+"""Reading X-shell designs: line graphs of joints (nodes) and beam segments (edges).
+
+A design is the flat (or deployed) layout of the beam network as drawn in a
+CAD tool: a vertex per joint or free end, and a line element per beam segment
+between two of them. Two file kinds hold one:
+
+* line-graph OBJ (``v x y z`` and ``l i j [k ...]`` records, as Rhino and
+  Blender write them);
+* gmsh ``.msh`` with ``line`` elements (the optimized designs of the
+  reference code), read with meshio.
+
+The file's vertex order and segment order are kept exactly: per-segment data
+such as ``design_parameters.txt`` (rest lengths) list one value per segment in
+that order.
+
+Every problem with the input raises :class:`xshells.errors.InputError` with a
+single line that names the file, the line (OBJ) or the element/node (gmsh,
+0-based as meshio numbers them) and what is wrong.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from xshells.errors import InputError
+
+__all__ = [
+    "Design",
+    "design_from_arrays",
+    "read_design",
+    "read_obj_design",
+    "read_msh_design",
+    "read_rest_lengths",
+]
+
+# OBJ records that carry nothing for a line graph (grouping, shading, normals,
+# texture coordinates, materials, free-form curve headers) and are skipped.
+_IGNORED_OBJ_RECORDS = frozenset(
+    {"o", "g", "s", "vn", "vt", "vp", "mtllib", "usemtl", "mg", "lod",
+     "bevel", "c_interp", "d_interp", "shadow_obj", "trace_obj"}
+)
+
+# A segment shorter than this fraction of the bounding-box diagonal counts as
+# zero-length: its tangent, and hence its joint frame, is undefined.
+_ZERO_LENGTH_RELATIVE = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class Design:
+    """A beam network: vertices joined by straight segments, in file order.
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (n, 3), float64
+        Vertex positions (joints, free ends, possibly unused vertices).
+    edges : ndarray, shape (m, 2), int64
+        Segment endpoints as 0-based vertex indices, in the file's order;
+        ``edges[s, 0] -> edges[s, 1]`` is segment ``s``'s local direction.
+    source : str or None
+        The file the design came from, or None when built from arrays.
+    vertex_lines, edge_lines : ndarray of int64, shape (n,) / (m,), or None
+        The 1-based file line of each vertex / segment (OBJ only), so that
+        later checks (valence, connectivity) can point at the file.
+
+    Arrays are read-only so a Design can be shared safely.
+    """
+
+    vertices: np.ndarray
+    edges: np.ndarray
+    source: str | None = None
+    vertex_lines: np.ndarray | None = field(default=None, repr=False)
+    edge_lines: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    @property
+    def num_segments(self) -> int:
+        return int(self.edges.shape[0])
+
+    def where_vertex(self, v: int) -> str:
+        """Describe vertex ``v`` for an error message, with its file line if known."""
+        text = f"node {v}"
+        if self.vertex_lines is not None:
+            text += f" (line {int(self.vertex_lines[v])})"
+        return text
+
+    def where_edge(self, s: int) -> str:
+        """Describe segment ``s`` for an error message, with its file line if known."""
+        if self.edge_lines is not None:
+            return f"line {int(self.edge_lines[s])}"
+        return f"edge {s}"
+
+    def label(self) -> str:
+        """The file name to start an error message with."""
+        return str(self.source) if self.source is not None else "<arrays>"
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+def design_from_arrays(vertices, edges, source: str | os.PathLike | None = None,
+                       *, vertex_lines=None, edge_lines=None) -> Design:
+    """Build and validate a :class:`Design` from arrays.
+
+    Parameters
+    ----------
+    vertices : array_like, shape (n, 3) (or (n, 2), padded with z = 0)
+    edges : array_like of int, shape (m, 2), 0-based vertex indices
+    source : path or None
+        Only used to name the design in error messages.
+    vertex_lines, edge_lines : array_like of int, shape (n,) / (m,), optional
+        1-based file lines, for error messages.
+
+    Raises
+    ------
+    InputError
+        Bad shapes, non-finite coordinates, index out of range, self-loop,
+        duplicate edge, zero-length segment, or no segments at all.
+    """
+    label = str(source) if source is not None else "<arrays>"
+    V = np.array(vertices, dtype=np.float64, copy=True)
+    if V.ndim == 2 and V.shape[1] == 2:
+        V = np.hstack([V, np.zeros((V.shape[0], 1))])
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise InputError(f"{label}: vertices must have shape (n, 3), got {V.shape}")
+    E_in = np.asarray(edges)
+    if E_in.size == 0:
+        raise InputError(f"{label}: the design has no line elements (no beam segments)")
+    if E_in.ndim != 2 or E_in.shape[1] != 2:
+        raise InputError(f"{label}: edges must have shape (m, 2), got {E_in.shape}")
+    if not np.issubdtype(E_in.dtype, np.integer):
+        if not np.all(np.equal(np.mod(E_in, 1), 0)):
+            raise InputError(f"{label}: edge indices must be integers")
+    E = E_in.astype(np.int64)
+    vl = None if vertex_lines is None else np.asarray(vertex_lines, dtype=np.int64)
+    el = None if edge_lines is None else np.asarray(edge_lines, dtype=np.int64)
+    design = Design(_readonly(V), _readonly(E), label if source is not None else None,
+                    None if vl is None else _readonly(vl),
+                    None if el is None else _readonly(el))
+    _validate(design)
+    return design
+
+
+def _validate(d: Design) -> None:
+    """Raise InputError for the first defect found, in file order of checks."""
+    V, E, label = d.vertices, d.edges, d.label()
+    bad_rows = np.flatnonzero(~np.all(np.isfinite(V), axis=1))
+    if bad_rows.size:
+        v = int(bad_rows[0])
+        raise InputError(f"{label}: {d.where_vertex(v)} has a non-finite coordinate {tuple(V[v])}")
+    out = np.flatnonzero(np.any((E < 0) | (E >= len(V)), axis=1))
+    if out.size:
+        s = int(out[0])
+        raise InputError(f"{label}: {d.where_edge(s)}: vertex index out of range "
+                         f"({E[s, 0]}, {E[s, 1]}) with {len(V)} vertices (0-based)")
+    loops = np.flatnonzero(E[:, 0] == E[:, 1])
+    if loops.size:
+        s = int(loops[0])
+        raise InputError(f"{label}: {d.where_edge(s)}: self-loop at {d.where_vertex(int(E[s, 0]))}")
+    _check_duplicates(d)
+    lengths = np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)
+    diag = float(np.linalg.norm(np.ptp(V[np.unique(E)], axis=0)))
+    short = np.flatnonzero(lengths <= _ZERO_LENGTH_RELATIVE * diag)
+    if short.size:
+        s = int(short[0])
+        raise InputError(f"{label}: {d.where_edge(s)}: zero-length segment between "
+                         f"{d.where_vertex(int(E[s, 0]))} and {d.where_vertex(int(E[s, 1]))}")
+
+
+def _check_duplicates(d: Design) -> None:
+    E = d.edges
+    key = np.sort(E, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    if np.all(counts == 1):
+        return
+    # Report the earliest repeated segment and the segment it repeats.
+    seen: dict[tuple[int, int], int] = {}
+    for s, (a, b) in enumerate(key.tolist()):
+        if (a, b) in seen:
+            raise InputError(f"{d.label()}: {d.where_edge(s)}: duplicate edge between "
+                             f"{d.where_vertex(a)} and {d.where_vertex(b)}, "
+                             f"already given at {d.where_edge(seen[(a, b)])}")
+        seen[(a, b)] = s
+
+
+def read_design(path: str | os.PathLike) -> Design:
+    """Read a design, choosing the reader from the file extension.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        ``.obj`` (line-graph OBJ) or ``.msh`` (gmsh, line elements).
+
+    Returns
+    -------
+    Design
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix == ".obj":
+        return read_obj_design(path)
+    if suffix == ".msh":
+        return read_msh_design(path)
+    raise InputError(f"{path}: unknown design file type {suffix!r} (expected .obj or .msh)")
+
+
+def _read_text(path: str | os.PathLike) -> str:
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read()
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read file ({exc.strerror or exc})") from None
+
+
+def _parse_obj_index(token: str, num_vertices_so_far: int, where: str) -> int:
+    """Turn one OBJ vertex reference (``7``, ``-1``, ``7/3``) into a 0-based index."""
+    head = token.split("/", 1)[0]
+    try:
+        i = int(head)
+    except ValueError:
+        raise InputError(f"{where}: malformed vertex index {token!r}") from None
+    if i == 0:
+        raise InputError(f"{where}: vertex index 0 is invalid (OBJ indices start at 1)")
+    # Negative indices count back from the last vertex defined so far.
+    return i - 1 if i > 0 else num_vertices_so_far + i
+
+
+def read_obj_design(path: str | os.PathLike) -> Design:
+    """Read a line-graph OBJ: ``v`` records and ``l`` (poly)line records.
+
+    ``l a b c`` is a polyline and yields segments a-b and b-c. Indices are
+    1-based; negative ones are relative to the vertices defined so far.
+    Comments, blank lines and grouping/shading/normal/texture records are
+    skipped; faces and unknown records are errors, since silently dropping
+    them would change the design.
+    """
+    text = _read_text(path)
+    label = str(path)
+    coords: list[tuple[float, float, float]] = []
+    vertex_lines: list[int] = []
+    edges: list[tuple[int, int]] = []
+    edge_lines: list[int] = []
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        content = raw.split("#", 1)[0].strip()
+        if not content:
+            continue
+        tokens = content.split()
+        keyword, args = tokens[0], tokens[1:]
+        where = f"{label}: line {lineno}"
+        if keyword == "v":
+            coords.append(_parse_obj_vertex(args, where))
+            vertex_lines.append(lineno)
+        elif keyword == "l":
+            if len(args) < 2:
+                raise InputError(f"{where}: line record needs at least 2 vertex indices, got {len(args)}")
+            idx = [_parse_obj_index(t, len(coords), where) for t in args]
+            for a, b in zip(idx[:-1], idx[1:]):
+                edges.append((a, b))
+                edge_lines.append(lineno)
+        elif keyword in _IGNORED_OBJ_RECORDS:
+            continue
+        elif keyword == "f":
+            raise InputError(f"{where}: face record 'f' in a line-graph design (only 'l' line elements are allowed)")
+        else:
+            raise InputError(f"{where}: unknown OBJ record {keyword!r}")
+    if not edges:
+        raise InputError(f"{label}: the design has no line elements ('l' records)")
+    return design_from_arrays(
+        np.array(coords, dtype=np.float64).reshape(-1, 3),
+        np.array(edges, dtype=np.int64),
+        source=label, vertex_lines=vertex_lines, edge_lines=edge_lines,
+    )
+
+
+def _parse_obj_vertex(args: list[str], where: str) -> tuple[float, float, float]:
+    # 3 coordinates, optionally a weight (4) or an RGB colour (6) after them.
+    if len(args) not in (3, 4, 6):
+        raise InputError(f"{where}: vertex record needs 3 coordinates, got {len(args)} values")
+    try:
+        values = [float(t) for t in args]
+    except ValueError:
+        raise InputError(f"{where}: malformed vertex record 'v {' '.join(args)}'") from None
+    x, y, z = values[:3]
+    if not all(np.isfinite(values[:3])):
+        raise InputError(f"{where}: non-finite vertex coordinate ({x}, {y}, {z})")
+    return x, y, z
+
+
+def read_msh_design(path: str | os.PathLike) -> Design:
+    """Read the line elements of a gmsh ``.msh`` file (all ``line`` cell blocks, in order).
+
+    Node indices in error messages are 0-based, as meshio numbers them.
+    """
+    import meshio  # deferred: meshio is slow to import and only needed here
+
+    label = str(path)
+    if not os.path.isfile(path):
+        raise InputError(f"{label}: cannot read file (no such file)")
+    try:
+        mesh = meshio.read(path, file_format="gmsh")
+    except Exception as exc:  # meshio raises many types for corrupt files
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(f"{label}: cannot read gmsh file ({msg})") from None
+    blocks = [c.data for c in mesh.cells if c.type == "line"]
+    if not blocks or sum(len(b) for b in blocks) == 0:
+        kinds = sorted({c.type for c in mesh.cells}) or ["none"]
+        raise InputError(f"{label}: the design has no line elements (cell types: {', '.join(kinds)})")
+    return design_from_arrays(mesh.points, np.concatenate(blocks, axis=0), source=label)
+
+
+def read_rest_lengths(path: str | os.PathLike, num_segments: int) -> np.ndarray:
+    """Read per-segment rest lengths (``design_parameters.txt``).
+
+    Format, as in every such file of the reference data: one decimal number
+    per line (often space-padded on the left, the last line possibly without
+    a newline), one per segment in the design file's segment order. Any
+    whitespace separation is accepted; ``#`` starts a comment.
+
+    Parameters
+    ----------
+    path : str or PathLike
+    num_segments : int
+        The design's segment count; the file must hold exactly this many values.
+
+    Returns
+    -------
+    ndarray, shape (num_segments,), float64
+        Rest length of each segment (to be split evenly over its k edges).
+    """
+    text = _read_text(path)
+    values: list[float] = []
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        for token in raw.split("#", 1)[0].split():
+            try:
+                value = float(token)
+            except ValueError:
+                raise InputError(f"{path}: line {lineno}: malformed rest length {token!r}") from None
+            if not np.isfinite(value):
+                raise InputError(f"{path}: line {lineno}: non-finite rest length {token!r}")
+            if value <= 0:
+                raise InputError(f"{path}: line {lineno}: non-positive rest length {value!r}")
+            values.append(value)
+    if len(values) != num_segments:
+        raise InputError(f"{path}: {len(values)} rest lengths for a design with {num_segments} segments")
+    return np.array(values, dtype=np.float64)

@@ -1,0 +1,94 @@
+"""Writing designs and centerlines as OBJ line graphs.
+
+Files are written to a temporary file in the destination folder and moved
+into place with :func:`os.replace`, so a reader never sees a half-written
+file and an interrupted write leaves the old file intact.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from .design import Design
+
+__all__ = ["atomic_write_text", "write_design_obj", "write_polylines_obj"]
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temporary file + ``os.replace``)."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(path), dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def _vertex_records(points: np.ndarray) -> Iterable[str]:
+    # repr() of a Python float is the shortest string that parses back to the
+    # same double, so reading the file reproduces the coordinates bit for bit.
+    for x, y, z in np.asarray(points, dtype=np.float64).tolist():
+        yield f"v {x!r} {y!r} {z!r}\n"
+
+
+def write_design_obj(path: str | os.PathLike, design: Design) -> None:
+    """Write a design as a line-graph OBJ that reads back identically.
+
+    One ``v`` record per vertex and one two-vertex ``l`` record per segment,
+    both in the design's order, so vertex indices, segment order and segment
+    orientation survive the round trip.
+
+    Parameters
+    ----------
+    path : str or PathLike
+    design : Design
+    """
+    parts = [f"# xshells design: {design.num_vertices} vertices, {design.num_segments} segments\n"]
+    parts.extend(_vertex_records(design.vertices))
+    parts.extend(f"l {a + 1} {b + 1}\n" for a, b in np.asarray(design.edges).tolist())
+    atomic_write_text(path, "".join(parts))
+
+
+def write_polylines_obj(path: str | os.PathLike, polylines: Sequence[np.ndarray],
+                        closed: Sequence[bool] | None = None) -> None:
+    """Write centerlines as OBJ polylines, one ``l`` record each.
+
+    Parameters
+    ----------
+    path : str or PathLike
+    polylines : sequence of array_like, each shape (p_i, 3), p_i >= 2
+        Points along each centerline.
+    closed : sequence of bool, optional
+        Per polyline, whether to join its last point back to its first.
+    """
+    if closed is None:
+        closed = [False] * len(polylines)
+    if len(closed) != len(polylines):
+        raise ValueError(f"closed has {len(closed)} entries for {len(polylines)} polylines")
+    parts = [f"# xshells centerlines: {len(polylines)} polylines\n"]
+    records = []
+    offset = 1
+    for i, (pts, is_closed) in enumerate(zip(polylines, closed)):
+        pts = np.asarray(pts, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 2:
+            raise ValueError(f"polyline {i} must have shape (p, 3) with p >= 2, got {pts.shape}")
+        parts.extend(_vertex_records(pts))
+        idx = list(range(offset, offset + len(pts)))
+        if is_closed:
+            idx.append(offset)
+        records.append("l " + " ".join(map(str, idx)) + "\n")
+        offset += len(pts)
+    parts.extend(records)
+    atomic_write_text(path, "".join(parts))
