@@ -19,6 +19,8 @@ single line that names the file, the line (OBJ) or the element/node (gmsh,
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -166,8 +168,11 @@ def _validate(d: Design) -> None:
         s = int(loops[0])
         raise InputError(f"{label}: {d.where_edge(s)}: self-loop at {d.where_vertex(int(E[s, 0]))}")
     _check_duplicates(d)
-    lengths = np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)
-    diag = float(np.linalg.norm(np.ptp(V[np.unique(E)], axis=0)))
+    # Work in units of the largest coordinate so huge inputs cannot overflow.
+    scale = float(np.max(np.abs(V[np.unique(E)]))) or 1.0
+    W = V / scale
+    lengths = np.linalg.norm(W[E[:, 1]] - W[E[:, 0]], axis=1)
+    diag = float(np.linalg.norm(np.ptp(W[np.unique(E)], axis=0)))
     short = np.flatnonzero(lengths <= _ZERO_LENGTH_RELATIVE * diag)
     if short.size:
         s = int(short[0])
@@ -305,10 +310,15 @@ def read_msh_design(path: str | os.PathLike) -> Design:
     label = str(path)
     if not os.path.isfile(path):
         raise InputError(f"{label}: cannot read file (no such file)")
+    chatter = io.StringIO()
     try:
-        mesh = meshio.read(path, file_format="gmsh")
-    except Exception as exc:  # meshio raises many types for corrupt files
-        msg = " ".join(str(exc).split()) or type(exc).__name__
+        # meshio prints its parse errors and may call sys.exit on a bad file.
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+            mesh = meshio.read(path, file_format="gmsh")
+    except (Exception, SystemExit) as exc:
+        # On SystemExit meshio's printed text only repeats the file name.
+        reason = "not a valid gmsh file" if isinstance(exc, SystemExit) else f"{chatter.getvalue()} {exc}"
+        msg = " ".join(reason.split())
         raise InputError(f"{label}: cannot read gmsh file ({msg})") from None
     blocks = [c.data for c in mesh.cells if c.type == "line"]
     if not blocks or sum(len(b) for b in blocks) == 0:

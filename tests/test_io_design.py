@@ -1,0 +1,256 @@
+"""Reading and writing designs: real files, round trips and one-line errors for bad input."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from xshells.errors import InputError
+from xshells.io import (
+    Design, design_from_arrays, read_design, read_rest_lengths, write_design_obj, write_polylines_obj,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data" / "elasticrods"
+EXAMPLES = REPO / "xshells" / "data" / "examples"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared ElasticRods data not found at {DATA}")
+
+
+def _design_files() -> list[Path]:
+    found = [*EXAMPLES.glob("*.obj"), *EXAMPLES.glob("*/*.msh")]
+    if DATA.is_dir():
+        found += [*DATA.rglob("*.obj"), *DATA.rglob("*.msh")]
+    return sorted(found)
+
+
+# Files in the data that are genuinely not line-graph designs: a triangle mesh
+# (a target surface). Cross-section contours load but are not linkages.
+NOT_A_DESIGN = {"target_surface_0.msh": "no line elements"}
+
+
+@pytest.mark.parametrize("path", _design_files(), ids=lambda p: p.name[:40])
+def test_every_design_file_loads_or_fails_clearly(path):
+    if path.name in NOT_A_DESIGN:
+        with pytest.raises(InputError, match=NOT_A_DESIGN[path.name]) as err:
+            read_design(path)
+        assert str(path) in str(err.value) and "\n" not in str(err.value)
+        return
+    d = read_design(path)
+    assert d.vertices.dtype == np.float64 and d.vertices.shape[1] == 3
+    assert d.edges.dtype == np.int64 and d.edges.shape[1] == 2 and len(d.edges) > 0
+    assert not d.vertices.flags.writeable and not d.edges.flags.writeable
+    assert d.source == str(path)
+
+
+@pytest.mark.parametrize("path", [p for p in _design_files() if p.name not in NOT_A_DESIGN],
+                         ids=lambda p: p.name[:40])
+def test_round_trip_is_exact(path, tmp_path):
+    d = read_design(path)
+    out = tmp_path / "copy.obj"
+    write_design_obj(out, d)
+    back = read_design(out)
+    assert np.array_equal(back.vertices, d.vertices) and back.vertices.dtype == d.vertices.dtype
+    assert np.array_equal(back.edges, d.edges) and back.edges.dtype == d.edges.dtype
+    assert [p.name for p in tmp_path.iterdir()] == ["copy.obj"]  # no temporary left behind
+
+
+@settings(max_examples=40, deadline=None)
+@given(hnp.arrays(np.float64, (4, 3), elements=st.floats(-1e6, 1e6, allow_nan=False, width=64)))
+def test_round_trip_any_finite_coordinates(tmp_path_factory, coords):
+    coords[:, 0] += [0.0, 3e6, 6e6, 9e6]  # keep segments from collapsing to zero length
+    d = design_from_arrays(coords, [[0, 1], [1, 2], [2, 3]])
+    out = tmp_path_factory.mktemp("rt") / "d.obj"
+    write_design_obj(out, d)
+    assert np.array_equal(read_design(out).vertices, coords)
+
+
+def test_obj_features(tmp_path):
+    path = tmp_path / "features.obj"
+    path.write_text(
+        "# a comment\n\no thing\ng group\ns off\nvn 0 0 1\nvt 0 0\n"
+        "v 0 0 0\nv 1 0 0 # trailing comment\nv 2 0 0 1.0\nv 3 0 0\n"
+        "l 1 2 3\n"        # a polyline: two segments
+        "l -1 -2\n"        # relative indices: vertices 4 and 3
+        "l 1/1 4/2\n"      # vertex/texture references
+    )
+    d = read_design(path)
+    assert d.edges.tolist() == [[0, 1], [1, 2], [3, 2], [0, 3]]
+    assert d.edge_lines.tolist() == [12, 12, 13, 14]
+    assert d.vertex_lines.tolist() == [8, 9, 10, 11]
+
+
+def test_vertex_and_edge_order_are_kept(tmp_path):
+    path = tmp_path / "order.obj"
+    path.write_text("v 5 0 0\nv 0 0 0\nv 0 3 0\nl 3 1\nl 2 3\nl 1 2\n")
+    d = read_design(path)
+    assert d.vertices[:, 0].tolist() == [5, 0, 0]
+    assert d.edges.tolist() == [[2, 0], [1, 2], [0, 1]]
+
+
+TRIANGLE = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+BAD_OBJ = [
+    ("v 0 0 0\nv 1 0\nl 1 2\n", 2, "needs 3 coordinates"),
+    ("v 0 0 0\nv 1 a 0\nl 1 2\n", 2, "malformed vertex"),
+    ("v nan 0 0\nv 1 0 0\nl 1 2\n", 1, "non-finite"),
+    ("v 0 0 0\nv inf 0 0\nl 1 2\n", 2, "non-finite"),
+    (TRIANGLE + "l 1\n", 4, "at least 2"),
+    (TRIANGLE + "l 1 x\n", 4, "malformed vertex index"),
+    (TRIANGLE + "l 1 0\n", 4, "index 0"),
+    (TRIANGLE + "l 1 2\nl 1 7\n", 5, "out of range"),
+    (TRIANGLE + "l -4 1\n", 4, "out of range"),
+    (TRIANGLE + "l 1 2\nl 2 1\n", 5, "duplicate edge"),
+    (TRIANGLE + "l 2 3\nl 2 2\n", 5, "self-loop"),
+    ("v 0 0 0\nv 1 0 0\nv 1 0 0\nl 1 2\nl 2 3\n", 5, "zero-length"),
+    (TRIANGLE + "f 1 2 3\n", 4, "face record"),
+    (TRIANGLE + "curv 0 1 1 2\n", 4, "unknown OBJ record"),
+]
+
+
+@pytest.mark.parametrize("text,line,what", BAD_OBJ, ids=[b[2] for b in BAD_OBJ])
+def test_bad_obj_names_file_and_line(tmp_path, text, line, what):
+    path = tmp_path / "bad_design.obj"
+    path.write_text(text)
+    with pytest.raises(InputError) as err:
+        read_design(path)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert str(path) in msg and f"line {line}" in msg and what in msg, msg
+
+
+def test_duplicate_edge_names_both_lines(tmp_path):
+    path = tmp_path / "dup.obj"
+    path.write_text(TRIANGLE + "l 1 2\nl 2 3\nl 2 1\n")
+    with pytest.raises(InputError, match=r"line 6: duplicate edge .* already given at line 4"):
+        read_design(path)
+
+
+@pytest.mark.parametrize("text,what", [
+    (TRIANGLE, "no line elements"),
+    ("", "no line elements"),
+])
+def test_no_line_elements(tmp_path, text, what):
+    path = tmp_path / "empty.obj"
+    path.write_text(text)
+    with pytest.raises(InputError, match=what):
+        read_design(path)
+
+
+def test_unreadable_files(tmp_path):
+    with pytest.raises(InputError, match="cannot read file"):
+        read_design(tmp_path / "missing.obj")
+    binary = tmp_path / "binary.obj"
+    binary.write_bytes(b"v 0 0 0\n\xff\xfe\x00garbage")
+    with pytest.raises(InputError, match="not a text file"):
+        read_design(binary)
+    with pytest.raises(InputError, match="cannot read"):
+        read_design(tmp_path / "missing.msh")
+    corrupt = tmp_path / "corrupt.msh"
+    corrupt.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0\n$EndNodes\n")
+    with pytest.raises(InputError, match=r"corrupt\.msh: cannot read gmsh file") as err:
+        read_design(corrupt)
+    assert "\n" not in str(err.value)
+    corrupt.write_text("this is not gmsh at all\n")
+    with pytest.raises(InputError, match=r"corrupt\.msh: (cannot read gmsh file|the design has no line elements)"):
+        read_design(corrupt)
+    with pytest.raises(InputError, match="unknown design file type"):
+        read_design(tmp_path / "design.stl")
+
+
+def _write_msh(path, points, cells):
+    meshio.write(path, meshio.Mesh(np.asarray(points, float), cells), file_format="gmsh22", binary=False)
+
+
+def test_msh_reading_and_errors(tmp_path):
+    pts = [[0, 0, 0], [1, 0, 0], [1, 1, 0]]
+    good = tmp_path / "good.msh"
+    _write_msh(good, pts, [("line", np.array([[0, 1], [1, 2]]))])
+    d = read_design(good)
+    assert d.edges.tolist() == [[0, 1], [1, 2]] and np.array_equal(d.vertices, pts)
+
+    tri = tmp_path / "tri.msh"
+    _write_msh(tri, pts, [("triangle", np.array([[0, 1, 2]]))])
+    with pytest.raises(InputError, match=r"tri\.msh: the design has no line elements \(cell types: triangle\)"):
+        read_design(tri)
+
+    dup = tmp_path / "dup.msh"
+    _write_msh(dup, pts, [("line", np.array([[0, 1], [1, 2], [1, 0]]))])
+    with pytest.raises(InputError, match=r"dup\.msh: edge 2: duplicate edge between node 0 and node 1, already given at edge 0"):
+        read_design(dup)
+
+
+def test_design_from_arrays():
+    d = design_from_arrays([[0, 0], [1, 0], [1, 1]], [[0, 1], [1, 2]])
+    assert isinstance(d, Design) and d.source is None and d.vertices.shape == (3, 3)
+    with pytest.raises(InputError, match=r"<arrays>: edge 1: vertex index out of range"):
+        design_from_arrays(np.zeros((2, 3)) + [[0, 0, 0], [1, 0, 0]], [[0, 1], [1, 2]])
+    with pytest.raises(InputError, match=r"node 1 has a non-finite"):
+        design_from_arrays([[0, 0, 0], [np.nan, 0, 0]], [[0, 1]])
+    with pytest.raises(InputError, match="no line elements"):
+        design_from_arrays([[0, 0, 0]], np.zeros((0, 2), int))
+
+
+def test_write_polylines_obj(tmp_path):
+    out = tmp_path / "centerlines.obj"
+    a = np.array([[0, 0, 0], [1, 0, 0], [2, 0.5, 0]], float)
+    b = np.array([[0, 1, 0], [1, 2, 0], [0, 2, 0]], float)
+    write_polylines_obj(out, [a, b], closed=[False, True])
+    d = read_design(out)
+    assert np.array_equal(d.vertices, np.vstack([a, b]))
+    assert d.edges.tolist() == [[0, 1], [1, 2], [3, 4], [4, 5], [5, 3]]
+    with pytest.raises(ValueError):
+        write_polylines_obj(out, [a[:1]])
+    assert sorted(os.listdir(tmp_path)) == ["centerlines.obj"]
+
+
+# ---------------------------------------------------------------- rest lengths
+
+def _cases_with_rest_lengths():
+    if not DATA.is_dir():
+        return []
+    cases = json.loads((DATA / "cases.json").read_text())["cases"]
+    return [c for c in cases if "rest_lengths" in c]
+
+
+@needs_data
+@pytest.mark.parametrize("case", _cases_with_rest_lengths(), ids=lambda c: c["name"])
+def test_real_rest_length_files(case):
+    d = read_design(DATA / case["file"])
+    p = read_rest_lengths(DATA / case["rest_lengths"], d.num_segments)
+    assert p.shape == (d.num_segments,) and np.all(p > 0)
+    # One value per segment in file order: each is close to its segment's
+    # straight chord (the optimized beams are only gently curved).
+    chord = np.linalg.norm(d.vertices[d.edges[:, 1]] - d.vertices[d.edges[:, 0]], axis=1)
+    assert np.allclose(p / chord, 1.0, atol=0.01)
+
+
+@pytest.mark.parametrize("text,what", [
+    ("1.0\n2.0\n", r"2 rest lengths for a design with 3 segments"),
+    ("1.0\n2.0\n3.0\n4.0\n", r"4 rest lengths for a design with 3 segments"),
+    ("1.0\n0.0\n3.0\n", r"line 2: non-positive rest length"),
+    ("1.0\n2.0\n-3.0", r"line 3: non-positive rest length"),
+    ("1.0\nabc\n3.0\n", r"line 2: malformed rest length 'abc'"),
+    ("1.0\nnan\n3.0\n", r"line 2: non-finite rest length"),
+])
+def test_bad_rest_lengths(tmp_path, text, what):
+    path = tmp_path / "design_parameters.txt"
+    path.write_text(text)
+    with pytest.raises(InputError, match=what) as err:
+        read_rest_lengths(path, 3)
+    assert str(path) in str(err.value)
+
+
+def test_rest_length_layouts(tmp_path):
+    path = tmp_path / "p.txt"
+    path.write_text("  1.5\n2.25\n 3   # comment\n4e0")  # padded, no final newline
+    assert read_rest_lengths(path, 4).tolist() == [1.5, 2.25, 3.0, 4.0]
+    path.write_text("1 2\n3 4\n")
+    assert read_rest_lengths(path, 4).tolist() == [1.0, 2.0, 3.0, 4.0]
+    with pytest.raises(InputError, match="cannot read file"):
+        read_rest_lengths(tmp_path / "none.txt", 4)
