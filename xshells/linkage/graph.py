@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from xshells.errors import InputError
-from xshells.io.design import Design
+from xshells.io.design import Design, _readonly
 
 __all__ = ["LinkageGraph", "analyze", "reduced_dof_count", "BEAM_A", "BEAM_B", "INCOMING", "OUTGOING"]
 
@@ -278,12 +278,6 @@ def analyze(design: Design) -> LinkageGraph:
         is_planar=bool(is_planar),
         labels_consistent=bool(consistent),
     )
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.ascontiguousarray(a)
-    a.setflags(write=False)
-    return a
 
 
 def _check_valence(design: Design, valence: np.ndarray) -> None:

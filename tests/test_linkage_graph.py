@@ -1,0 +1,299 @@
+"""Graph analysis: valences, A/B beams at joints, beam tracing, DoF counts."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+
+from xshells.errors import InputError
+from xshells.io import design_from_arrays, read_design
+from xshells.linkage.graph import BEAM_A, BEAM_B, analyze, reduced_dof_count
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data" / "elasticrods"
+EXAMPLES = REPO / "xshells" / "data" / "examples"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared ElasticRods data not found at {DATA}")
+
+
+def _linkage_files() -> list[Path]:
+    found = [*EXAMPLES.rglob("*.obj"), *EXAMPLES.rglob("*.msh")]
+    if DATA.is_dir():
+        found += [*DATA.rglob("*.obj"), *DATA.rglob("*.msh")]
+    # Cross-section contours and a triangle mesh (see test_io_design) are not linkages.
+    return sorted(p for p in found if "cross_sections" not in p.parts and p.name != "target_surface_0.msh")
+
+
+def _cross_section_files() -> list[Path]:
+    return sorted((DATA / "examples" / "cross_sections").glob("*.[om][bs][jh]")) if DATA.is_dir() else []
+
+
+def _check_invariants(g):
+    d = g.design
+    E, V = d.edges, d.vertices
+    nj = g.num_joints
+    assert g.num_joints + g.num_free_ends + len(g.unused_vertices) == d.num_vertices
+    assert np.array_equal(g.valence[g.joint_vertex] >= 2, np.ones(nj, bool))
+    # Every incident segment sits in exactly one slot of its joint.
+    for j, v in enumerate(g.joint_vertex):
+        slots = g.joint_segments[j]
+        listed = sorted(int(s) for s in slots.ravel() if s >= 0)
+        incident = sorted(np.flatnonzero((E[:, 0] == v) | (E[:, 1] == v)).tolist())
+        assert listed == incident
+        for beam in (BEAM_A, BEAM_B):
+            assert np.any(slots[beam] >= 0)
+            for slot in (0, 1):
+                s = slots[beam, slot]
+                assert g.joint_segment_points_away[j, beam, slot] == (s >= 0 and E[s, 0] == v)
+    t = g.joint_tangents
+    assert np.allclose(np.linalg.norm(t, axis=2), 1.0)
+    assert np.allclose(np.linalg.norm(g.joint_normals, axis=1), 1.0)
+    cross = np.cross(t[:, 0], t[:, 1])
+    sine = np.linalg.norm(cross, axis=1)
+    ok = sine > 1e-6
+    assert np.allclose(cross[ok] / sine[ok, None], g.joint_normals[ok])
+    assert np.allclose(np.cos(g.joint_opening_angles), np.einsum("ji,ji->j", t[:, 0], t[:, 1]))
+    if g.is_planar:  # a flat layout: all joint normals agree with the plane's
+        assert np.allclose(np.abs(g.joint_normals @ g.layout_normal), 1.0)
+        assert np.all(g.joint_normals @ g.joint_normals[0] > 0)
+    # Beams partition the segments and are connected walks.
+    steps = np.concatenate(g.beams)
+    assert sorted(steps[:, 0].tolist()) == list(range(d.num_segments))
+    for b in range(g.num_beams):
+        verts = g.beam_vertices(b)
+        seg, direction = g.beams[b][:, 0], g.beams[b][:, 1]
+        assert np.array_equal(np.where(direction > 0, E[seg, 0], E[seg, 1]), verts[:-1])
+        assert g.beam_closed[b] == (verts[0] == verts[-1] and len(seg) > 2)
+
+
+@pytest.mark.parametrize("path", _linkage_files(), ids=lambda p: p.name[:40])
+def test_every_linkage_analyzes(path):
+    g = analyze(read_design(path))
+    _check_invariants(g)
+    assert g.num_joints > 0
+    assert f"segments: {g.num_segments}" in g.summary()
+
+
+@needs_data
+@pytest.mark.parametrize("path", _cross_section_files(), ids=lambda p: p.name)
+def test_cross_section_contours_are_not_linkages(path):
+    # Profile outlines, not beam networks: several separate loops.
+    with pytest.raises(InputError, match=r"disconnected design with \d+ components: \d+ nodes incl\. node") as err:
+        analyze(read_design(path))
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+@needs_data
+@pytest.mark.parametrize("path", sorted(DATA.rglob("*_opt.msh")) + sorted(DATA.rglob("linkage_0.msh"))
+                         if DATA.is_dir() else [], ids=lambda p: "/".join(p.parts[-2:]))
+def test_beam_pairing_matches_reference_joint_edges(path):
+    """The reference code stored each joint's edge vectors eA, eB and normal n in these files.
+
+    Our pairing must group the same segments (eA along one of our beams, eB
+    along the other) with the same A/B labels up to one global exchange, and
+    the normals must agree up to one global sign.
+    """
+    mesh = meshio.read(path)
+    g = analyze(read_design(path))
+    ref = {k: mesh.point_data[k][g.joint_vertex] for k in ("eA", "eB", "n")}
+    eA, eB = (ref[k] / np.linalg.norm(ref[k], axis=1, keepdims=True) for k in ("eA", "eB"))
+    tA, tB = g.joint_tangents[:, 0], g.joint_tangents[:, 1]
+    same = np.abs(np.sum(tA * eA, 1)) + np.abs(np.sum(tB * eB, 1))
+    swapped = np.abs(np.sum(tA * eB, 1)) + np.abs(np.sum(tB * eA, 1))
+    assert np.all(same > swapped) or np.all(swapped > same)
+    assert np.min(np.maximum(same, swapped)) > 2 * 0.99
+    signs = np.sign(np.sum(g.joint_normals * ref["n"], axis=1))
+    assert np.all(signs == signs[0])
+
+
+# ---------------------------------------------------------------- hand-made joints
+
+def _star(directions, order=None):
+    """A joint at the origin with unit spokes, edges listed in ``order``."""
+    pts = [[0.0, 0.0, 0.0]] + [[np.cos(a), np.sin(a), 0.0] for a in np.radians(directions)]
+    order = range(len(directions)) if order is None else order
+    return design_from_arrays(pts, [[0, i + 1] for i in order])
+
+
+def _pairs(g, j=0):
+    return [sorted(int(s) for s in g.joint_segments[j, beam] if s >= 0) for beam in (BEAM_A, BEAM_B)]
+
+
+def test_valence4_pairs_most_nearly_opposite_edges():
+    # Spokes listed E, N, W, S: naive pairing by file order would be wrong.
+    g = analyze(_star([0, 90, 180, 270]))
+    assert sorted(_pairs(g)) == [[0, 2], [1, 3]]
+    # A skewed X with 50 degree opening, spokes in scrambled file order.
+    g = analyze(_star([0, 50, 180, 230], order=[3, 0, 1, 2]))  # edge i goes to spoke order[i]
+    # edges: 0 -> 230deg, 1 -> 0deg, 2 -> 50deg, 3 -> 180deg
+    assert sorted(_pairs(g)) == [[0, 2], [1, 3]]
+    assert np.isclose(min(g.joint_opening_angles[0], np.pi - g.joint_opening_angles[0]), np.radians(50))
+    # Not exactly opposite: the best matching still wins.
+    g = analyze(_star([0, 80, 170, 275]))
+    assert sorted(_pairs(g)) == [[0, 2], [1, 3]]
+    assert g.num_beams == 2 and g.num_free_ends == 4 and g.num_joints == 1
+
+
+def test_valence3_straightest_pair_is_one_beam():
+    g = analyze(_star([0, 100, 175]))
+    a, b = _pairs(g)
+    assert sorted([a, b], key=len) == [[1], [0, 2]]
+    assert g.num_beams == 2
+
+
+def test_valence3_avoids_closing_a_triangle():
+    # v's spokes a (west) and b (almost east) are straightest, but a and b
+    # share the neighbour w, so joining them would close a triangle.
+    pts = [[0, 0, 0], [-1, 0, 0], [1, 0.2, 0], [0, 1, 0], [0, -1, 0]]  # v a b c w
+    d = design_from_arrays(pts, [[0, 1], [0, 2], [0, 3], [1, 4], [2, 4]])
+    g = analyze(d)
+    j = int(g.vertex_joint[0])
+    assert sorted(_pairs(g, j), key=len) == [[1], [0, 2]]  # beam a-v-c, b ends at v
+
+
+def test_valence2_corner_is_two_beams():
+    d = design_from_arrays([[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 1], [1, 2]])
+    g = analyze(d)
+    assert g.num_joints == 1 and g.num_free_ends == 2 and g.num_beams == 2
+    assert sorted(_pairs(g), key=len) == [[0], [1]]
+    assert np.isclose(g.joint_opening_angles[0], np.pi / 2)
+
+
+def test_quad_of_corners():
+    g = analyze(read_design(EXAMPLES / "quad.obj"))
+    assert g.num_joints == 4 and g.num_free_ends == 0
+    assert g.num_beams == 4 and not g.beam_closed.any()  # a rod ends at every corner
+
+
+def test_unused_vertex_is_kept_but_ignored():
+    d = design_from_arrays([[0, 0, 0], [1, 0, 0], [5, 5, 5], [1, 1, 0]], [[0, 1], [1, 3]])
+    g = analyze(d)
+    assert g.unused_vertices.tolist() == [2]
+    assert g.vertex_joint[2] == -1 and 2 not in g.free_end_vertex
+    assert g.is_planar
+
+
+def test_closed_beams_are_detected():
+    # An octagonal ring crossed at each vertex by a short radial beam: the
+    # ring passes through every joint, so it is one closed beam.
+    n = 8
+    ring = [[np.cos(a), np.sin(a), 0.0] for a in 2 * np.pi * np.arange(n) / n]
+    inner = [[0.5 * x, 0.5 * y, 0.0] for x, y, _ in ring]
+    outer = [[1.5 * x, 1.5 * y, 0.0] for x, y, _ in ring]
+    edges = [[i, (i + 1) % n] for i in range(n)] + [[n + i, i] for i in range(n)] + [[i, 2 * n + i] for i in range(n)]
+    g = analyze(design_from_arrays(ring + inner + outer, edges))
+    assert g.beam_closed.sum() == 1
+    closed = g.beams[int(np.flatnonzero(g.beam_closed)[0])]
+    assert sorted(closed[:, 0].tolist()) == list(range(n))
+    assert g.num_beams == 1 + n  # the ring plus one radial beam per crossing
+    _check_invariants(g)
+
+
+# ---------------------------------------------------------------- errors
+
+def test_valence_above_four_names_the_node(tmp_path):
+    path = tmp_path / "star.obj"
+    path.write_text("v 0 0 0\n" + "".join(f"v {np.cos(a)} {np.sin(a)} 0\n" for a in np.arange(5))
+                    + "".join(f"l 1 {i + 2}\n" for i in range(5)))
+    with pytest.raises(InputError, match=r"star\.obj: node 0 \(line 1\) has valence 5") as err:
+        analyze(read_design(path))
+    assert "\n" not in str(err.value)
+
+
+def test_disconnected_design_names_components(tmp_path):
+    path = tmp_path / "two.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 5 5 0\nv 6 5 0\nv 6 6 0\nv 9 9 9\nl 1 2 3\nl 4 5 6\n")
+    with pytest.raises(InputError) as err:
+        analyze(read_design(path))
+    msg = str(err.value)
+    assert "two.obj: disconnected design with 2 components" in msg
+    assert "3 nodes incl. node 0 (line 1)" in msg and "3 nodes incl. node 3 (line 4)" in msg
+
+
+def test_design_without_joint():
+    with pytest.raises(InputError, match="no joint"):
+        analyze(design_from_arrays([[0, 0, 0], [1, 0, 0]], [[0, 1]]))
+
+
+# ---------------------------------------------------------------- beams
+
+def test_uniform_grid_beams_are_straight_lines():
+    d = read_design(EXAMPLES / "uniform_linkage.obj")
+    g = analyze(d)
+    _check_invariants(g)
+    V = d.vertices
+    for b in range(g.num_beams):
+        pts = V[g.beam_vertices(b)]
+        direction = pts[-1] - pts[0]
+        off = np.cross(pts - pts[0], direction / np.linalg.norm(direction))
+        assert np.allclose(off, 0.0, atol=1e-5 * np.linalg.norm(direction)), f"beam {b} is not straight"
+    # Independently: the number of distinct lines carrying segments.
+    E = d.edges
+    u = V[E[:, 1]] - V[E[:, 0]]
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    u *= np.where((u[:, 0] < -1e-9) | ((np.abs(u[:, 0]) <= 1e-9) & (u[:, 1] < 0)), -1, 1)[:, None]
+    offset = V[E[:, 0], 0] * u[:, 1] - V[E[:, 0], 1] * u[:, 0]
+    num_lines = 0
+    for direction in np.unique(np.round(u[:, :2], 2), axis=0):
+        on = np.all(np.isclose(u[:, :2], direction, atol=0.01), axis=1)
+        gaps = np.diff(np.sort(offset[on]))
+        num_lines += 1 + int(np.count_nonzero(gaps > 1e-3))
+    assert g.num_beams == num_lines == 26
+    assert g.labels_consistent and not g.beam_closed.any()
+
+
+# ---------------------------------------------------------------- DoF
+
+def _enumerated_dof(g, k):
+    """Count free rod variables one by one (independently of the closed formula)."""
+    total = 9 * g.num_joints
+    for start_joint, end_joint in g.segment_joints:
+        free_vertices = set(range(k + 1))
+        free_angles = set(range(k))
+        if start_joint >= 0:
+            free_vertices -= {0, 1}
+            free_angles -= {0}
+        if end_joint >= 0:
+            free_vertices -= {k - 1, k}
+            free_angles -= {k - 1}
+        total += 3 * len(free_vertices) + len(free_angles)
+    return total
+
+
+def test_dof_formula_small_cases():
+    assert reduced_dof_count(1, [2], 10) == 9 + 29
+    assert reduced_dof_count(1, [1], 10) == 9 + 36
+    assert reduced_dof_count(146, [2] * 264, 10) == 8970
+    with pytest.raises(InputError, match="at least 3"):
+        reduced_dof_count(1, [2], 2)
+
+
+def _cases():
+    if not DATA.is_dir():
+        return []
+    return json.loads((DATA / "cases.json").read_text())["cases"]
+
+
+@needs_data
+@pytest.mark.parametrize("case", _cases(), ids=lambda c: c["name"])
+def test_dof_formula_on_cases(case):
+    g = analyze(read_design(DATA / case["file"]))
+    for k in sorted({3, 10, case.get("subdivision", 10)}):
+        assert g.dof(k) == _enumerated_dof(g, k)
+    if g.num_free_ends == 0:
+        assert g.dof(10) == 29 * g.num_segments + 9 * g.num_joints
+
+
+@needs_data
+def test_dof_matches_paper_table_1():
+    table = json.loads((DATA / "cases.json").read_text())["paper_table_1"]
+    sizes = {}
+    for case in _cases():
+        g = analyze(read_design(DATA / case["file"]))
+        sizes[(g.num_segments, g.num_joints)] = g
+    for row in table:
+        g = sizes.get((row["segments"], row["joints"]))
+        assert g is not None, f"{row['figure']}: no case with {row['segments']} segments, {row['joints']} joints"
+        assert g.dof(10) == row["dof"], row["figure"]
