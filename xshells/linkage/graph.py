@@ -318,16 +318,16 @@ def _incident_segments(E: np.ndarray, n: int) -> list[list[int]]:
 
 
 def _layout_plane(points: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Best-fit plane normal of points (k, 3), sign fixed so its largest component is positive."""
+    """Best-fit plane of points (k >= 3, 3): unit normal (3,) and whether all points lie on it.
+
+    The normal's sign is fixed so that its largest component is positive.
+    """
     centered = points - points.mean(axis=0)
     _, sing, vt = np.linalg.svd(centered, full_matrices=False)
-    normal = vt[-1] if len(sing) == 3 else np.cross(vt[0], vt[-1] if len(vt) > 1 else [0.0, 0.0, 1.0])
-    if np.linalg.norm(normal) < 0.5:  # collinear points: any perpendicular will do
-        normal = np.cross(vt[0], [0.0, 0.0, 1.0] if abs(vt[0][2]) < 0.9 else [1.0, 0.0, 0.0])
-    normal = normal / np.linalg.norm(normal)
+    normal = vt[-1]  # least-variance direction; any perpendicular if collinear
     if normal[np.argmax(np.abs(normal))] < 0:
         normal = -normal
-    planar = len(sing) < 3 or sing[-1] <= _PLANAR_TOLERANCE * max(sing[0], 1e-300)
+    planar = sing[-1] <= _PLANAR_TOLERANCE * max(sing[0], 1e-300)
     return normal, bool(planar)
 
 
