@@ -1,0 +1,1 @@
+"""Beam cross-sections: profiles, meshes, torsion and stiffness (issue 3)."""

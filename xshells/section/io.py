@@ -1,0 +1,241 @@
+"""Reading cross-sections: ElasticRods JSON files, OBJ contours and gmsh line meshes.
+
+JSON (as in ElasticRods ``examples/cross_sections``)::
+
+    {"type": "Rectangle", "young": 20000, "poisson": 0.3, "params": [12, 8]}
+
+and, for a custom contour, ``{"type": "contour", "path": "profile.obj",
+"young": ..., "poisson": ..., "scale": 1}`` with ``path`` relative to the
+JSON file.
+
+Contour files (``.obj`` with ``v``/``l`` records, or gmsh ``.msh`` with line
+elements) are an edge soup: edges may come in any order and repeat their
+end points. End points closer than 1e-8 of the bounding-box diagonal are
+merged; every merged vertex must then join exactly two edges. Loops nested
+inside the outer loop are holes. Vertices used by no edge are ignored
+(ElasticRods uses them as hole markers; nesting tells us the holes).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .profiles import Profile, make_profile, points_in_loop, polygon
+
+MERGE_TOL = 1e-8
+
+
+def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (n, 2) and edges (s, 2) of an OBJ file's ``l`` and ``f`` records."""
+    vertices, edges = [], []
+
+    def index(token: str, lineno: int) -> int:
+        try:
+            i = int(token.split("/")[0])
+        except ValueError:
+            raise InputError(f"{path}:{lineno}: bad vertex index {token!r}") from None
+        return i - 1 if i > 0 else len(vertices) + i
+
+    with open(path, encoding="utf-8", errors="replace") as handle:
+        for lineno, line in enumerate(handle, 1):
+            fields = line.split()
+            if not fields:
+                continue
+            if fields[0] == "v":
+                try:
+                    vertices.append([float(v) for v in fields[1:3]])
+                except ValueError:
+                    raise InputError(f"{path}:{lineno}: bad vertex {line.strip()!r}") from None
+            elif fields[0] == "l":
+                ids = [index(t, lineno) for t in fields[1:]]
+                edges.extend(zip(ids[:-1], ids[1:]))
+            elif fields[0] == "f":
+                ids = [index(t, lineno) for t in fields[1:]]
+                edges.extend(zip(ids, ids[1:] + ids[:1]))
+    return np.array(vertices, dtype=float).reshape(-1, 2), _boundary_of(np.array(edges, dtype=int).reshape(-1, 2))
+
+
+def _boundary_of(edges: np.ndarray) -> np.ndarray:
+    """Drop edges that appear twice (interior edges of a face mesh); lines appear once."""
+    if len(edges) == 0:
+        return edges
+    key = np.sort(edges, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return edges[counts[inverse.ravel()] == 1]
+
+
+def _read_msh(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (n, 2) and edges (s, 2) from a gmsh file's line (or triangle) elements."""
+    import meshio
+
+    try:
+        mesh = meshio.read(path)
+    except Exception as exc:  # meshio raises many types for bad files
+        raise InputError(f"{path}: cannot read gmsh file ({exc})") from None
+    edges = []
+    for block in mesh.cells:
+        if block.type == "line":
+            edges.append(block.data[:, :2])
+        elif block.type == "triangle":
+            t = block.data
+            edges.append(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]))
+    edges = np.concatenate(edges) if edges else np.zeros((0, 2), dtype=int)
+    return np.asarray(mesh.points[:, :2], dtype=float), _boundary_of(edges)
+
+
+def _merge_close_points(points: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merge points closer than ``tol``; returns unique points (k, 2) and the map (n,) into them."""
+    from scipy.cluster.hierarchy import DisjointSet
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(points).query_pairs(tol, output_type="ndarray")
+    groups = DisjointSet(range(len(points)))
+    for i, j in pairs:
+        groups.merge(int(i), int(j))
+    roots = np.array([groups[i] for i in range(len(points))])
+    unique_roots, mapping = np.unique(roots, return_inverse=True)
+    return points[unique_roots], mapping.ravel()
+
+
+def loops_from_edges(points: np.ndarray, edges: np.ndarray, name: str) -> list[np.ndarray]:
+    """Chain an edge soup into closed loops.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 2)
+    edges : ndarray of int, shape (s, 2)
+    name : str
+        For messages.
+
+    Returns
+    -------
+    list of ndarray, each shape (n_k, 2)
+    """
+    if len(edges) == 0:
+        raise InputError(f"{name}: no contour edges found")
+    used = np.unique(edges)
+    if used.min() < 0 or used.max() >= len(points):
+        raise InputError(f"{name}: an edge refers to a missing vertex")
+    diagonal = float(np.linalg.norm(np.ptp(points[used], axis=0)))
+    if diagonal == 0:
+        raise InputError(f"{name}: the profile has zero area (all points coincide)")
+    merged, mapping = _merge_close_points(points[used], MERGE_TOL * diagonal)
+    remap = np.full(len(points), -1)
+    remap[used] = mapping
+    edges = remap[edges]
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    edges = np.unique(np.sort(edges, axis=1), axis=0)
+    valence = np.bincount(edges.ravel(), minlength=len(merged))
+    for v in np.flatnonzero(valence != 2):
+        if valence[v] == 0:
+            continue
+        x, y = merged[v]
+        problem = "is open: a line ends" if valence[v] == 1 else f"branches: {valence[v]} edges meet"
+        raise InputError(f"{name}: the contour {problem} at ({x:.6g}, {y:.6g})")
+    neighbours = [[] for _ in range(len(merged))]
+    for a, b in edges:
+        neighbours[a].append(b)
+        neighbours[b].append(a)
+    visited = np.zeros(len(merged), dtype=bool)
+    loops = []
+    for start in np.flatnonzero(valence == 2):
+        if visited[start]:
+            continue
+        loop, previous, current = [start], -1, start
+        visited[start] = True
+        while True:
+            a, b = neighbours[current]
+            nxt = b if a == previous else a
+            if nxt == start:
+                break
+            visited[nxt] = True
+            loop.append(nxt)
+            previous, current = current, nxt
+        loops.append(merged[loop])
+    return loops
+
+
+def profile_from_loops(loops: list[np.ndarray], name: str) -> Profile:
+    """One outer loop and the loops nested directly inside it as holes."""
+    depth = [sum(points_in_loop(loop[:1], other)[0] for j, other in enumerate(loops) if j != i)
+             for i, loop in enumerate(loops)]
+    outer = [loop for loop, d in zip(loops, depth) if d == 0]
+    if len(outer) != 1:
+        raise InputError(f"{name}: {len(outer)} separate outer contours; a cross-section must be one piece "
+                         "(is a hole outside the outer boundary?)")
+    if max(depth) > 1:
+        raise InputError(f"{name}: a contour lies inside a hole; islands inside holes are not supported")
+    holes = [loop for loop, d in zip(loops, depth) if d == 1]
+    return polygon(outer[0], holes, name=name)
+
+
+def load_contour(path, scale: float = 1.0) -> Profile:
+    """Profile from an OBJ or gmsh ``.msh`` contour file, coordinates multiplied by ``scale``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        points, edges = _read_obj(path)
+    elif suffix == ".msh":
+        points, edges = _read_msh(path)
+    else:
+        raise InputError(f"{path}: unknown contour format {suffix!r} (expected .obj or .msh)")
+    return profile_from_loops(loops_from_edges(points * float(scale), edges, str(path)), str(path))
+
+
+def _json_number(data: dict, key: str, path: Path):
+    if key not in data:
+        return None
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"{path}: '{key}' must be a number, got {value!r}")
+    return float(value)
+
+
+def load_section(path, young: float | None = None, poisson: float | None = None) -> tuple[Profile, float, float]:
+    """Read a cross-section file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A JSON file ``{type, young, poisson, params}``, or an ``.obj``/``.msh`` contour.
+    young, poisson : float, optional
+        Override (or, for contours, supply) E and ν.
+
+    Returns
+    -------
+    (profile, E, nu)
+    """
+    path = Path(path)
+    if path.suffix.lower() in (".obj", ".msh"):
+        if young is None or poisson is None:
+            raise InputError(f"{path}: a contour file has no material; give Young's modulus and Poisson's ratio")
+        return load_contour(path), float(young), float(poisson)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or "type" not in data:
+        raise InputError(f"{path}: expected an object with 'type', 'young', 'poisson' and 'params'")
+    E = young if young is not None else _json_number(data, "young", path)
+    nu = poisson if poisson is not None else _json_number(data, "poisson", path)
+    if E is None or nu is None:
+        missing = "young" if E is None else "poisson"
+        raise InputError(f"{path}: missing '{missing}'")
+    kind = str(data["type"])
+    if kind.lower() in ("contour", "custom", "polygon"):
+        if "path" in data:
+            scale = _json_number(data, "scale", path) or 1.0
+            return load_contour(path.parent / str(data["path"]), scale=scale), E, nu
+        if "points" in data:
+            return polygon(data["points"], data.get("holes", []), name=str(path)), E, nu
+        raise InputError(f"{path}: a {kind} section needs 'path' (a contour file) or 'points'")
+    if "params" not in data or not isinstance(data["params"], list):
+        raise InputError(f"{path}: 'params' must be a list of numbers")
+    return make_profile(kind, data["params"], name=str(path)), E, nu
