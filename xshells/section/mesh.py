@@ -37,9 +37,13 @@ class TriMesh:
 
     def triangle_areas(self) -> np.ndarray:
         """Area of each triangle, shape (m,)."""
-        p = self.points[self.triangles]
-        e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-        return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        return _areas(self.points[self.triangles])
+
+
+def _areas(corners: np.ndarray) -> np.ndarray:
+    """Unsigned areas (m,) of triangles given by their corners (m, 3, 2)."""
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
 
 
 def _loop_segments(sizes: list[int]) -> np.ndarray:
@@ -61,8 +65,7 @@ def hole_point(loop: np.ndarray) -> np.ndarray:
     pslg = {"vertices": loop, "segments": _loop_segments([len(loop)])}
     tri = triangle.triangulate(pslg, "pQ")
     corners = tri["vertices"][tri["triangles"]]
-    areas = np.abs(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
-    return corners[np.argmax(areas)].mean(axis=0)
+    return corners[np.argmax(_areas(corners))].mean(axis=0)
 
 
 def _as_trimesh(tri: dict, hole_points: np.ndarray) -> TriMesh:

@@ -122,7 +122,8 @@ def frame_rotation(second_moments: np.ndarray, stiff_axis=None) -> np.ndarray:
     _, directions = principal_axes(second_moments)
     if stiff_axis is None:
         # the principal direction closest to x goes to d1
-        closest = int(np.argmax(np.abs(directions[:, 0])))
+        # ties (e.g. an equal-leg L at 45°) go to the major axis, so B1 >= B2
+        closest = 1 if abs(directions[1, 0]) > abs(directions[0, 0]) + PRINCIPAL_TOL else 0
         u = directions[closest] * np.sign(directions[closest, 0])
     else:
         u = directions[0] if stiff_axis == "D1" else np.array([directions[0, 1], -directions[0, 0]])

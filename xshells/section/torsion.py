@@ -162,7 +162,7 @@ def solve_warping(mesh: MeshTri | MeshTri2) -> WarpingSolution:
     psi = np.zeros(basis.N)
     pinned = np.array([0])
     psi[:] = condense_solve(stiffness, load, pinned)
-    psi -= basis.interpolate(psi).value.mean()  # rough mean; exact constant is irrelevant
+    psi -= np.asarray(basis.interpolate(psi)).mean()  # rough mean; only ∇ψ matters
     J = float(_torsion_integrand.assemble(basis, psi=basis.interpolate(psi)))
     return WarpingSolution(basis=basis, psi=psi, torsion_constant=J)
 
