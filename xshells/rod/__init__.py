@@ -1,0 +1,4 @@
+"""The discrete elastic rod (paper §3; Bergou et al. 2008, 2010)."""
+from .rods import ElasticRod, ElasticRods, EnergyParts
+
+__all__ = ["ElasticRod", "ElasticRods", "EnergyParts"]

@@ -1,0 +1,525 @@
+"""A set of discrete elastic rods: state, frames, energy and derivatives.
+
+:class:`ElasticRods` stores any number of independent rods flat, so that a
+single rod and the hundreds of rod segments of a linkage share one code
+path. The variables of the set are
+
+``[x_0, y_0, z_0, x_1, ..., z_{V-1}, θ_0, ..., θ_{E-1}]``
+
+(all vertex positions, then one material angle per edge). Rest lengths, one
+per edge, are the design parameters; every derivative is available with
+respect to them too (``with_rest_lengths=True`` appends them after the
+variables).
+
+Units follow the input: with millimetres and MPa, stiffnesses are in N·mm²
+(bending, twisting) and N (stretching), energies in N·mm.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import InputError
+from ..sparse import BlockAssembler, VectorAssembler
+from . import autodiff, frames, stencils, vec
+
+try:  # the fast analytic kernels, checked against automatic differentiation
+    from . import analytic as _analytic
+except ImportError:  # pragma: no cover
+    _analytic = None
+
+
+@dataclass(frozen=True)
+class EnergyParts:
+    stretch: float
+    bend: float
+    twist: float
+
+    @property
+    def total(self) -> float:
+        return self.stretch + self.bend + self.twist
+
+    def as_dict(self) -> dict:
+        return {"stretch": self.stretch, "bend": self.bend, "twist": self.twist, "total": self.total}
+
+
+def _per_edge(name: str, value, num_edges: int, columns: int | None = None) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    shape = (num_edges,) if columns is None else (num_edges, columns)
+    try:
+        arr = np.broadcast_to(arr, shape).copy()
+    except ValueError:
+        raise InputError(f"{name}: expected a scalar or an array of shape {shape}, got shape {np.shape(value)}") from None
+    bad = np.flatnonzero(~(np.isfinite(arr) & (arr > 0)).reshape(num_edges, -1).all(axis=1))
+    if len(bad):
+        raise InputError(f"{name} must be positive and finite: edge {bad[0]} has {arr[bad[0]]}")
+    return arr
+
+
+def stretch_kernel(q: np.ndarray, ks: np.ndarray):
+    """Stretching energy, gradient and Hessian of edge stencils.
+
+    Parameters
+    ----------
+    q : (7, N) array
+        ``x0 (0:3), x1 (3:6)``, rest length ``L`` (6).
+    ks : (N,) array
+
+    Returns
+    -------
+    energy : (N,), gradient : (7, N), hessian : (7, 7, N)
+    """
+    e = q[3:6] - q[0:3]
+    n = np.sqrt(np.einsum("in,in->n", e, e))
+    L = q[6]
+    t = e / n
+    strain = n / L - 1.0
+    energy = 0.5 * ks * L * strain**2
+    grad = np.empty((7, q.shape[1]))
+    ge = ks * strain * t
+    grad[0:3], grad[3:6] = -ge, ge
+    grad[6] = 0.5 * ks * (1.0 - (n / L) ** 2)
+    a = ks / L
+    b = ks * (1.0 / L - 1.0 / n)
+    hee = (a - b) * t[:, None, :] * t[None, :, :] + b * np.eye(3)[:, :, None]
+    hess = np.empty((7, 7, q.shape[1]))
+    hess[0:3, 0:3], hess[3:6, 3:6] = hee, hee
+    hess[0:3, 3:6], hess[3:6, 0:3] = -hee, -hee
+    heL = -ks * n / L**2 * t
+    hess[3:6, 6], hess[6, 3:6] = heL, heL
+    hess[0:3, 6], hess[6, 0:3] = -heL, -heL
+    hess[6, 6] = ks * n**2 / L**3
+    return energy, grad, hess
+
+
+class ElasticRods:
+    """Independent discrete elastic rods with shared storage.
+
+    Parameters
+    ----------
+    rods : sequence of (n_r + 1, 3) arrays
+        The centerline points of each rod (its current, deformed state).
+    stretching : float or (E,) array
+        Stretching stiffness ``EA`` per edge (E = total edges of all rods,
+        in rod order).
+    bending : (2,) or (E, 2) array
+        Bending stiffnesses ``(B1, B2)`` per edge: ``B1`` resists curvature
+        ``κ1 = κb·m2`` (bending that moves the centreline along ``m2``),
+        ``B2`` resists ``κ2 = −κb·m1``. Either may be the larger.
+    twisting : float or (E,) array
+        Twisting stiffness ``GJ`` per edge; a vertex uses the mean of its two edges.
+    density, area : float or (E,) array
+        Mass density and cross-section area (for the mass matrix and gravity).
+    polar_moment : float or (E,) array, optional
+        ``∫ r² dA`` of the cross-section, the rotational inertia of ``θ``;
+        defaults to that of a disc of the given area.
+    rest_lengths : (E,) array, optional
+        Defaults to the edge lengths of the rest shape.
+    rest_shape : sequence of (n_r + 1, 3) arrays, optional
+        A curved rest configuration. Its curvature and twist (with
+        ``rest_thetas`` and the initial directors) become the rest curvature
+        and twist. Default: each rod straight, so only lengths come from ``rods``.
+    rest_thetas : (E,) array, optional
+        Material angles of the rest shape (default zero).
+    directors : sequence of (3,) arrays, optional
+        Director ``d1`` of each rod's first edge; the others follow by
+        parallel transport along the rod, so the reference twist starts at
+        zero. Default: a deterministic perpendicular.
+    thetas : (E,) array, optional
+        Initial material angles (default zero).
+    bending_energy : {"2008", "2010"}
+        "2008" averages the curvature energies computed in each incident
+        edge's material frame (the paper's choice); "2010" uses the
+        vertex-averaged frame.
+    """
+
+    def __init__(
+        self,
+        rods: Sequence[np.ndarray],
+        *,
+        stretching,
+        bending,
+        twisting,
+        density=1.0,
+        area=1.0,
+        polar_moment=None,
+        rest_lengths=None,
+        rest_shape: Sequence[np.ndarray] | None = None,
+        rest_thetas=None,
+        directors: Sequence[np.ndarray] | None = None,
+        thetas=None,
+        bending_energy: str = "2008",
+    ):
+        if bending_energy not in stencils.BENDING_VARIANTS:
+            raise InputError(f"bending_energy must be one of {stencils.BENDING_VARIANTS}, got {bending_energy!r}")
+        self.bending_energy = bending_energy
+        pts = [np.asarray(r, dtype=float) for r in rods]
+        if not pts:
+            raise InputError("no rods given")
+        for r, p in enumerate(pts):
+            if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2:
+                raise InputError(f"rod {r}: points must have shape (n+1, 3) with n >= 1, got {p.shape}")
+        nv = np.array([len(p) for p in pts])
+        self.vertex_offsets = np.concatenate([[0], np.cumsum(nv)])
+        self.edge_offsets = np.concatenate([[0], np.cumsum(nv - 1)])
+        V, E = int(self.vertex_offsets[-1]), int(self.edge_offsets[-1])
+        self.num_vertices, self.num_edges = V, E
+        self.num_rods = len(pts)
+
+        starts = np.concatenate([np.arange(a, b - 1) for a, b in zip(self.vertex_offsets[:-1], self.vertex_offsets[1:])])
+        self.edges = np.stack([starts, starts + 1], axis=1)
+        # interior vertices: the second edge of the stencil is the edge starting at the vertex
+        inner_edges = np.concatenate([np.arange(a + 1, b) for a, b in zip(self.edge_offsets[:-1], self.edge_offsets[1:])])
+        self.stencil_edges = np.stack([inner_edges - 1, inner_edges], axis=1)
+        self.stencil_vertices = np.stack(
+            [self.edges[inner_edges - 1, 0], self.edges[inner_edges, 0], self.edges[inner_edges, 1]], axis=1
+        )
+        self.num_stencils = len(inner_edges)
+
+        points = np.concatenate(pts)
+        self._check_points(points, "rod points")
+        self.points = points
+        self.thetas = np.zeros(E) if thetas is None else self._edge_array("thetas", thetas, allow_any=True)
+
+        self.ks = _per_edge("stretching stiffness", stretching, E)
+        self.bending_stiffness = _per_edge("bending stiffness", bending, E, 2)
+        self.kt_edge = _per_edge("twisting stiffness", twisting, E)
+        self.density = _per_edge("density", density, E)
+        self.area = _per_edge("area", area, E)
+        self.polar_moment = (
+            self.area**2 / (2 * np.pi) if polar_moment is None else _per_edge("polar moment", polar_moment, E)
+        )
+
+        rest = pts if rest_shape is None else [np.asarray(r, dtype=float) for r in rest_shape]
+        if len(rest) != len(pts) or any(r.shape != p.shape for r, p in zip(rest, pts)):
+            raise InputError("rest_shape must have the same rods and point counts as rods")
+        rest_points = np.concatenate(rest)
+        self._check_points(rest_points, "rest shape")
+        t_rest, len_rest = frames.unit_tangents(rest_points, self.edges)
+        self.rest_lengths = len_rest if rest_lengths is None else _per_edge("rest length", rest_lengths, E)
+
+        # Directors: d1 of each rod's first edge, carried along the rod by parallel transport.
+        first = frames.perpendicular(t_rest[self.edge_offsets[:-1]])
+        if directors is not None:
+            dirs = np.asarray(directors, dtype=float).reshape(-1, 3)
+            if len(dirs) != self.num_rods:
+                raise InputError(f"directors: expected {self.num_rods} vectors (one per rod), got {len(dirs)}")
+            first = dirs
+        d1_rest = np.concatenate(
+            [
+                frames.space_parallel_directors(t_rest[a:b], first[r])
+                for r, (a, b) in enumerate(zip(self.edge_offsets[:-1], self.edge_offsets[1:]))
+            ]
+        )
+        # Rest curvature and twist, measured with straight-rest defaults of zero.
+        self.kappa_bar = np.zeros((self.num_stencils, 4))
+        self.twist_bar = np.zeros(self.num_stencils)
+        self.t_src, self.d1_src = t_rest, d1_rest
+        self.ref_twist_src = np.zeros(self.num_stencils)
+        if rest_shape is not None and self.num_stencils:
+            rest_th = np.zeros(E) if rest_thetas is None else self._edge_array("rest_thetas", rest_thetas, allow_any=True)
+            q = self._vertex_q(rest_points, rest_th, self.rest_lengths)
+            kappa, twist, _ = stencils.vertex_strains(tuple(q), tuple(self._vertex_params()), bending_energy)
+            self.kappa_bar = np.stack([np.asarray(k) for k in kappa], axis=1)
+            self.twist_bar = np.asarray(twist)
+        # The deformed state's source frame: transport the rest directors onto the current tangents.
+        t_now, _ = frames.unit_tangents(self.points, self.edges)
+        self.t_src = t_now
+        self.d1_src = frames.orthonormalize(frames.transport(t_rest, t_now, d1_rest), t_now)
+        self.ref_twist_src = self._reference_twist()
+
+        self._build_indices()
+
+    # ------------------------------------------------------------------ input
+    def _check_points(self, points: np.ndarray, what: str) -> None:
+        bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+        if len(bad):
+            r = np.searchsorted(self.vertex_offsets, bad[0], side="right") - 1
+            raise InputError(f"{what}: vertex {bad[0] - self.vertex_offsets[r]} of rod {r} is not finite: {points[bad[0]]}")
+        lengths = np.linalg.norm(points[self.edges[:, 1]] - points[self.edges[:, 0]], axis=1)
+        scale = max(np.abs(points).max(), 1.0)
+        bad = np.flatnonzero(lengths <= 1e-14 * scale)
+        if len(bad):
+            r = np.searchsorted(self.edge_offsets, bad[0], side="right") - 1
+            raise InputError(f"{what}: edge {bad[0] - self.edge_offsets[r]} of rod {r} has zero length")
+
+    def _edge_array(self, name, value, allow_any=False):
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (self.num_edges,):
+            raise InputError(f"{name}: expected shape ({self.num_edges},), got {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise InputError(f"{name}: edge {np.flatnonzero(~np.isfinite(arr))[0]} is not finite")
+        return arr.copy()
+
+    # ------------------------------------------------------------- variables
+    @property
+    def num_vars(self) -> int:
+        """Number of variables: 3 per vertex plus one angle per edge."""
+        return 3 * self.num_vertices + self.num_edges
+
+    def get_vars(self) -> np.ndarray:
+        return np.concatenate([self.points.ravel(), self.thetas])
+
+    def set_vars(self, x: np.ndarray) -> None:
+        """Set positions and angles; the source frame stays until :meth:`update_source_frame`."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.num_vars,):
+            raise InputError(f"expected {self.num_vars} variables, got shape {x.shape}")
+        points = x[: 3 * self.num_vertices].reshape(-1, 3)
+        self._check_points(points, "state")
+        self.points = points.copy()
+        self.thetas = x[3 * self.num_vertices :].copy()
+
+    def set_rest_lengths(self, lengths) -> None:
+        self.rest_lengths = _per_edge("rest length", lengths, self.num_edges)
+
+    # ---------------------------------------------------------------- frames
+    def reference_directors(self) -> np.ndarray:
+        """Current reference director ``d1`` of each edge, (E, 3), by transport in time from the source."""
+        t, _ = frames.unit_tangents(self.points, self.edges)
+        return frames.transport(self.t_src, t, self.d1_src)
+
+    def material_frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tangent, ``m1`` and ``m2`` of each edge, each (E, 3)."""
+        t, _ = frames.unit_tangents(self.points, self.edges)
+        d1 = frames.transport(self.t_src, t, self.d1_src)
+        d2 = np.cross(t, d1)
+        c, s = np.cos(self.thetas)[:, None], np.sin(self.thetas)[:, None]
+        return t, c * d1 + s * d2, -s * d1 + c * d2
+
+    def _reference_twist(self) -> np.ndarray:
+        if not self.num_stencils:
+            return np.zeros(0)
+        t, _ = frames.unit_tangents(self.points, self.edges)
+        d1 = frames.transport(self.t_src, t, self.d1_src)
+        e0, e1 = self.stencil_edges[:, 0], self.stencil_edges[:, 1]
+        tw = stencils.reference_twist(tuple(t[e0].T), tuple(d1[e0].T), tuple(t[e1].T), tuple(d1[e1].T), self.ref_twist_src)
+        return np.asarray(tw)
+
+    def reference_twist(self) -> np.ndarray:
+        """Reference twist at each interior vertex (stencil order), (S,)."""
+        return self._reference_twist()
+
+    def update_source_frame(self) -> None:
+        """Make the current reference frame the new source (call after each accepted step).
+
+        Keeps time-parallel transport short, and makes the analytic Hessian exact.
+        """
+        t, _ = frames.unit_tangents(self.points, self.edges)
+        d1 = frames.transport(self.t_src, t, self.d1_src)
+        self.ref_twist_src = self._reference_twist()
+        self.t_src, self.d1_src = t, frames.orthonormalize(d1, t)
+
+    # --------------------------------------------------------------- stencils
+    def _build_indices(self) -> None:
+        V3, nv = 3 * self.num_vertices, self.num_vars
+        sv, se = self.stencil_vertices, self.stencil_edges
+        coords = np.arange(3)
+        self.vertex_index = np.concatenate(
+            [
+                (3 * sv[:, 0][None, :] + coords[:, None]),
+                (3 * sv[:, 1][None, :] + coords[:, None]),
+                (3 * sv[:, 2][None, :] + coords[:, None]),
+                V3 + se.T,
+                nv + se.T,
+            ]
+        ).astype(np.int64)
+        ev = self.edges
+        self.edge_index = np.concatenate(
+            [3 * ev[:, 0][None, :] + coords[:, None], 3 * ev[:, 1][None, :] + coords[:, None], nv + np.arange(self.num_edges)[None, :]]
+        ).astype(np.int64)
+        kt = self.kt_edge
+        self.kt_vertex = 0.5 * (kt[se[:, 0]] + kt[se[:, 1]]) if self.num_stencils else np.zeros(0)
+        self._assemblers: dict = {}
+
+    def _vertex_q(self, points=None, thetas=None, rest_lengths=None) -> np.ndarray:
+        points = self.points if points is None else points
+        thetas = self.thetas if thetas is None else thetas
+        rest_lengths = self.rest_lengths if rest_lengths is None else rest_lengths
+        sv, se = self.stencil_vertices, self.stencil_edges
+        q = np.empty((13, self.num_stencils))
+        q[0:3], q[3:6], q[6:9] = points[sv[:, 0]].T, points[sv[:, 1]].T, points[sv[:, 2]].T
+        q[9], q[10] = thetas[se[:, 0]], thetas[se[:, 1]]
+        q[11], q[12] = rest_lengths[se[:, 0]], rest_lengths[se[:, 1]]
+        return q
+
+    def _vertex_params(self) -> np.ndarray:
+        se = self.stencil_edges
+        p = np.empty((stencils.NUM_VERTEX_PARAMS, self.num_stencils))
+        p[0:3], p[3:6] = self.t_src[se[:, 0]].T, self.d1_src[se[:, 0]].T
+        p[6:9], p[9:12] = self.t_src[se[:, 1]].T, self.d1_src[se[:, 1]].T
+        p[12:14], p[14:16] = self.bending_stiffness[se[:, 0]].T, self.bending_stiffness[se[:, 1]].T
+        p[16] = getattr(self, "kt_vertex", 0.5 * (self.kt_edge[se[:, 0]] + self.kt_edge[se[:, 1]]))
+        p[17:21] = self.kappa_bar.T
+        p[21] = self.twist_bar
+        p[22] = self.ref_twist_src
+        return p
+
+    def _edge_q(self) -> np.ndarray:
+        q = np.empty((7, self.num_edges))
+        q[0:3] = self.points[self.edges[:, 0]].T
+        q[3:6] = self.points[self.edges[:, 1]].T
+        q[6] = self.rest_lengths
+        return q
+
+    # --------------------------------------------------------------- energies
+    def energy_parts(self) -> EnergyParts:
+        stretch = float(np.sum(stretch_kernel(self._edge_q(), self.ks)[0])) if self.num_edges else 0.0
+        if self.num_stencils:
+            eb = self._vertex_energies()
+            bend, twist = float(np.sum(eb[0])), float(np.sum(eb[1]))
+        else:
+            bend = twist = 0.0
+        return EnergyParts(stretch, bend, twist)
+
+    def energy(self) -> float:
+        return self.energy_parts().total
+
+    def _vertex_energies(self) -> np.ndarray:
+        return autodiff.vertex_energies(self._vertex_q(), self._vertex_params(), self.bending_energy)
+
+    def _size(self, with_rest_lengths: bool) -> int:
+        return self.num_vars + (self.num_edges if with_rest_lengths else 0)
+
+    def gradient(self, with_rest_lengths: bool = False) -> np.ndarray:
+        """Gradient of the energy, (num_vars,) or (num_vars + E,) with rest lengths appended."""
+        size = self._size(with_rest_lengths)
+        key = ("grad", size)
+        if key not in self._assemblers:
+            self._assemblers[key] = VectorAssembler([self.vertex_index, self.edge_index], size)
+        gv = self._vertex_gradient() if self.num_stencils else np.zeros((13, 0))
+        _, ge, _ = stretch_kernel(self._edge_q(), self.ks)
+        return self._assemblers[key].assemble([gv, ge])
+
+    def _vertex_gradient(self) -> np.ndarray:
+        q, p = self._vertex_q(), self._vertex_params()
+        if _analytic is not None and hasattr(_analytic, "vertex_gradient"):
+            return _analytic.vertex_gradient(q, p, self.bending_energy)
+        return autodiff.vertex_gradient(q, p, self.bending_energy)
+
+    def _vertex_hessian(self) -> np.ndarray:
+        q, p = self._vertex_q(), self._vertex_params()
+        if _analytic is not None and hasattr(_analytic, "vertex_hessian") and self._at_source():
+            return _analytic.vertex_hessian(q, p, self.bending_energy)
+        return autodiff.vertex_hessian(q, p, self.bending_energy)
+
+    def _at_source(self) -> bool:
+        t, _ = frames.unit_tangents(self.points, self.edges)
+        return bool(np.all(np.abs(t - self.t_src) <= 1e-14))
+
+    def hessian(self, with_rest_lengths: bool = False, triangle: str = "full") -> sp.csr_matrix:
+        """Sparse Hessian of the energy.
+
+        Parameters
+        ----------
+        with_rest_lengths : bool
+            Include the rest lengths as variables (appended after the state).
+        triangle : {"full", "lower"}
+            ``"lower"`` returns only the lower triangle (for Cholesky).
+
+        Exact at any state; fastest right after :meth:`update_source_frame`.
+        """
+        size = self._size(with_rest_lengths)
+        key = ("hess", size, triangle)
+        if key not in self._assemblers:
+            self._assemblers[key] = BlockAssembler([self.vertex_index, self.edge_index], size, triangle)
+        hv = self._vertex_hessian() if self.num_stencils else np.zeros((13, 13, 0))
+        _, _, he = stretch_kernel(self._edge_q(), self.ks)
+        return self._assemblers[key].assemble([hv, he])
+
+    def hessian_pattern(self, with_rest_lengths: bool = False, triangle: str = "full") -> BlockAssembler:
+        size = self._size(with_rest_lengths)
+        key = ("hess", size, triangle)
+        if key not in self._assemblers:
+            self._assemblers[key] = BlockAssembler([self.vertex_index, self.edge_index], size, triangle)
+        return self._assemblers[key]
+
+    # ------------------------------------------------------------ mass, loads
+    def vertex_masses(self) -> np.ndarray:
+        """Lumped mass of each vertex: half of each incident edge's ``ρ A L̄``, (V,)."""
+        m_edge = self.density * self.area * self.rest_lengths
+        return np.bincount(self.edges.ravel(), weights=np.repeat(0.5 * m_edge, 2), minlength=self.num_vertices)
+
+    def mass_matrix(self) -> sp.dia_matrix:
+        """Lumped (diagonal) mass matrix over the variables.
+
+        Positions get their vertex mass; each angle gets its edge's
+        rotational inertia ``ρ ∫r²dA L̄``.
+        """
+        diag = np.concatenate([np.repeat(self.vertex_masses(), 3), self.density * self.polar_moment * self.rest_lengths])
+        return sp.diags(diag)
+
+    def gravity_force(self, g=(0.0, 0.0, -9.81)) -> np.ndarray:
+        """Generalized force of gravity on the variables, (num_vars,).
+
+        ``g`` is in the input's units (for millimetres and seconds,
+        ``(0, 0, -9810)``); with density in t/mm³ the force is in N.
+        """
+        f = np.zeros(self.num_vars)
+        f[: 3 * self.num_vertices] = (self.vertex_masses()[:, None] * np.asarray(g, dtype=float)[None, :]).ravel()
+        return f
+
+    # ------------------------------------------------------- visualization
+    def stress_measures(self, young=None, shear=None, fibre=None) -> dict:
+        """Per-vertex scalar fields for visualization, each (V,).
+
+        Always: ``bending_energy_density``, ``twisting_energy_density`` and
+        ``stretching_energy_density`` (energy per unit rest length; a vertex
+        takes its stencil's bending and twisting and the mean of its edges'
+        stretching). With ``young``, ``shear`` and ``fibre`` (extreme fibre
+        distances ``(c1, c2)`` along ``m1`` and ``m2``, per edge or scalar):
+        ``bending_stress`` (the largest normal stress, ``E (|Δκ1| c2 + |Δκ2| c1)/ℓ``
+        averaged over the incident edges' frames), ``twisting_stress``
+        (``G r |Δm| / ℓ`` with ``r = hypot(c1, c2)``) and
+        ``stretching_stress`` (``E |strain|``).
+        """
+        V = self.num_vertices
+        out = {}
+        sv = self.stencil_vertices[:, 1] if self.num_stencils else np.zeros(0, int)
+        ell = 0.5 * (self.rest_lengths[self.stencil_edges[:, 0]] + self.rest_lengths[self.stencil_edges[:, 1]]) if self.num_stencils else np.zeros(0)
+        eb = self._vertex_energies() if self.num_stencils else np.zeros((2, 0))
+        out["bending_energy_density"] = np.bincount(sv, weights=eb[0] / ell, minlength=V)
+        out["twisting_energy_density"] = np.bincount(sv, weights=eb[1] / ell, minlength=V)
+        es = stretch_kernel(self._edge_q(), self.ks)[0] / self.rest_lengths
+        cnt = np.bincount(self.edges.ravel(), minlength=V)
+        out["stretching_energy_density"] = np.bincount(self.edges.ravel(), weights=np.repeat(es, 2), minlength=V) / cnt
+        if young is not None and shear is not None and fibre is not None:
+            E = np.broadcast_to(np.asarray(young, float), (self.num_edges,))
+            G = np.broadcast_to(np.asarray(shear, float), (self.num_edges,))
+            c = np.broadcast_to(np.asarray(fibre, float), (self.num_edges, 2))
+            n = np.linalg.norm(self.points[self.edges[:, 1]] - self.points[self.edges[:, 0]], axis=1)
+            strain = np.abs(n / self.rest_lengths - 1.0)
+            out["stretching_stress"] = np.bincount(self.edges.ravel(), weights=np.repeat(E * strain, 2), minlength=V) / cnt
+            if self.num_stencils:
+                kappa, twist, _ = stencils.vertex_strains(tuple(self._vertex_q()), tuple(self._vertex_params()), self.bending_energy)
+                dk = np.stack([np.asarray(k) for k in kappa]) - self.kappa_bar.T
+                e0, e1 = self.stencil_edges[:, 0], self.stencil_edges[:, 1]
+                if self.bending_energy == "2008":
+                    s0 = E[e0] * (np.abs(dk[0]) * c[e0, 1] + np.abs(dk[1]) * c[e0, 0])
+                    s1 = E[e1] * (np.abs(dk[2]) * c[e1, 1] + np.abs(dk[3]) * c[e1, 0])
+                    sb = 0.5 * (s0 + s1) / ell
+                else:
+                    cm = 0.5 * (c[e0] + c[e1])
+                    sb = 0.5 * (E[e0] + E[e1]) * (np.abs(dk[0]) * cm[:, 1] + np.abs(dk[1]) * cm[:, 0]) / ell
+                r = 0.5 * (np.hypot(c[e0, 0], c[e0, 1]) + np.hypot(c[e1, 0], c[e1, 1]))
+                st = 0.5 * (G[e0] + G[e1]) * r * np.abs(np.asarray(twist) - self.twist_bar) / ell
+            else:
+                sb = st = np.zeros(0)
+            out["bending_stress"] = np.bincount(sv, weights=sb, minlength=V)
+            out["twisting_stress"] = np.bincount(sv, weights=st, minlength=V)
+        return out
+
+
+def ElasticRod(points: np.ndarray, **kwargs) -> ElasticRods:
+    """A single discrete elastic rod: :class:`ElasticRods` with one rod.
+
+    ``rest_shape`` and ``directors``, if given, are for this one rod.
+    """
+    if kwargs.get("rest_shape") is not None:
+        kwargs["rest_shape"] = [kwargs["rest_shape"]]
+    if kwargs.get("directors") is not None:
+        kwargs["directors"] = [kwargs["directors"]]
+    return ElasticRods([points], **kwargs)
