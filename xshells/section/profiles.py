@@ -181,6 +181,12 @@ def _as_loop(points, what: str) -> np.ndarray:
     return loop
 
 
+def _is_flat(loop: np.ndarray, extent: float) -> bool:
+    """Whether all points of ``loop`` (n, 2) lie on one line, to round-off relative to ``extent``."""
+    centred = loop - loop.mean(axis=0)
+    return bool(np.linalg.svd(centred, compute_uv=False)[-1] <= 1e-12 * extent * np.sqrt(len(loop)))
+
+
 def polygon(outer, holes: Sequence = (), name: str = "polygon") -> Profile:
     """A profile from an outer contour and optional hole contours.
 
@@ -204,7 +210,8 @@ def polygon(outer, holes: Sequence = (), name: str = "polygon") -> Profile:
     if extent == 0:
         raise InputError(f"{name}: the profile has zero area (all points coincide)")
     for k, loop in enumerate(loops):
-        if abs(signed_area(loop)) <= 1e-12 * extent ** 2:
+        # a flat loop is "zero area"; a bow-tie also sums to zero but is caught as a crossing below
+        if _is_flat(loop, extent):
             what = "outer contour" if k == 0 else f"hole {k}"
             raise InputError(f"{name}: {what} has zero area")
     crossing = first_crossing(loops, tol=1e-9)

@@ -1,0 +1,171 @@
+"""Profiles, file reading and the one-line errors for bad input."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import xshells
+from xshells.errors import InputError
+from xshells.section import profiles
+from xshells.section.io import load_contour, load_section
+from xshells.section.material import Material
+from xshells.section.properties import polygon_moments
+
+EXAMPLES = Path(xshells.__file__).parent / "data" / "examples" / "cross_sections"
+SQUARE = [(0, 0), (1, 0), (1, 1), (0, 1)]
+
+
+def one_line_error(call, *fragments):
+    with pytest.raises(InputError) as info:
+        call()
+    message = str(info.value)
+    assert "\n" not in message and message
+    for fragment in fragments:
+        assert fragment in message, message
+    return message
+
+
+# ---- exact polygon integrals -------------------------------------------------
+
+def test_polygon_moments_of_offset_rectangle():
+    w, h, cx, cy = 3.0, 2.0, 1.5, -0.5
+    p = profiles.rectangle(w, h)
+    A, Sx, Sy, Ixx, Iyy, Ixy = polygon_moments([p.outer + [cx, cy]])
+    assert A == pytest.approx(w * h)
+    assert (Sx / A, Sy / A) == pytest.approx((cx, cy))
+    assert Ixx == pytest.approx(h * w ** 3 / 12 + A * cx ** 2)
+    assert Iyy == pytest.approx(w * h ** 3 / 12 + A * cy ** 2)
+    assert Ixy == pytest.approx(A * cx * cy)
+
+
+def test_hole_is_subtracted():
+    hollow = profiles.polygon(SQUARE, holes=[[(0.25, 0.25), (0.25, 0.75), (0.75, 0.75), (0.75, 0.25)]])
+    assert polygon_moments(hollow.loops)[0] == pytest.approx(0.75)
+
+
+@pytest.mark.parametrize("kind, params, area", [
+    ("Rectangle", [12, 8], 96),
+    ("I", [10, 5, 10, 5, 15, 5], 2 * 25 * 5 + 5 * 15),
+    ("L", [20, 20, 2, 2], 20 * 2 + 18 * 2),
+    ("+", [20, 20, 2, 2], 20 * 2 + 18 * 2),
+    ("ellipse", [2, 1], 2 * np.pi),
+])
+def test_parametric_areas(kind, params, area):
+    assert Material.uniform(kind, params, E=1, nu=0.3).area == pytest.approx(area)
+
+
+def test_plus_parameters_are_widths_then_thicknesses():
+    # '+' [a, b, t1, t2]: horizontal bar a wide and t1 thick; vertical bar b tall and t2 thick
+    p = profiles.make_profile("+", [10, 4, 1, 2])
+    assert np.ptp(p.outer, axis=0) == pytest.approx([10, 4])
+    assert profiles.points_in_loop(np.array([[4.5, 0.4], [0.9, 1.9]]), p.outer).all()
+    assert not profiles.points_in_loop(np.array([[4.5, 0.6]]), p.outer)[0]
+
+
+# ---- example files -------------------------------------------------------------
+
+@pytest.mark.parametrize("path", sorted(EXAMPLES.iterdir()), ids=lambda p: p.name)
+def test_every_example_loads_with_positive_stiffness(path):
+    material = Material.from_file(path, young=None if path.suffix == ".json" else 2600.0,
+                                  poisson=None if path.suffix == ".json" else 0.35)
+    B1, B2 = material.bending_stiffness
+    for value in (material.area, material.stretching_stiffness, B1, B2, material.twisting_stiffness):
+        assert value > 0 and np.isfinite(value)
+    # J never exceeds the polar moment (equality only for circles and rings)
+    assert material.torsion_constant <= material.section.polar_moment * (1 + 1e-9)
+
+
+def test_json_parameters_are_read(tmp_path):
+    spec = {"type": "Rectangle", "young": 20000, "poisson": 0.3, "params": [12, 8]}
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(spec))
+    profile, E, nu = load_section(path)
+    assert (profile.kind, profile.params, E, nu) == ("rectangle", (12.0, 8.0), 20000.0, 0.3)
+
+
+def test_obj_contour_with_hole_and_scale(tmp_path):
+    outer = [(0, 0), (4, 0), (4, 3), (0, 3)]
+    hole = [(1, 1), (2, 1), (2, 2), (1, 2)]
+    lines = [f"v {x} {y} 0" for x, y in outer + hole]
+    lines += [f"l {i + 1} {(i + 1) % 4 + 1}" for i in range(4)]
+    lines += [f"l {i + 5} {(i + 1) % 4 + 5}" for i in range(4)]
+    (tmp_path / "c.obj").write_text("\n".join(lines))
+    profile = load_contour(tmp_path / "c.obj", scale=2.0)
+    assert len(profile.holes) == 1
+    assert polygon_moments(profile.loops)[0] == pytest.approx(4 * 11)
+
+
+# ---- bad input -----------------------------------------------------------------
+
+def test_open_contour(tmp_path):
+    path = tmp_path / "open.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nl 1 2\nl 2 3\nl 3 4\n")
+    one_line_error(lambda: load_contour(path), "open.obj", "open")
+
+
+def test_self_intersecting_polygon():
+    bow_tie = [(0, 0), (1, 1), (1, 0), (0, 1)]
+    one_line_error(lambda: profiles.polygon(bow_tie, name="bowtie"), "bowtie", "intersects itself")
+
+
+def test_self_intersecting_contour_file(tmp_path):
+    path = tmp_path / "bowtie.obj"
+    path.write_text("v 0 0\nv 1 1\nv 1 0\nv 0 1\nl 1 2 3 4 1\n")
+    one_line_error(lambda: load_contour(path), "bowtie.obj", "intersects itself")
+
+
+def test_zero_area():
+    one_line_error(lambda: profiles.polygon([(0, 0), (1, 1), (2, 2)], name="line"), "line", "zero area")
+    one_line_error(lambda: profiles.polygon([(1, 1)] * 4, name="dot"), "dot")
+
+
+def test_hole_outside_outer_boundary():
+    far = [(5, 5), (6, 5), (6, 6), (5, 6)]
+    one_line_error(lambda: profiles.polygon(SQUARE, holes=[far], name="p"), "hole 1", "outside the outer boundary")
+
+
+def test_hole_outside_outer_boundary_in_file(tmp_path):
+    path = tmp_path / "two.obj"
+    path.write_text("v 0 0\nv 1 0\nv 1 1\nv 0 1\nv 5 5\nv 6 5\nv 6 6\nv 5 6\nl 1 2 3 4 1\nl 5 6 7 8 5\n")
+    one_line_error(lambda: load_contour(path), "two.obj", "hole outside the outer boundary")
+
+
+def test_hole_crossing_outer_boundary():
+    crossing = [(0.5, 0.5), (1.5, 0.5), (1.5, 0.7), (0.5, 0.7)]
+    one_line_error(lambda: profiles.polygon(SQUARE, holes=[crossing], name="p"), "crosses")
+
+
+@pytest.mark.parametrize("kind, params", [("rectangle", [1, -2]), ("ellipse", [0, 1]), ("I", [1, 1, 1, 1, -1, 1]),
+                                          ("L", [-1, 1, 0.1, 0.1]), ("+", [1, 1, 0.1, -0.1])])
+def test_negative_dimension(kind, params):
+    one_line_error(lambda: profiles.make_profile(kind, params), "must be positive")
+
+
+def test_wrong_parameter_count():
+    one_line_error(lambda: profiles.make_profile("L", [1, 2, 3]), "takes 4 parameters")
+
+
+@pytest.mark.parametrize("nu", [0.5, 0.7, -1.0, -2.0, float("nan")])
+def test_poisson_ratio_out_of_range(nu):
+    one_line_error(lambda: Material.uniform("rectangle", [1, 1], E=1, nu=nu), "Poisson", "(-1, 0.5)")
+
+
+def test_nonpositive_young_modulus():
+    one_line_error(lambda: Material.uniform("rectangle", [1, 1], E=0, nu=0.3), "Young")
+
+
+def test_unknown_type(tmp_path):
+    path = tmp_path / "hex.json"
+    path.write_text(json.dumps({"type": "Hexagon", "young": 1, "poisson": 0.3, "params": [1]}))
+    one_line_error(lambda: load_section(path), "hex.json", "unknown cross-section type 'Hexagon'")
+
+
+def test_malformed_json(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text("{not json")
+    one_line_error(lambda: load_section(path), "bad.json", "not valid JSON")
+
+
+def test_contour_needs_material():
+    one_line_error(lambda: load_section(EXAMPLES / "custom_A.obj"), "Young")
