@@ -1,0 +1,201 @@
+"""Newton's method for elastic equilibria (paper §4, "Numerical Solver").
+
+Minimizes ``E(x) − f·x`` over the free variables of a *problem*: any object
+with ``get_vars()``, ``set_vars(x)``, ``energy()``, ``gradient()``,
+``hessian()`` (sparse, symmetric), ``mass_matrix()`` and, optionally,
+``update_source_frame()`` (called after every accepted step).
+
+Indefinite Hessians are modified to ``H + σM`` with ``M`` the mass matrix,
+so a modified step is the step of fixed kinetic energy that lowers the
+energy most; ``σ`` starts at ``sigma_factor · λmax(H)/λmax(M)``, is
+multiplied by 4 until the factorization succeeds and halved after each
+success. Near a saddle (indefinite ``H``, small gradient) the step adds the
+most negative generalized eigenvector of ``H d = λ M d``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .cholesky import NotPositiveDefinite, SparseCholesky
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Settings of :func:`minimize`.
+
+    Attributes
+    ----------
+    max_iterations : int
+    gradient_tolerance : float
+        Stop when the free gradient's Euclidean norm falls below this.
+    sigma_factor : float
+        First Hessian shift as a multiple of ``λmax(H)/λmax(M)``.
+    saddle_gradient_factor : float
+        Escape along negative curvature when ``H`` is indefinite and
+        ``|g|`` is below this multiple of ``gradient_tolerance``.
+    saddle_step : float
+        Largest displacement of the negative-curvature step, in length units
+        (``None``: 1/100 of the shortest rod's arc length when the problem
+        reports ``min_arc_length()``, else 1e-3).
+    armijo : float
+    max_backtracks : int
+    """
+
+    max_iterations: int = 200
+    gradient_tolerance: float = 1e-8
+    sigma_factor: float = 1e-3
+    saddle_gradient_factor: float = 1e3
+    saddle_step: float | None = None
+    armijo: float = 1e-4
+    max_backtracks: int = 40
+
+
+@dataclass
+class NewtonReport:
+    """What happened in one :func:`minimize` call."""
+
+    converged: bool = False
+    iterations: int = 0
+    energy: list = field(default_factory=list)
+    gradient_norm: list = field(default_factory=list)
+    sigma: list = field(default_factory=list)
+    indefinite_events: int = 0
+    saddle_escapes: int = 0
+    time_s: float = 0.0
+    message: str = ""
+
+
+def _largest_eigenvalue(A: sp.spmatrix) -> float:
+    try:
+        return float(spla.eigsh(A, k=1, which="LA", tol=1e-2, return_eigenvectors=False, maxiter=200)[0])
+    except (spla.ArpackNoConvergence, ValueError):
+        return float(np.max(np.abs(A).sum(axis=1)))  # Gershgorin bound
+
+
+def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = NewtonOptions(), callback=None) -> NewtonReport:
+    """Minimize ``problem.energy() − force·x`` over the variables not in ``fixed``.
+
+    Parameters
+    ----------
+    problem : object with the methods listed in the module docstring
+    fixed : (k,) int array, optional
+        Indices of variables held at their current values.
+    force : (n,) array, optional
+        A constant generalized force (dead load).
+    options : NewtonOptions
+    callback : callable(iteration, report), optional
+        Called after each accepted step; return True to stop early.
+
+    Returns
+    -------
+    NewtonReport
+    """
+    start = time.perf_counter()
+    report = NewtonReport()
+    x = problem.get_vars()
+    n = len(x)
+    free = np.ones(n, bool)
+    if fixed is not None:
+        free[np.asarray(fixed, dtype=int)] = False
+    free_idx = np.flatnonzero(free)
+    f = np.zeros(n) if force is None else np.asarray(force, float)
+    chol = SparseCholesky()
+    sigma, sigma0 = 0.0, None
+    M_full = sp.csr_matrix(problem.mass_matrix())
+    M = M_full[free_idx][:, free_idx]
+    lam_M = None
+
+    def objective() -> float:
+        return problem.energy() - f @ problem.get_vars()
+
+    for it in range(options.max_iterations + 1):
+        g = (problem.gradient() - f)[free_idx]
+        gnorm = float(np.linalg.norm(g))
+        report.energy.append(objective())
+        report.gradient_norm.append(gnorm)
+        if gnorm < options.gradient_tolerance:
+            report.converged = True
+            report.message = "gradient below tolerance"
+            break
+        if it == options.max_iterations:
+            report.message = f"stopped after {options.max_iterations} iterations with |g| = {gnorm:.3e}"
+            break
+        H = sp.csr_matrix(problem.hessian())[free_idx][:, free_idx]
+        indefinite = False
+        try:
+            chol.factorize(H if sigma == 0 else H + sigma * M)
+        except NotPositiveDefinite:
+            indefinite = True
+            if sigma0 is None:
+                lam_M = lam_M or _largest_eigenvalue(M)
+                sigma0 = options.sigma_factor * _largest_eigenvalue(H) / lam_M
+            sigma = sigma0 if sigma == 0 else 4 * sigma
+            while True:
+                try:
+                    chol.factorize(H + sigma * M)
+                    break
+                except NotPositiveDefinite:
+                    sigma *= 4
+        if sigma > 0 and not indefinite:
+            indefinite = False
+        report.sigma.append(sigma)
+        d = -chol.solve(g)
+        if sigma > 0:
+            # Is H itself indefinite? (the shift may just be decaying)
+            report.indefinite_events += int(indefinite)
+            if indefinite and gnorm < options.saddle_gradient_factor * options.gradient_tolerance:
+                v = _most_negative_direction(H, M, chol, sigma)
+                if v is not None:
+                    step = options.saddle_step or 1e-3
+                    if hasattr(problem, "min_arc_length") and options.saddle_step is None:
+                        step = 1e-2 * problem.min_arc_length()
+                    v *= step / np.abs(v).max()
+                    if v @ g > 0:
+                        v = -v
+                    d = d + v
+                    report.saddle_escapes += 1
+        full_d = np.zeros(n)
+        full_d[free_idx] = d
+        e0 = report.energy[-1]
+        slope = float(g @ d)
+        alpha = 1.0
+        x = problem.get_vars()
+        for _ in range(options.max_backtracks):
+            problem.set_vars(x + alpha * full_d)
+            if objective() <= e0 + options.armijo * alpha * min(slope, 0.0):
+                break
+            alpha *= 0.5
+        else:
+            problem.set_vars(x)
+            report.message = "line search failed"
+            break
+        if hasattr(problem, "update_source_frame"):
+            problem.update_source_frame()
+        report.iterations = it + 1
+        sigma = 0.0 if sigma < 1e-8 * (sigma0 or 0.0) else sigma / 2
+        if callback is not None and callback(it, report):
+            report.message = "stopped by callback"
+            break
+    report.time_s = time.perf_counter() - start
+    return report
+
+
+def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float):
+    """Eigenvector of the most negative eigenvalue of ``H d = λ M d``, or None.
+
+    Shift-invert about ``−σ`` reuses the factorization of ``H + σM``.
+    """
+    n = H.shape[0]
+    op = spla.LinearOperator((n, n), matvec=chol.solve, dtype=float)
+    try:
+        lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-sigma, which="LM", OPinv=op, tol=1e-6, maxiter=500)
+    except (spla.ArpackNoConvergence, ValueError):
+        return None
+    if lam[0] >= 0:
+        return None
+    return vecs[:, 0]
