@@ -165,9 +165,12 @@ def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = Newton
         slope = float(g @ d)
         alpha = 1.0
         x = problem.get_vars()
+        # When the predicted decrease is below the energy's round-off, the
+        # energy cannot judge the step: take it and let the gradient decide.
+        resolvable = -slope > 1e-13 * max(abs(e0), 1e-300)
         for _ in range(options.max_backtracks):
             problem.set_vars(x + alpha * full_d)
-            if objective() <= e0 + options.armijo * alpha * min(slope, 0.0):
+            if not resolvable or objective() <= e0 + options.armijo * alpha * min(slope, 0.0):
                 break
             alpha *= 0.5
         else:
@@ -177,6 +180,9 @@ def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = Newton
         if hasattr(problem, "update_source_frame"):
             problem.update_source_frame()
         report.iterations = it + 1
+        if alpha * np.abs(full_d).max() <= 1e-15 * (1.0 + np.abs(x).max()):
+            report.message = f"step below round-off at |g| = {gnorm:.3e}"
+            break
         sigma = 0.0 if sigma < 1e-8 * (sigma0 or 0.0) else sigma / 2
         if callback is not None and callback(it, report):
             report.message = "stopped by callback"
