@@ -231,6 +231,8 @@ class ElasticRods:
         self.d1_src = frames.orthonormalize(frames.transport(t_rest, t_now, d1_rest), t_now)
         self.ref_twist_src = self._reference_twist()
 
+        for arr in (self.ks, self.bending_stiffness, self.kt_edge, self.density, self.area, self.polar_moment):
+            arr.flags.writeable = False  # stiffnesses are fixed at construction (cached stencil parameters)
         self._build_indices()
 
     # ------------------------------------------------------------------ input
@@ -347,6 +349,15 @@ class ElasticRods:
         return q
 
     def _vertex_params(self) -> np.ndarray:
+        # Cached: it changes only with the source frame, which replaces these arrays.
+        key = (self.t_src, self.d1_src, self.ref_twist_src, self.kappa_bar, self.twist_bar)
+        old = getattr(self, "_params_key", None)
+        if old is None or any(a is not b for a, b in zip(old, key)):
+            self._params = self._build_vertex_params()
+            self._params_key = key
+        return self._params
+
+    def _build_vertex_params(self) -> np.ndarray:
         se = self.stencil_edges
         p = np.empty((stencils.NUM_VERTEX_PARAMS, self.num_stencils))
         p[0:3], p[3:6] = self.t_src[se[:, 0]].T, self.d1_src[se[:, 0]].T
