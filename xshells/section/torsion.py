@@ -27,7 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import splu
 from skfem import (Basis, BilinearForm, ElementTriP2, FacetBasis, Functional,
                    InteriorFacetBasis, LinearForm, MeshTri, MeshTri2, condense)
 from skfem.helpers import dot, grad
@@ -171,7 +171,11 @@ def condense_solve(matrix, rhs: np.ndarray, pinned: np.ndarray) -> np.ndarray:
     """Solve ``matrix x = rhs`` with ``x[pinned] = 0``; returns x, shape (n,)."""
     x = np.zeros(matrix.shape[0])
     A, b, _, free = condense(matrix, rhs, D=pinned)
-    x[free] = spsolve(A.tocsc(), b)
+    # The pinned Laplacian is symmetric positive definite: a symmetric ordering
+    # without pivoting is several times faster than spsolve's default.
+    factor = splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+    x[free] = factor.solve(b)
     return x
 
 
