@@ -14,9 +14,7 @@ import tempfile
 from pathlib import Path
 
 from ..errors import InputError
-from .io import load_section
-from .material import Material
-from .profiles import PARAM_NAMES, make_profile
+from .profiles import PARAM_NAMES
 
 FILE_SUFFIXES = (".json", ".obj", ".msh")
 
@@ -54,8 +52,13 @@ def _stiff_axis(value):
         raise InputError(f"--stiff-axis must be D1, D2 or an angle in radians, got {value!r}") from None
 
 
-def material_from_args(args) -> Material:
-    """Build the Material described by parsed command-line arguments."""
+def material_from_args(args):
+    """Build the :class:`~xshells.section.material.Material` described by parsed arguments."""
+    # imported here so that registering the subcommand does not load scikit-fem
+    from .io import load_section
+    from .material import Material
+    from .profiles import make_profile
+
     first, rest = args.profile[0], args.profile[1:]
     if Path(first).suffix.lower() in FILE_SUFFIXES or Path(first).is_file():
         if rest:
@@ -93,7 +96,7 @@ def _write_atomically(path: Path, write) -> None:
             os.remove(temp)
 
 
-def plot_warping(material: Material, path) -> None:
+def plot_warping(material, path) -> None:
     """Save a PNG of the cross-section mesh coloured by ψ (paper Fig. 4)."""
     import matplotlib
     matplotlib.use("Agg")
