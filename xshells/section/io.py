@@ -17,7 +17,9 @@ inside the outer loop are holes. Vertices used by no edge are ignored
 """
 from __future__ import annotations
 
+import contextlib
 import json
+from io import StringIO
 from pathlib import Path
 
 import numpy as np
@@ -72,7 +74,9 @@ def _read_msh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     import meshio
 
     try:
-        mesh = meshio.read(path)
+        # meshio prints a stray blank line for some binary msh 2.2 files; keep stdout clean for JSON
+        with contextlib.redirect_stdout(StringIO()):
+            mesh = meshio.read(path)
     except Exception as exc:  # meshio raises many types for bad files
         raise InputError(f"{path}: cannot read gmsh file ({exc})") from None
     edges = []
