@@ -107,8 +107,10 @@ class ElasticRods:
         in rod order).
     bending : (2,) or (E, 2) array
         Bending stiffnesses ``(B1, B2)`` per edge: ``B1`` resists curvature
-        ``κ1 = κb·m2`` (bending that moves the centreline along ``m2``),
-        ``B2`` resists ``κ2 = −κb·m1``. Either may be the larger.
+        ``κ1 = κb·m2`` (bending about ``m2``, which moves the centreline
+        along ``m1``), so ``B1 = E∫x² dA`` with ``x`` the cross-section
+        coordinate along ``m1``; ``B2 = E∫y² dA`` resists ``κ2 = −κb·m1``.
+        Either may be the larger.
     twisting : float or (E,) array
         Twisting stiffness ``GJ`` per edge; a vertex uses the mean of its two edges.
     density, area : float or (E,) array
@@ -482,7 +484,7 @@ class ElasticRods:
         takes its stencil's bending and twisting and the mean of its edges'
         stretching). With ``young``, ``shear`` and ``fibre`` (extreme fibre
         distances ``(c1, c2)`` along ``m1`` and ``m2``, per edge or scalar):
-        ``bending_stress`` (the largest normal stress, ``E (|Δκ1| c2 + |Δκ2| c1)/ℓ``
+        ``bending_stress`` (the largest normal stress, ``E (|Δκ1| c1 + |Δκ2| c2)/ℓ``
         averaged over the incident edges' frames), ``twisting_stress``
         (``G r |Δm| / ℓ`` with ``r = hypot(c1, c2)``) and
         ``stretching_stress`` (``E |strain|``).
@@ -509,12 +511,12 @@ class ElasticRods:
                 dk = np.stack([np.asarray(k) for k in kappa]) - self.kappa_bar.T
                 e0, e1 = self.stencil_edges[:, 0], self.stencil_edges[:, 1]
                 if self.bending_energy == "2008":
-                    s0 = E[e0] * (np.abs(dk[0]) * c[e0, 1] + np.abs(dk[1]) * c[e0, 0])
-                    s1 = E[e1] * (np.abs(dk[2]) * c[e1, 1] + np.abs(dk[3]) * c[e1, 0])
+                    s0 = E[e0] * (np.abs(dk[0]) * c[e0, 0] + np.abs(dk[1]) * c[e0, 1])
+                    s1 = E[e1] * (np.abs(dk[2]) * c[e1, 0] + np.abs(dk[3]) * c[e1, 1])
                     sb = 0.5 * (s0 + s1) / ell
                 else:
                     cm = 0.5 * (c[e0] + c[e1])
-                    sb = 0.5 * (E[e0] + E[e1]) * (np.abs(dk[0]) * cm[:, 1] + np.abs(dk[1]) * cm[:, 0]) / ell
+                    sb = 0.5 * (E[e0] + E[e1]) * (np.abs(dk[0]) * cm[:, 0] + np.abs(dk[1]) * cm[:, 1]) / ell
                 r = 0.5 * (np.hypot(c[e0, 0], c[e0, 1]) + np.hypot(c[e1, 0], c[e1, 1]))
                 st = 0.5 * (G[e0] + G[e1]) * r * np.abs(np.asarray(twist) - self.twist_bar) / ell
             else:
