@@ -97,3 +97,15 @@ def test_stress_measures_shapes_and_signs():
         assert (s[name] >= 0).all()
     assert s["bending_energy_density"][0] == 0.0  # an end vertex has no bending stencil
     assert s["bending_stress"][1:-1].min() > 0
+
+
+def test_rods_from_section_materials():
+    from xshells.rod import rods_with_materials
+    from xshells.section import Material
+
+    m = Material.uniform("rectangle", [10, 7], E=20000, nu=0.3)
+    pts = np.c_[np.linspace(0, 100, 11), np.zeros(11), np.zeros(11)]
+    rods = rods_with_materials([pts, pts + 50], m)
+    assert np.allclose(rods.bending_stiffness[0], (20000 * 10**3 * 7 / 12, 20000 * 7**3 * 10 / 12))
+    assert np.allclose(rods.ks, 20000 * 70)
+    assert np.allclose(rods.polar_moment, (10**3 * 7 + 7**3 * 10) / 12)

@@ -1,4 +1,4 @@
 """The discrete elastic rod (paper §3; Bergou et al. 2008, 2010)."""
-from .rods import ElasticRod, ElasticRods, EnergyParts
+from .rods import ElasticRod, ElasticRods, EnergyParts, rods_with_materials
 
-__all__ = ["ElasticRod", "ElasticRods", "EnergyParts"]
+__all__ = ["ElasticRod", "ElasticRods", "EnergyParts", "rods_with_materials"]

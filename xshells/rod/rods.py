@@ -526,6 +526,33 @@ class ElasticRods:
         return out
 
 
+def rods_with_materials(rods: Sequence[np.ndarray], materials, **kwargs) -> ElasticRods:
+    """:class:`ElasticRods` whose stiffnesses, area, density and rotational inertia come from
+    :class:`xshells.section.Material` objects: one for all rods, one per rod, or one per edge."""
+    from ..section import expand_materials
+
+    edges_per_rod = [len(r) - 1 for r in rods]
+    props = expand_materials(materials, edges_per_rod)
+    mats = materials if isinstance(materials, (list, tuple)) else [materials]
+    polar = [float(np.trace(np.asarray(m.second_moments))) for m in mats]
+    if len(mats) == 1:
+        polar_moment = polar[0]
+    elif len(mats) == len(rods):
+        polar_moment = np.repeat(polar, edges_per_rod)
+    else:
+        polar_moment = np.asarray(polar)
+    return ElasticRods(
+        rods,
+        stretching=props["ks"],
+        bending=np.stack([props["B1"], props["B2"]], axis=1),
+        twisting=props["kt"],
+        area=props["area"],
+        density=props["density"],
+        polar_moment=polar_moment,
+        **kwargs,
+    )
+
+
 def ElasticRod(points: np.ndarray, **kwargs) -> ElasticRods:
     """A single discrete elastic rod: :class:`ElasticRods` with one rod.
 
