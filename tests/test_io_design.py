@@ -17,10 +17,7 @@ from xshells.io import (
     Design, design_from_arrays, read_design, read_rest_lengths, write_design_obj, write_polylines_obj,
 )
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data" / "elasticrods"
-EXAMPLES = REPO / "xshells" / "data" / "examples"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared ElasticRods data not found at {DATA}")
+from data_paths import DATA, EXAMPLES, REPO, needs_data  # noqa: F401
 
 
 def _design_files() -> list[Path]:

@@ -12,10 +12,7 @@ from xshells.errors import InputError
 from xshells.io import design_from_arrays, read_design
 from xshells.linkage.graph import BEAM_A, BEAM_B, analyze, reduced_dof_count
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data" / "elasticrods"
-EXAMPLES = REPO / "xshells" / "data" / "examples"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared ElasticRods data not found at {DATA}")
+from data_paths import DATA, EXAMPLES, REPO, needs_data  # noqa: F401
 
 
 def _linkage_files() -> list[Path]:
