@@ -1,0 +1,197 @@
+"""The joint map: from a joint's 9 variables to the terminal edges of its rods.
+
+A joint (paper §3, Fig. 3) has a position ``p``, an infinitesimal rotation
+``ω`` about its source frame ``(b0, n0)`` (reset after every accepted step),
+an opening angle ``α`` and the lengths ``ℓA, ℓB`` of its two edges. With
+``b = R(ω) b0`` (the bisector of the two beams), ``n = R(ω) n0`` (the
+normal) and ``u = n × b``::
+
+    t_A = cos(α/2) b − sin(α/2) u        t_B = cos(α/2) b + sin(α/2) u
+
+so that ``angle(t_A, t_B) = α`` and ``t_A × t_B = sin(α) n``. Each beam's
+terminal edge ``ℓ t`` is centred on the joint. A rod that meets the joint
+on beam X with orientation ``σ = ±1`` (its edge runs along ``σ t_X``) has
+that edge from ``p − σℓt_X/2`` to ``p + σℓt_X/2``; its material frame there
+is ``m2 = n`` rotated by the cross-section angle ``φ`` about the edge, and
+``θ`` is the angle from the rod's reference director (transported in time
+from the rod's source frame) to ``m1``.
+
+One *instance* is one rod end at a joint. Instance variables are packed
+``[p (3), ω (3), α, ℓA, ℓB]``; instance parameters are
+
+=====  ===================================================
+0:3    ``b0``
+3:6    ``n0``
+6      beam: 0 for A, 1 for B
+7      ``σ``
+8:11   the rod edge's source tangent
+11:14  the rod edge's source director ``d1``
+14     ``θ`` at the last source update (picks the 2π branch)
+15     cross-section angle ``φ``
+=====  ===================================================
+
+Outputs per instance: the edge's start point (3), end point (3) and ``θ``.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _jaxconfig  # noqa: F401
+from ..rod import vec
+from ..rod.autodiff import bucket
+
+NUM_JOINT_VARS = 9
+NUM_INSTANCE_PARAMS = 16
+NUM_OUTPUTS = 7
+
+
+def rotate(w, v):
+    """``exp([ω]×) v`` by Rodrigues' formula, smooth (and Taylor-expanded) at ``ω = 0``."""
+    th2 = vec.dot(w, w)
+    small = th2 < 1e-8
+    safe = jnp.where(small, 1.0, th2)
+    th = jnp.sqrt(safe)
+    a = jnp.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, jnp.sin(th) / th)
+    b = jnp.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - jnp.cos(th)) / safe)
+    wv = vec.cross(w, v)
+    wwv = vec.cross(w, wv)
+    return tuple(v[i] + a * wv[i] + b * wwv[i] for i in range(3))
+
+
+def joint_frame(q, b0, n0):
+    """Unit tangents ``t_A, t_B`` and normal ``n`` of joints with variables ``q``."""
+    w = (q[3], q[4], q[5])
+    b = rotate(w, b0)
+    n = rotate(w, n0)
+    u = vec.cross(n, b)
+    c, s = jnp.cos(0.5 * q[6]), jnp.sin(0.5 * q[6])
+    return vec.combine(c, b, -s, u), vec.combine(c, b, s, u), n
+
+
+def instance_outputs(q, prm):
+    """Terminal edge endpoints and material angle of each instance: tuple of 7 arrays (N,)."""
+    b0, n0 = (prm[0], prm[1], prm[2]), (prm[3], prm[4], prm[5])
+    beam, sigma = prm[6], prm[7]
+    tA, tB, n = joint_frame(q, b0, n0)
+    t = vec.combine(1.0 - beam, tA, beam, tB)
+    length = (1.0 - beam) * q[7] + beam * q[8]
+    te = vec.scale(sigma, t)
+    half = vec.scale(0.5 * length, te)
+    p = (q[0], q[1], q[2])
+    start, end = vec.sub(p, half), vec.add(p, half)
+    d1 = vec.parallel_transport((prm[8], prm[9], prm[10]), te, (prm[11], prm[12], prm[13]))
+    d2 = vec.cross(te, d1)
+    phi = prm[15]
+    m1 = vec.combine(jnp.cos(phi), vec.cross(n, te), -jnp.sin(phi), n)
+    raw = jnp.arctan2(vec.dot(m1, d2), vec.dot(m1, d1))
+    theta = raw + 2.0 * jnp.pi * jnp.round((prm[14] - raw) / (2.0 * jnp.pi))
+    return (*start, *end, theta)
+
+
+def _outputs(q, prm):
+    return jnp.stack(instance_outputs(tuple(q), tuple(prm)))
+
+
+def _jacobian_tuple(qt, pt):
+    """(7, 9, N): derivative of each output along each of the 9 variables."""
+    def column(v):
+        return jnp.stack(jax.jvp(lambda qq: instance_outputs(qq, pt), (qt,), (v,))[1])
+
+    return jnp.moveaxis(jax.vmap(column)(_basis(qt)), 0, 1)
+
+
+def _basis(qt):
+    n, size = len(qt), qt[0].shape[0]
+    return tuple(jnp.broadcast_to((jnp.arange(n) == k).astype(qt[0].dtype)[:, None], (n, size)) for k in range(n))
+
+
+def _weighted_hessian_tuple(qt, pt, w):
+    """(9, 9, N): Hessian of ``Σ_i w_i · output_i`` per instance (forward over forward mode)."""
+    wt = jnp.stack(w)
+
+    def column(v):  # derivative of the Jacobian along basis direction v: (7, 9, N)
+        return jax.jvp(lambda qq: _jacobian_tuple(qq, pt), (qt,), (v,))[1]
+
+    d2 = jax.vmap(column)(_basis(qt))  # (9, 7, 9, N)
+    return jnp.einsum("bian,in->ban", d2, wt)
+
+
+@jax.jit
+def _evaluate(q, prm):
+    return _outputs(q, prm)
+
+
+@jax.jit
+def _evaluate_with_jacobian(q, prm):
+    qt, pt = tuple(q), tuple(prm)
+    return jnp.stack(instance_outputs(qt, pt)), _jacobian_tuple(qt, pt)
+
+
+@jax.jit
+def _weighted_hessian(q, prm, w):
+    return _weighted_hessian_tuple(tuple(q), tuple(prm), tuple(w))
+
+
+@jax.jit
+def _weighted_hessian_jvp(q, prm, w, dq):
+    f = lambda qq: _weighted_hessian_tuple(qq, tuple(prm), tuple(w))  # noqa: E731
+    return jax.jvp(f, (tuple(q),), (tuple(dq),))[1]
+
+
+@jax.jit
+def _second_directional(q, prm, dq):
+    """Second derivative of the outputs along ``dq``: (7, N)."""
+    qt, pt, dqt = tuple(q), tuple(prm), tuple(dq)
+    first = lambda qq: jax.jvp(lambda z: instance_outputs(z, pt), (qq,), (dqt,))[1]  # noqa: E731
+    return jnp.stack(jax.jvp(first, (qt,), (dqt,))[1])
+
+
+def _pad(arrays, n):
+    m = bucket(n)
+    out = []
+    for a in arrays:
+        p = np.empty((a.shape[0], m))
+        p[:, :n] = a
+        p[:, n:] = a[:, :1]
+        out.append(p)
+    return out
+
+
+def outputs(q: np.ndarray, prm: np.ndarray) -> np.ndarray:
+    """Instance outputs, (7, N)."""
+    n = q.shape[1]
+    qp, pp = _pad([q, prm], n)
+    return np.asarray(_evaluate(qp, pp))[:, :n]
+
+
+def outputs_and_jacobian(q: np.ndarray, prm: np.ndarray):
+    """Instance outputs (7, N) and their Jacobian (7, 9, N)."""
+    n = q.shape[1]
+    qp, pp = _pad([q, prm], n)
+    out, jac = _evaluate_with_jacobian(qp, pp)
+    return np.asarray(out)[:, :n], np.asarray(jac)[:, :, :n]
+
+
+def weighted_hessian(q: np.ndarray, prm: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Hessian of ``w · outputs`` per instance, (9, 9, N); ``w`` is (7, N)."""
+    n = q.shape[1]
+    qp, pp, wp = _pad([q, prm, w], n)
+    return np.asarray(_weighted_hessian(qp, pp, wp))[:, :, :n]
+
+
+def weighted_hessian_derivative(q, prm, w, dq) -> np.ndarray:
+    """Directional derivative along ``dq`` (9, N) of :func:`weighted_hessian` (``w`` held fixed)."""
+    n = q.shape[1]
+    qp, pp, wp, dqp = _pad([q, prm, w, dq], n)
+    dqp[:, n:] = 0.0
+    return np.asarray(_weighted_hessian_jvp(qp, pp, wp, dqp))[:, :, :n]
+
+
+def second_directional(q, prm, dq) -> np.ndarray:
+    """``d²/dε² outputs(q + ε dq)`` at ε = 0, (7, N)."""
+    n = q.shape[1]
+    qp, pp, dqp = _pad([q, prm, dq], n)
+    dqp[:, n:] = 0.0
+    return np.asarray(_second_directional(qp, pp, dqp))[:, :n]
