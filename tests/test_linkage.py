@@ -1,0 +1,154 @@
+"""The reduced-variable linkage: derivatives, invariants, counts, real designs."""
+import numpy as np
+import pytest
+
+from xshells.io import read_design
+from xshells.linkage.grids import rhombic_grid
+from xshells.linkage.linkage import Linkage
+from xshells.section import Material
+
+from data_paths import EXAMPLES
+
+RECT = Material.uniform("rectangle", [10, 7], E=20000, nu=0.3)
+PLUS = Material.uniform("+", [5.0, 5.0, 0.2, 0.2], E=20000, nu=0.3)
+
+
+def nonuniform(k=4):
+    return Linkage(read_design(EXAMPLES / "nonuniform_linkage.obj"), Material.uniform("rectangle", [0.1, 0.07], E=20000, nu=0.3), subdivision=k)
+
+
+def banana(k=4):
+    d = read_design(EXAMPLES / "wiggly_banana_5" / "flat_opt.msh")
+    return Linkage(d, PLUS, subdivision=k)
+
+
+def perturbed(L, seed, scale=1e-2):
+    rng = np.random.default_rng(seed)
+    x = L.get_vars()
+    span = np.ptp(L.joint_positions(), axis=0).max()
+    dx = rng.standard_normal(len(x))
+    dx[: L.num_joint_vars] *= np.tile([span, span, span, 1, 1, 1, 1, 0, 0], L.num_joints) * scale
+    dx[L.num_joint_vars :] *= span * scale * 0.1
+    L.set_vars(x + dx)
+    L.update_source_frame()
+    return L
+
+
+def fd_check(L, with_p, seed=0):
+    """Central-difference checks of gradient and Hessian; returns the relative errors at h and h/2."""
+    rng = np.random.default_rng(seed)
+    x, p = L.get_vars(), L.rest_lengths
+    z0 = np.concatenate([x, p]) if with_p else x
+    nx = len(x)
+    d = rng.standard_normal(len(z0))
+    ell = 0.1 * np.mean(p)  # lengths move in the units of the design, angles in radians
+    d[: L.num_joint_vars] *= np.tile([ell, ell, ell, 1e-2, 1e-2, 1e-2, 1e-2, 0.1 * ell, 0.1 * ell], L.num_joints)
+    is_angle = L._free_rod >= 3 * L.rods.num_vertices
+    d[L._free_reduced] *= np.where(is_angle, 1e-2, ell)
+    if with_p:
+        d[nx:] *= 0.1 * ell
+
+    def set_z(z):
+        L.set_vars(z[:nx])
+        if with_p:
+            L.set_rest_lengths(z[nx:])
+
+    g = L.gradient(with_p)
+    H = L.hessian(with_p)
+    Hd = H @ d
+    ge, he = [], []
+    for h in 1e-3 / 2.0 ** np.arange(9):
+        set_z(z0 + h * d)
+        ep, gp = L.energy(), L.gradient(with_p)
+        set_z(z0 - h * d)
+        em, gm = L.energy(), L.gradient(with_p)
+        set_z(z0)
+        ge.append(abs((ep - em) / (2 * h) - g @ d) / abs(g @ d))
+        he.append(np.linalg.norm((gp - gm) / (2 * h) - Hd) / np.linalg.norm(Hd))
+    return ge, he, H
+
+
+@pytest.mark.parametrize("make", [nonuniform, banana], ids=["obj", "msh"])
+@pytest.mark.parametrize("state", ["flat", "3d"])
+@pytest.mark.parametrize("with_p", [False, True])
+def test_derivatives_match_finite_differences(make, state, with_p):
+    L = make()
+    if state == "3d":
+        perturbed(L, seed=1)
+    ge, he, H = fd_check(L, with_p)
+    assert min(ge) < 1e-5 and min(he) < 1e-5
+    # second order: while truncation dominates, halving h divides the error by about 4
+    assert any(3.5 < a / b < 4.5 for a, b in zip(ge, ge[1:]))
+    assert any(3.5 < a / b < 4.5 for a, b in zip(he, he[1:]))
+    assert abs(H - H.T).max() <= 1e-12 * abs(H).max()
+
+
+def test_straight_flat_grid_has_zero_energy_at_its_rest_lengths():
+    L = Linkage(rhombic_grid(4, 3, spacing=100.0, angle=1.2), RECT, subdivision=5)
+    scale = RECT.bending_stiffness[0] / 100.0
+    parts = L.energy_parts()
+    assert parts.total < 1e-20 * scale
+    assert np.abs(L.gradient()).max() < 1e-9 * scale
+
+
+def test_energy_invariant_under_translation_and_gradient_orthogonal_to_rigid_modes():
+    L = perturbed(nonuniform(), seed=2)
+    e0 = L.energy()
+    x = L.get_vars()
+    shift = np.zeros_like(x)
+    for j in range(L.num_joints):
+        shift[9 * j : 9 * j + 3] = [0.3, -0.2, 0.7]
+    free_pos = L._free_rod < 3 * L.rods.num_vertices
+    shift[L._free_reduced[free_pos]] = np.tile([0.3, -0.2, 0.7], L.rods.num_vertices)[L._free_rod[free_pos]]
+    L.set_vars(x + shift)
+    assert abs(L.energy() - e0) <= 1e-10 * abs(e0)
+    L.set_vars(x)
+    g = L.gradient()
+    for w in np.eye(3):
+        mode = np.zeros_like(x)
+        P = L.joint_positions()
+        for j in range(L.num_joints):
+            mode[9 * j : 9 * j + 3] = np.cross(w, P[j])
+            mode[9 * j + 3 : 9 * j + 6] = w
+        rod_x = L.rods.get_vars()
+        V3 = 3 * L.rods.num_vertices
+        vel = np.concatenate([np.cross(w, L.rods.points).ravel(), L.rods.t_src @ w])
+        mode[L._free_reduced] = vel[L._free_rod]
+        assert abs(g @ mode) <= 1e-8 * np.linalg.norm(g) * np.linalg.norm(mode)
+        del rod_x, V3
+
+
+def test_mass_matrix_is_symmetric_positive_definite():
+    L = nonuniform()
+    M = L.mass_matrix().toarray()
+    assert np.allclose(M, M.T, atol=1e-14 * abs(M).max())
+    assert np.linalg.eigvalsh(M).min() > 0
+
+
+@pytest.mark.parametrize("k", [3, 5, 10])
+def test_dof_count_matches_the_graph_formula(k):
+    d = read_design(EXAMPLES / "nonuniform_linkage.obj")
+    L = Linkage(d, RECT, subdivision=k)
+    assert L.num_vars == L.graph.dof(k)
+    assert L.num_vars == 9 * L.num_joints + sum(
+        (4 * k - 11) if (L.graph.segment_joints[s] >= 0).all() else (4 * k - 4) for s in range(L.num_segments)
+    )
+
+
+def test_selectors_and_pins():
+    L = nonuniform()
+    assert np.allclose(L.angle_selector() @ L.get_vars(), L.joint_angles())
+    assert np.allclose(L.height_selector() @ L.get_vars(), L.joint_positions() @ L.graph.layout_normal)
+    pins = L.rigid_pin_indices()
+    assert len(pins) == 6 and pins[0] % 9 == 0
+    assert 0 < L.average_angle() < np.pi
+
+
+def test_rest_length_map_preserves_segment_lengths_of_straight_beams():
+    L = Linkage(rhombic_grid(3, 3, spacing=50.0, angle=1.0), RECT, subdivision=6)
+    k = L.subdivision
+    edge = L.rest_length_map @ L.rest_lengths
+    # joint-to-joint: k - 2 interior edges + two halves of joint edges == p
+    for s in range(L.num_segments):
+        e = edge[s * k : (s + 1) * k]
+        assert np.isclose(e[1:-1].sum() + 0.5 * (e[0] + e[-1]), L.rest_lengths[s])
