@@ -59,7 +59,7 @@ def _per_edge(name: str, value, num_edges: int, columns: int | None = None) -> n
     return arr
 
 
-def stretch_kernel(q: np.ndarray, ks: np.ndarray):
+def stretch_kernel(q: np.ndarray, ks: np.ndarray, hessian: bool = True):
     """Stretching energy, gradient and Hessian of edge stencils.
 
     Parameters
@@ -82,6 +82,8 @@ def stretch_kernel(q: np.ndarray, ks: np.ndarray):
     ge = ks * strain * t
     grad[0:3], grad[3:6] = -ge, ge
     grad[6] = 0.5 * ks * (1.0 - (n / L) ** 2)
+    if not hessian:
+        return energy, grad, None
     a = ks / L
     b = ks * (1.0 / L - 1.0 / n)
     hee = (a - b) * t[:, None, :] * t[None, :, :] + b * np.eye(3)[:, :, None]
@@ -380,7 +382,7 @@ class ElasticRods:
 
     # --------------------------------------------------------------- energies
     def energy_parts(self) -> EnergyParts:
-        stretch = float(np.sum(stretch_kernel(self._edge_q(), self.ks)[0])) if self.num_edges else 0.0
+        stretch = float(np.sum(stretch_kernel(self._edge_q(), self.ks, hessian=False)[0])) if self.num_edges else 0.0
         if self.num_stencils:
             eb = self._vertex_energies()
             bend, twist = float(np.sum(eb[0])), float(np.sum(eb[1]))
@@ -404,7 +406,7 @@ class ElasticRods:
         if key not in self._assemblers:
             self._assemblers[key] = VectorAssembler([self.vertex_index, self.edge_index], size)
         gv = self._vertex_gradient() if self.num_stencils else np.zeros((13, 0))
-        _, ge, _ = stretch_kernel(self._edge_q(), self.ks)
+        _, ge, _ = stretch_kernel(self._edge_q(), self.ks, hessian=False)
         return self._assemblers[key].assemble([gv, ge])
 
     def _vertex_gradient(self) -> np.ndarray:
@@ -415,13 +417,9 @@ class ElasticRods:
 
     def _vertex_hessian(self) -> np.ndarray:
         q, p = self._vertex_q(), self._vertex_params()
-        if _analytic is not None and hasattr(_analytic, "vertex_hessian") and self._at_source():
+        if _analytic is not None and hasattr(_analytic, "vertex_hessian"):
             return _analytic.vertex_hessian(q, p, self.bending_energy)
         return autodiff.vertex_hessian(q, p, self.bending_energy)
-
-    def _at_source(self) -> bool:
-        t, _ = frames.unit_tangents(self.points, self.edges)
-        return bool(np.all(np.abs(t - self.t_src) <= 1e-14))
 
     def hessian(self, with_rest_lengths: bool = False, triangle: str = "full") -> sp.csr_matrix:
         """Sparse Hessian of the energy.
