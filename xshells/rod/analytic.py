@@ -39,40 +39,39 @@ import numpy as np
 BENDING_VARIANTS = ("2008", "2010")
 
 
-# --------------------------------------------------------------------------- helpers on (3, N) arrays
+# --------------------------------------------------------------------------- helpers on (3, ...) arrays
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 def _cross(a, b):
-    out = np.empty_like(a)
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    np.multiply(a[1], b[2], out=out[0])
+    out[0] -= a[2] * b[1]
+    np.multiply(a[2], b[0], out=out[1])
+    out[1] -= a[0] * b[2]
+    np.multiply(a[0], b[1], out=out[2])
+    out[2] -= a[1] * b[0]
     return out
 
 
-def _transport(a, b, v):
-    """Parallel transport of ``v`` from unit ``a`` to unit ``b`` (as :func:`.vec.parallel_transport`)."""
-    c = _cross(a, b)
-    d = _dot(a, b)
-    f = _dot(c, v) / (1.0 + d)
-    return d * v + _cross(c, v) + f * c
+def _transport_perp(a, b, v):
+    """Parallel transport of ``v`` from unit ``a`` to unit ``b`` (as :func:`.vec.parallel_transport`).
+
+    Written as ``v − ((a+b)·v)/(1 + a·b) (a+b) + 2(a·v) b``, the same rotation.
+    """
+    out = np.add(a, b)
+    av = _dot(a, v)
+    f = (av + _dot(b, v)) / (1.0 + _dot(a, b))
+    out *= -f
+    out += v
+    av *= 2.0
+    out += av * b
+    return out
 
 
 def _outer(a, b):
-    return a[:, None, :] * b[None, :, :]
-
-
-def _sym_outer(a, b):
-    o = a[:, None, :] * b[None, :, :]
-    return o + o.transpose(1, 0, 2)
-
-
-def _skew(a):
-    """``[a]×`` as (3, 3, N): ``[a]× v = a × v``."""
-    z = np.zeros_like(a[0])
-    return np.array([[z, -a[2], a[1]], [a[2], z, -a[0]], [-a[1], a[0], z]])
+    return a[:, None] * b[None, :]
 
 
 def _check_variant(variant):
@@ -82,96 +81,121 @@ def _check_variant(variant):
 
 # --------------------------------------------------------------------------- shared first-order quantities
 class _Stencil:
-    """Geometry, strains and first derivatives of the energy w.r.t. (p, m, θ, e)."""
+    """Geometry, strains, energies and first derivatives of N vertex stencils.
+
+    Per-edge quantities are stacked as ``(3, 2, N)`` (or ``(2, N)``): edge 0, edge 1.
+    """
 
     def __init__(self, q, prm, variant):
         _check_variant(variant)
         q = np.asarray(q, dtype=float)
         prm = np.asarray(prm, dtype=float)
         self.variant = variant
-        x0, x1, x2 = q[0:3], q[3:6], q[6:9]
-        th0, th1, L0, L1 = q[9], q[10], q[11], q[12]
-        e0 = x1 - x0
-        e1 = x2 - x1
-        n0 = np.sqrt(_dot(e0, e0))
-        n1 = np.sqrt(_dot(e1, e1))
-        t0 = e0 / n0
-        t1 = e1 / n1
-        ts0, ts1 = prm[0:3], prm[6:9]
-        r0 = _transport(ts0, t0, prm[3:6])
-        r1 = _transport(ts1, t1, prm[9:12])
-        s0 = _cross(t0, r0)
-        s1 = _cross(t1, r1)
-        c0, sn0, c1, sn1 = np.cos(th0), np.sin(th0), np.cos(th1), np.sin(th1)
-        m1_0 = c0 * r0 + sn0 * s0
-        m2_0 = c0 * s0 - sn0 * r0
-        m1_1 = c1 * r1 + sn1 * s1
-        m2_1 = c1 * s1 - sn1 * r1
-        den = n0 * n1 + _dot(e0, e1)
-        kb = (2.0 / den) * _cross(e0, e1)
-        u0, v0, u1, v1 = _dot(kb, m1_0), _dot(kb, m2_0), _dot(kb, m1_1), _dot(kb, m2_1)
+        n = q.shape[1]
+        E = np.empty((3, 2, n))
+        np.subtract(q[3:6], q[0:3], out=E[:, 0])
+        np.subtract(q[6:9], q[3:6], out=E[:, 1])
+        nn = np.sqrt(_dot(E, E))
+        T = E / nn
+        p4 = prm[0:12].reshape(2, 2, 3, n)
+        TS = np.ascontiguousarray(p4[:, 0].transpose(1, 0, 2))
+        VS = np.ascontiguousarray(p4[:, 1].transpose(1, 0, 2))
+        R = _transport_perp(TS, T, VS)  # reference directors d1
+        S = _cross(T, R)  # d2
+        C = _cross(TS, T)
+        dts = _dot(TS, T)
+        e0, e1 = E[:, 0], E[:, 1]
+        n0, n1 = nn[0], nn[1]
+        cr = _cross(e0, e1)
+        d01 = _dot(e0, e1)
+        n01 = n0 * n1
+        den = n01 + d01
+        inv_den = 1.0 / den
+        kb = (2.0 * inv_den) * cr
+        kbR = _dot(kb[:, None], R)
+        kbS = _dot(kb[:, None], S)
+        th = q[9:11]
+        # cos and sin from one transcendental call (half-angle tangent)
+        th2 = np.tan(0.5 * th)
+        sn = th2 * th2
+        cs = 1.0 / (1.0 + sn)
+        sn = 2.0 * th2 * cs
+        cs *= 2.0
+        cs -= 1.0
+        U = cs * kbR + sn * kbS  # κb·m1_j
+        V = cs * kbS - sn * kbR  # κb·m2_j
+        L0, L1 = q[11], q[12]
         ell = 0.5 * (L0 + L1)
 
-        # reference twist on the branch nearest the stored value
-        pt = _transport(t0, t1, r0)
-        raw = np.arctan2(_dot(_cross(pt, r1), t1), _dot(pt, r1))
-        tau = raw + 2.0 * np.pi * np.round((prm[22] - raw) / (2.0 * np.pi))
-        dm = th1 - th0 + tau - prm[21]
+        # reference twist: angle about t1 from P(t0→t1) d1_0 to d1_1, nearest the stored branch
+        r0, t0 = R[:, 0], T[:, 0]
+        a = _dot(T[:, 1], r0) / (1.0 + d01 / n01)
+        ptr = _dot(r0, R[:, 1]) - a * _dot(t0, R[:, 1])
+        pts = _dot(r0, S[:, 1]) - a * _dot(t0, S[:, 1])
+        raw = np.arctan2(-pts, ptr)
+        tau = raw + (2.0 * np.pi) * np.round((prm[22] - raw) * (0.5 / np.pi))
+        dm = q[10] - q[9] + tau - prm[21]
         kt = prm[16]
-        twist_energy = kt * dm * dm / (2.0 * ell)
         dE_dm = kt * dm / ell
+        twist_energy = 0.5 * dE_dm * dm
 
-        # bending: energy and ∂E/∂(u_j, v_j)
+        # bending: energy and F = ∂E/∂(u_j, v_j)
         if variant == "2008":
-            a1_0, a2_0, a1_1, a2_1 = v0 - prm[17], -u0 - prm[18], v1 - prm[19], -u1 - prm[20]
             inv = 1.0 / (4.0 * ell)
-            cb = (prm[12] * inv, prm[13] * inv, prm[14] * inv, prm[15] * inv)  # c_i of (κ1^0, κ2^0, κ1^1, κ2^1)
-            bend = cb[0] * a1_0**2 + cb[1] * a2_0**2 + cb[2] * a1_1**2 + cb[3] * a2_1**2
-            Fv0, Fu0 = 2 * cb[0] * a1_0, -2 * cb[1] * a2_0
-            Fv1, Fu1 = 2 * cb[2] * a1_1, -2 * cb[3] * a2_1
+            cb = prm[12:16] * inv  # c_i of (κ1^0, κ2^0, κ1^1, κ2^1)
+            a1 = V - prm[17:21:2]
+            a2 = -U - prm[18:21:2]
+            c1, c2 = cb[0::2], cb[1::2]
+            bend = c1[0] * a1[0] ** 2 + c2[0] * a2[0] ** 2 + c1[1] * a1[1] ** 2 + c2[1] * a2[1] ** 2
+            Fv = 2.0 * c1 * a1
+            Fu = -2.0 * c2 * a2
         else:
-            a1 = 0.5 * (v0 + v1) - prm[17]
-            a2 = -0.5 * (u0 + u1) - prm[18]
             inv = 1.0 / (2.0 * ell)
-            cb = (0.5 * (prm[12] + prm[14]) * inv, 0.5 * (prm[13] + prm[15]) * inv)
-            bend = cb[0] * a1**2 + cb[1] * a2**2
-            Fv0 = Fv1 = cb[0] * a1
-            Fu0 = Fu1 = -cb[1] * a2
-        self.cb = cb
-
-        # frame-rotation gradients (zero at the source frame)
-        w0 = _cross(ts0, t0) * (-1.0 / ((1.0 + _dot(ts0, t0)) * n0))
-        w1 = _cross(ts1, t1) * (-1.0 / ((1.0 + _dot(ts1, t1)) * n1))
-
-        # gradient w.r.t. (e0, e1, θ0, θ1)
-        M0 = Fu0 * m1_0 + Fv0 * m2_0
-        M1 = Fu1 * m1_1 + Fv1 * m2_1
-        M = M0 + M1
+            cb = np.array([0.5 * (prm[12] + prm[14]) * inv, 0.5 * (prm[13] + prm[15]) * inv])
+            a1 = 0.5 * (V[0] + V[1]) - prm[17]
+            a2 = -0.5 * (U[0] + U[1]) - prm[18]
+            bend = cb[0] * a1 * a1 + cb[1] * a2 * a2
+            Fv = np.broadcast_to(cb[0] * a1, (2, n))
+            Fu = np.broadcast_to(-cb[1] * a2, (2, n))
+        # Σ_a F_a m_a per edge, in the reference frame
+        MJ = np.multiply(Fu * cs - Fv * sn, R)
+        MJ += (Fu * sn + Fv * cs) * S
+        M = MJ[:, 0] + MJ[:, 1]
+        dth = Fu * V - Fv * U
+        dth[0] -= dE_dm
+        dth[1] += dE_dm
         kbM = _dot(kb, M)
-        g0 = n1 * t0 + e1  # ∇_{e0} den
-        g1 = n0 * t1 + e0
-        dth0 = Fu0 * v0 - Fv0 * u0 - dE_dm
-        dth1 = Fu1 * v1 - Fv1 * u1 + dE_dm
-        inv_den = 1.0 / den
-        ge0 = (2.0 * _cross(e1, M) - kbM * g0) * inv_den + (0.5 * dE_dm / n0) * kb + dth0 * w0
-        ge1 = (2.0 * _cross(M, e0) - kbM * g1) * inv_den + (0.5 * dE_dm / n1) * kb + dth1 * w1
+
+        # gradient w.r.t. e0, e1 (+ (∂E/∂θ_j) w_j, w_j = −(t_src×t)/((1 + t_src·t)|e|))
+        k = kbM * inv_den
+        wc = dth * (-1.0 / ((1.0 + dts) * nn))
+        ge0 = _cross(e1, M)
+        ge0 *= 2.0 * inv_den
+        ge0 -= (k * n1 / n0) * e0
+        ge0 -= k * e1
+        ge0 += (dE_dm * inv_den / n0) * cr
+        ge0 += wc[0] * C[:, 0]
+        ge1 = _cross(M, e0)
+        ge1 *= 2.0 * inv_den
+        ge1 -= (k * n0 / n1) * e1
+        ge1 -= k * e0
+        ge1 += (dE_dm * inv_den / n1) * cr
+        ge1 += wc[1] * C[:, 1]
 
         self.__dict__.update(
-            e0=e0, e1=e1, n0=n0, n1=n1, t0=t0, t1=t1, m1_0=m1_0, m2_0=m2_0, m1_1=m1_1, m2_1=m2_1,
-            den=den, inv_den=inv_den, kb=kb, u0=u0, v0=v0, u1=u1, v1=v1, ell=ell, dE_dm=dE_dm, kt=kt,
-            Fu0=Fu0, Fv0=Fv0, Fu1=Fu1, Fv1=Fv1, M=M, M0=M0, M1=M1, kbM=kbM, g0=g0, g1=g1,
-            dth0=dth0, dth1=dth1, ts0=ts0, ts1=ts1, ge0=ge0, ge1=ge1, bend=bend, twist=twist_energy,
+            E=E, nn=nn, T=T, TS=TS, R=R, S=S, C=C, dts=dts, cs=cs, sn=sn, e0=e0, e1=e1, n0=n0, n1=n1,
+            den=den, inv_den=inv_den, kb=kb, U=U, V=V, ell=ell, dE_dm=dE_dm, kt=kt, cb=cb, Fu=Fu, Fv=Fv,
+            MJ=MJ, M=M, kbM=kbM, dth=dth, ge0=ge0, ge1=ge1, bend=bend, twist=twist_energy,
         )
 
     def gradient(self):
-        n = self.e0.shape[1]
-        g = np.empty((13, n))
-        g[0:3] = -self.ge0
-        g[3:6] = self.ge0 - self.ge1
+        g = np.empty((13, self.e0.shape[1]))
+        np.negative(self.ge0, out=g[0:3])
+        np.subtract(self.ge0, self.ge1, out=g[3:6])
         g[6:9] = self.ge1
-        g[9] = self.dth0
-        g[10] = self.dth1
-        g[11] = g[12] = -(self.bend + self.twist) / (2.0 * self.ell)
+        g[9:11] = self.dth
+        g[11] = (self.bend + self.twist) * (-0.5 / self.ell)
+        g[12] = g[11]
         return g
 
 
@@ -192,81 +216,166 @@ def vertex_gradient(q, prm, variant="2008"):
 
 # --------------------------------------------------------------------------- Hessian
 def _grad_dot_kb(s, m):
-    """``(∇_{e0}, ∇_{e1})`` of ``κb·m`` with ``m`` held fixed: two (3, N) arrays."""
-    h = _dot(s.kb, m)
-    return (2.0 * _cross(s.e1, m) - h * s.g0) * s.inv_den, (2.0 * _cross(m, s.e0) - h * s.g1) * s.inv_den
+    """``(∇_{e0}, ∇_{e1})`` of ``κb·m`` with ``m`` (3, N) held fixed: two (3, N) arrays."""
+    h = _dot(s.kb, m) * s.inv_den
+    a0 = _cross(s.e1, m)
+    a0 *= 2.0 * s.inv_den
+    a0 -= h * s.g0
+    a1 = _cross(m, s.e0)
+    a1 *= 2.0 * s.inv_den
+    a1 -= h * s.g1
+    return a0, a1
 
 
-def _hessian_e(s):
-    """Hessian (8, 8, N) in the variables (e0, e1, θ0, θ1), at the source frame."""
+_SCRATCH = {}
+
+
+def _scratch(n):
+    """Reused (2, 30, 3, N) work array for the outer-product factors.
+
+    Fresh large arrays cost page faults on every call (a third of the Hessian's
+    time here); not thread-safe, like the rest of the rod's caches.
+    """
+    buf = _SCRATCH.get(n)
+    if buf is None:
+        _SCRATCH.clear()
+        buf = _SCRATCH[n] = np.empty((2, 30, 3, n))
+    return buf
+
+
+class _Pairs:
+    """Accumulates a (3, 3, N) block as a sum of outer products ``Σ_k p_k ⊗ q_k``."""
+
+    def __init__(self, buf, start, count):
+        self.P = buf[0, start:start + count]
+        self.Q = buf[1, start:start + count]
+        self.k = 0
+
+    def add(self, p, q):
+        self.P[self.k] = p
+        self.Q[self.k] = q
+        self.k += 1
+
+    def sum(self):
+        k = self.k
+        return np.einsum("kin,kjn->ijn", self.P[:k], self.Q[:k])
+
+
+def _add_diag(B, c):
+    for i in range(3):
+        B[i, i] += c
+
+
+def _add_skew(B, v):
+    """``B += [v]×``."""
+    B[0, 1] -= v[2]
+    B[0, 2] += v[1]
+    B[1, 0] += v[2]
+    B[1, 2] -= v[0]
+    B[2, 0] -= v[1]
+    B[2, 1] += v[0]
+
+
+def _hessian_blocks(s):
+    """Hessian at the source frame in the variables (e0, e1, θ0, θ1) as blocks.
+
+    Returns ``H00, H01, H11`` (3, 3, N), ``He0θ, He1θ`` (3, 2, N) and ``Hθθ`` (2, 2, N).
+    """
     n = s.e0.shape[1]
-    H = np.zeros((8, 8, n))
-    kb, n0, n1 = s.kb, s.n0, s.n1
+    e0, e1, n0, n1, kb, inv_den = s.e0, s.e1, s.n0, s.n1, s.kb, s.inv_den
+    t0, t1 = s.T[:, 0], s.T[:, 1]
+    s.g0 = g0 = n1 * t0 + e1  # ∇_{e0} den
+    s.g1 = g1 = n0 * t1 + e0
+    m1 = s.cs * s.R + s.sn * s.S
+    m2 = s.cs * s.S - s.sn * s.R
+    U, V, Fu, Fv = s.U, s.V, s.Fu, s.Fv
+    buf = _scratch(n)
+    b00, b01, b11 = _Pairs(buf, 0, 11), _Pairs(buf, 11, 8), _Pairs(buf, 19, 11)
+    he0 = np.zeros((3, 2, n))
+    he1 = np.zeros((3, 2, n))
+    hth = np.zeros((2, 2, n))
 
-    # Gauss-Newton-like terms: Σ 2 c_i ∇κ_i ∇κ_iᵀ + (kt/ℓ) ∇m ∇mᵀ
-    G = []
+    # Σ 2 c_i ∇κ_i ∇κ_iᵀ over the curvatures, ∇κ = (a0, a1, θ entries)
     if s.variant == "2008":
-        for coef, m, th, j in ((s.cb[0], s.m2_0, -s.u0, 0), (s.cb[1], s.m1_0, s.v0, 0),
-                               (s.cb[2], s.m2_1, -s.u1, 1), (s.cb[3], s.m1_1, s.v1, 1)):
-            a0, a1 = _grad_dot_kb(s, m)
-            g = np.zeros((8, n))
-            g[0:3], g[3:6], g[6 + j] = a0, a1, th
-            G.append((2.0 * coef, g))
+        terms = []
+        for j in (0, 1):
+            terms.append((2.0 * s.cb[2 * j], m2[:, j], {j: -U[j]}))  # κ1^j = v_j
+            terms.append((2.0 * s.cb[2 * j + 1], m1[:, j], {j: V[j]}))  # κ2^j = −u_j (sign irrelevant)
     else:
-        for coef, m, th0, th1 in ((s.cb[0], 0.5 * (s.m2_0 + s.m2_1), -0.5 * s.u0, -0.5 * s.u1),
-                                  (s.cb[1], 0.5 * (s.m1_0 + s.m1_1), 0.5 * s.v0, 0.5 * s.v1)):
-            a0, a1 = _grad_dot_kb(s, m)
-            g = np.empty((8, n))
-            g[0:3], g[3:6], g[6], g[7] = a0, a1, th0, th1
-            G.append((2.0 * coef, g))
-    g = np.empty((8, n))
-    g[0:3], g[3:6], g[6], g[7] = (0.5 / n0) * kb, (0.5 / n1) * kb, -1.0, 1.0
-    G.append((s.kt / s.ell, g))
-    for coef, g in G:
-        H += coef * _outer(g, g)
+        terms = [(2.0 * s.cb[0], 0.5 * (m2[:, 0] + m2[:, 1]), {0: -0.5 * U[0], 1: -0.5 * U[1]}),
+                 (2.0 * s.cb[1], 0.5 * (m1[:, 0] + m1[:, 1]), {0: 0.5 * V[0], 1: 0.5 * V[1]})]
+    for c, m, ths in terms:
+        a0, a1 = _grad_dot_kb(s, m)
+        ca0, ca1 = c * a0, c * a1
+        b00.add(ca0, a0)
+        b01.add(ca0, a1)
+        b11.add(ca1, a1)
+        for j, thj in ths.items():
+            he0[:, j] += thj * ca0
+            he1[:, j] += thj * ca1
+            for i, thi in ths.items():
+                hth[i, j] += c * thi * thj
 
-    # Σ_a F_a m_a·∇²κb = M·∇²κb = (2∇²f − g∇hᵀ − ∇h gᵀ − h∇²den)/den, f = M·(e0×e1), h = M·κb
-    M, h, inv_den = s.M, s.kbM, s.inv_den
-    gb0, gb1 = _grad_dot_kb(s, M)
-    g0, g1 = s.g0, s.g1
-    t0, t1 = s.t0, s.t1
-    eye = np.eye(3)[:, :, None]
-    P0 = eye - _outer(t0, t0)
-    P1 = eye - _outer(t1, t1)
-    H[0:3, 0:3] -= (_sym_outer(g0, gb0) + (h * n1 / n0) * P0) * inv_den
-    H[3:6, 3:6] -= (_sym_outer(g1, gb1) + (h * n0 / n1) * P1) * inv_den
-    B01 = (-2.0 * _skew(M) - _outer(g0, gb1) - _outer(gb0, g1) - h * (eye + _outer(t0, t1))) * inv_den
-    H[0:3, 3:6] += B01
-    H[3:6, 0:3] += B01.transpose(1, 0, 2)
-
-    # second derivatives of the directors (per edge)
-    for j, (sl, m1, m2, Fu, Fv, u, v, nj, Mj) in enumerate((
-            (slice(0, 3), s.m1_0, s.m2_0, s.Fu0, s.Fv0, s.u0, s.v0, n0, s.M0),
-            (slice(3, 6), s.m1_1, s.m2_1, s.Fu1, s.Fv1, s.u1, s.v1, n1, s.M1))):
-        inv2 = 1.0 / (nj * nj)
-        H[sl, sl] += (_sym_outer(kb, Mj) - (Fu * u) * _outer(m1, m1) - (Fv * v) * _outer(m2, m2)
-                      - (0.5 * (Fu * v + Fv * u)) * _sym_outer(m1, m2)) * inv2
-        H[6 + j, 6 + j] -= Fu * u + Fv * v
-        a0, a1 = _grad_dot_kb(s, Fu * m2 - Fv * m1)
-        H[0:3, 6 + j] += a0
-        H[3:6, 6 + j] += a1
-        H[6 + j, 0:3] += a0
-        H[6 + j, 3:6] += a1
-
-    # twist: (∂E/∂m) ∇²τ, ∇_{e_j}τ = κb/(2|e_j|) ∓ w_j
+    # twist: (kt/ℓ) ∇m ∇mᵀ + (∂E/∂m) ∇²τ, ∇_{e_j} m = κb/(2|e_j|)
+    ktl = s.kt / s.ell
     dm = s.dE_dm
-    J0 = (-2.0 * _skew(s.e1) - _outer(kb, g0)) * inv_den  # ∂κb/∂e0
-    J1 = (2.0 * _skew(s.e0) - _outer(kb, g1)) * inv_den
-    H[0:3, 0:3] += dm * ((0.5 / n0) * J0 - (0.5 / n0**2) * (_outer(kb, t0) - _skew(t0)))
-    H[3:6, 3:6] += dm * ((0.5 / n1) * J1 - (0.5 / n1**2) * (_outer(kb, t1) + _skew(t1)))
-    H[0:3, 3:6] += dm * (0.5 / n0) * J1
-    H[3:6, 0:3] += dm * (0.5 / n1) * J0
-    _leave_source_frame(s, H)
-    return H
+    y0 = (0.5 * inv_den / n0) * g0 + (0.5 / (n0 * n0)) * t0
+    y1 = (0.5 * inv_den / n1) * g1 + (0.5 / (n1 * n1)) * t1
+    hdm = -0.5 * dm
+    b00.add(kb, (0.25 * ktl / (n0 * n0)) * kb + hdm * y0)
+    b00.add(hdm * y0, kb)
+    b11.add(kb, (0.25 * ktl / (n1 * n1)) * kb + hdm * y1)
+    b11.add(hdm * y1, kb)
+    b01.add(kb, (0.25 * ktl / (n0 * n1)) * kb - (0.5 * dm * inv_den / n0) * g1)
+    for j, sgn in ((0, -1.0), (1, 1.0)):
+        he0[:, j] += (0.5 * sgn * ktl / n0) * kb
+        he1[:, j] += (0.5 * sgn * ktl / n1) * kb
+    hth[0, 0] += ktl
+    hth[1, 1] += ktl
+    hth[0, 1] -= ktl
+    hth[1, 0] -= ktl
+
+    # M·∇²κb = (2∇²f − g∇hᵀ − ∇h gᵀ − h∇²den)/den, f = M·(e0×e1), h = M·κb
+    gb0, gb1 = _grad_dot_kb(s, s.M)
+    h = s.kbM * inv_den
+    b00.add(-inv_den * g0, gb0)
+    b00.add(-inv_den * gb0, g0)
+    b00.add((h * n1 / n0) * t0, t0)
+    b11.add(-inv_den * g1, gb1)
+    b11.add(-inv_den * gb1, g1)
+    b11.add((h * n0 / n1) * t1, t1)
+    b01.add(-inv_den * g0, gb1)
+    b01.add(-inv_den * gb0, g1)
+    b01.add(-h * t0, t1)
+
+    # second derivatives of the directors, in edge j's (m1, m2) plane
+    for j, blk in ((0, b00), (1, b11)):
+        inv2 = 1.0 / (s.nn[j] * s.nn[j])
+        q11, q22 = Fu[j] * U[j] * inv2, Fv[j] * V[j] * inv2
+        q12 = 0.5 * (Fu[j] * V[j] + Fv[j] * U[j]) * inv2
+        blk.add(m1[:, j], q11 * m1[:, j] + q12 * m2[:, j])
+        blk.add(m2[:, j], q12 * m1[:, j] + q22 * m2[:, j])
+        hth[j, j] -= Fu[j] * U[j] + Fv[j] * V[j]
+        a0, a1 = _grad_dot_kb(s, Fu[j] * m2[:, j] - Fv[j] * m1[:, j])
+        he0[:, j] += a0
+        he1[:, j] += a1
+
+    H00, H01, H11 = b00.sum(), b01.sum(), b11.sum()
+    _add_diag(H00, -h * n1 / n0)
+    _add_diag(H11, -h * n0 / n1)
+    _add_diag(H01, -h)
+    _add_skew(H01, (-2.0 * inv_den) * s.M + (dm * inv_den / n0) * e0)
+    return H00, H01, H11, he0, he1, hth
 
 
-def _leave_source_frame(s, H):
-    """Make the Hessian exact away from the source frame (in place).
+def _skew(a):
+    """``[a]×`` as (3, 3, N)."""
+    z = np.zeros_like(a[0])
+    return np.array([[z, -a[2], a[1]], [a[2], z, -a[0]], [-a[1], a[0], z]])
+
+
+def _leave_source_frame(s, H00, H01, H11, he0, he1, hth):
+    """Make the Hessian blocks exact away from the source frame; returns new ``H00, H01, H10, H11, he0, he1``.
 
     Any frame-dependent quantity ``X`` varies as ``dX = D̃X + (∂X/∂θ_j) w_j·de_j``
     with ``D̃`` the derivative along time-parallel transport from the current
@@ -274,63 +383,69 @@ def _leave_source_frame(s, H):
     and ``H̃`` the source-frame Hessian less ``Σ_j (∂E/∂θ_j) ∇w_j`` at the source.
     At the source frame ``w_j = 0`` and this changes nothing.
     """
-    blocks = []
-    for j, (ts, t, nj, gth) in enumerate(((s.ts0, s.t0, s.n0, s.dth0), (s.ts1, s.t1, s.n1, s.dth1))):
-        c = _cross(ts, t)
-        d = _dot(ts, t)
+    W, corr = [], []
+    for j in (0, 1):
+        ts, t, c, d, nj = s.TS[:, j], s.T[:, j], s.C[:, j], s.dts[j], s.nn[j]
         k = 1.0 / ((1.0 + d) * nj * nj)
-        w = (-k * nj) * c
+        W.append((-k * nj) * c)
         # ∇w_j = −k[t_src]× + 2k c tᵀ + k/(1+d) c (t_src − d t)ᵀ, less its source value −[t]×/(2|e|²)
-        corr = (2.0 * k) * _outer(c, t) + (k / (1.0 + d)) * _outer(c, ts - d * t) - k * _skew(ts) + (0.5 / (nj * nj)) * _skew(t)
-        blocks.append((slice(3 * j, 3 * j + 3), 6 + j, w, gth * corr))
-    Hee = H[0:6, 0:6].copy()
-    for a, ta, wa, corr in blocks:
-        for b, tb, wb, _ in blocks:
-            Hee[a, b] += (_outer(H[a, tb], wb) + _outer(wa, H[ta, b]) + H[ta, tb] * _outer(wa, wb))
-        Hee[a, a] += corr
-    for a, ta, wa, _ in blocks:
-        for tb in (6, 7):
-            H[a, tb] += wa * H[ta, tb]
-            H[tb, a] += H[tb, ta] * wa
-    H[0:6, 0:6] = Hee
-    return H
+        cj = (2.0 * k) * _outer(c, t) + (k / (1.0 + d)) * _outer(c, ts - d * t) - k * _skew(ts) + (0.5 / (nj * nj)) * _skew(t)
+        corr.append(s.dth[j] * cj)
+    he = (he0, he1)
+    Hb = [[H00, H01], [H01.transpose(1, 0, 2), H11]]
+    out = [[None, None], [None, None]]
+    for a in (0, 1):
+        for b in (0, 1):
+            blk = Hb[a][b] + _outer(he[a][:, b], W[b]) + _outer(W[a], he[b][:, a]) + hth[a, b] * _outer(W[a], W[b])
+            if a == b:
+                blk += corr[a]
+            out[a][b] = blk
+    ne0 = he0 + W[0][:, None] * hth[0][None]
+    ne1 = he1 + W[1][:, None] * hth[1][None]
+    return out[0][0], out[0][1], out[1][0], out[1][1], ne0, ne1
+
+
+# Source-frame offsets |t_src × t| below this are treated as zero (relative error of that order).
+SOURCE_TOLERANCE = 1e-13
 
 
 def vertex_hessian(q, prm, variant="2008"):
     """Hessian (13, 13, N) of each vertex stencil's bending + twisting energy.
 
     Exact for any source frame (``d1_src ⊥ t_src``, ``t_src ≠ −t``); the
-    away-from-source correction (:func:`_leave_source_frame`) vanishes when
-    the source frame is the current one, as the solver calls it.
+    away-from-source correction (:func:`_leave_source_frame`) is skipped when
+    every ``|t_src × t| ≤ SOURCE_TOLERANCE``, i.e. at the source frame, as the
+    solver calls it.
     """
     s = _Stencil(q, prm, variant)
-    He = _hessian_e(s)
-    n = He.shape[2]
+    H00, H01, H11, he0, he1, hth = _hessian_blocks(s)
+    if np.abs(s.C).max(initial=0.0) > SOURCE_TOLERANCE:
+        H00, H01, H10, H11, he0, he1 = _leave_source_frame(s, H00, H01, H11, he0, he1, hth)
+    else:
+        H10 = H01.transpose(1, 0, 2)
+    n = H00.shape[2]
     out = np.empty((13, 13, n))
-    A, B, C, D = He[0:3, 0:3], He[0:3, 3:6], He[3:6, 0:3], He[3:6, 3:6]
-    out[0:3, 0:3] = A
-    out[0:3, 3:6] = B - A
-    out[0:3, 6:9] = -B
-    out[3:6, 0:3] = C - A
-    out[3:6, 3:6] = A - B - C + D
-    out[3:6, 6:9] = B - D
-    out[6:9, 0:3] = -C
-    out[6:9, 3:6] = C - D
-    out[6:9, 6:9] = D
-    a, b = He[0:3, 6:8], He[3:6, 6:8]
-    out[0:3, 9:11] = -a
-    out[3:6, 9:11] = a - b
-    out[6:9, 9:11] = b
-    out[9:11, 0:3] = -He[6:8, 0:3]
-    out[9:11, 3:6] = He[6:8, 0:3] - He[6:8, 3:6]
-    out[9:11, 6:9] = He[6:8, 3:6]
-    out[9:11, 9:11] = He[6:8, 6:8]
+    out[0:3, 0:3] = H00
+    np.subtract(H01, H00, out=out[0:3, 3:6])
+    np.negative(H01, out=out[0:3, 6:9])
+    np.subtract(H10, H00, out=out[3:6, 0:3])
+    x11 = out[3:6, 3:6]
+    np.subtract(H00, H01, out=x11)
+    x11 -= H10
+    x11 += H11
+    np.subtract(H01, H11, out=out[3:6, 6:9])
+    np.negative(H10, out=out[6:9, 0:3])
+    np.subtract(H10, H11, out=out[6:9, 3:6])
+    out[6:9, 6:9] = H11
+    np.negative(he0, out=out[0:3, 9:11])
+    np.subtract(he0, he1, out=out[3:6, 9:11])
+    out[6:9, 9:11] = he1
+    out[9:11, 0:9] = out[0:9, 9:11].transpose(1, 0, 2)
+    out[9:11, 9:11] = hth
     g = s.gradient()
-    cross = g[0:11] * (-0.5 / s.ell)
-    out[0:11, 11] = cross
-    out[0:11, 12] = cross
-    out[11, 0:11] = cross
-    out[12, 0:11] = cross
+    np.multiply(g[0:11], -0.5 / s.ell, out=out[0:11, 11])
+    out[0:11, 12] = out[0:11, 11]
+    out[11:13, 0:11] = out[0:11, 11]
     out[11:13, 11:13] = (s.bend + s.twist) / (2.0 * s.ell * s.ell)
     return out
 
