@@ -141,14 +141,16 @@ class _Stencil:
 
         # bending: energy and F = ∂E/∂(u_j, v_j)
         if variant == "2008":
-            inv = 1.0 / (4.0 * ell)
+            inv = 0.25 / ell
             cb = prm[12:16] * inv  # c_i of (κ1^0, κ2^0, κ1^1, κ2^1)
-            a1 = V - prm[17:21:2]
-            a2 = -U - prm[18:21:2]
-            c1, c2 = cb[0::2], cb[1::2]
-            bend = c1[0] * a1[0] ** 2 + c2[0] * a2[0] ** 2 + c1[1] * a1[1] ** 2 + c2[1] * a2[1] ** 2
-            Fv = 2.0 * c1 * a1
-            Fu = -2.0 * c2 * a2
+            a1 = V - prm[17:21:2]  # κ1^j − κ̄1^j
+            a2 = U + prm[18:21:2]  # −(κ2^j − κ̄2^j)
+            Fv = 2.0 * cb[0::2] * a1
+            Fu = 2.0 * cb[1::2] * a2
+            a1 *= Fv
+            a2 *= Fu
+            a1 += a2
+            bend = 0.5 * (a1[0] + a1[1])
         else:
             inv = 1.0 / (2.0 * ell)
             cb = np.array([0.5 * (prm[12] + prm[14]) * inv, 0.5 * (prm[13] + prm[15]) * inv])
