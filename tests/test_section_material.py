@@ -129,3 +129,11 @@ def test_cli_bad_input_is_one_line(argv, fragment, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert fragment in err and "\n" not in err and err.startswith("xshells section: error:")
+
+
+@pytest.mark.parametrize("kind, params", [("ellipse", ["2", "1"]), ("rectangle", ["3", "1"]), ("L", ["2", "2", "0.4", "0.4"])])
+def test_cli_plot_every_mesh_kind(tmp_path, kind, params):
+    """Curved (ellipse) and straight-sided meshes both plot."""
+    picture = tmp_path / "psi.png"
+    assert main(["section", kind, *params, "--young", "1000", "--poisson", "0.3", "--plot", str(picture)]) == 0
+    assert picture.stat().st_size > 1000

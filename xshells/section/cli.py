@@ -105,8 +105,10 @@ def plot_warping(material, path) -> None:
 
     solution = material.section.torsion.solution
     mesh = solution.basis.mesh
-    vertices = mesh.p  # P2 vertex dofs come first, so psi[:nvertices] are vertex values
-    tri = Triangulation(vertices[0], vertices[1], mesh.t.T)
+    # P2 vertex dofs come first, so psi[:nvertices] are vertex values; curved
+    # (quadratic) meshes also store edge midpoints in p, after the vertices.
+    nv = mesh.nvertices
+    tri = Triangulation(mesh.p[0, :nv], mesh.p[1, :nv], mesh.t[:3].T)
     fig, ax = plt.subplots(figsize=(5, 4), dpi=100)
     shaded = ax.tripcolor(tri, solution.psi[: mesh.nvertices], shading="gouraud", cmap="coolwarm")
     ax.triplot(tri, color="k", linewidth=0.15, alpha=0.5)
