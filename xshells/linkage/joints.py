@@ -134,20 +134,6 @@ def _weighted_hessian(q, prm, w):
     return _weighted_hessian_tuple(tuple(q), tuple(prm), tuple(w))
 
 
-@jax.jit
-def _weighted_hessian_jvp(q, prm, w, dq):
-    f = lambda qq: _weighted_hessian_tuple(qq, tuple(prm), tuple(w))  # noqa: E731
-    return jax.jvp(f, (tuple(q),), (tuple(dq),))[1]
-
-
-@jax.jit
-def _second_directional(q, prm, dq):
-    """Second derivative of the outputs along ``dq``: (7, N)."""
-    qt, pt, dqt = tuple(q), tuple(prm), tuple(dq)
-    first = lambda qq: jax.jvp(lambda z: instance_outputs(z, pt), (qq,), (dqt,))[1]  # noqa: E731
-    return jnp.stack(jax.jvp(first, (qt,), (dqt,))[1])
-
-
 def _pad(arrays, n):
     m = bucket(n)
     out = []
@@ -179,19 +165,3 @@ def weighted_hessian(q: np.ndarray, prm: np.ndarray, w: np.ndarray) -> np.ndarra
     n = q.shape[1]
     qp, pp, wp = _pad([q, prm, w], n)
     return np.asarray(_weighted_hessian(qp, pp, wp))[:, :, :n]
-
-
-def weighted_hessian_derivative(q, prm, w, dq) -> np.ndarray:
-    """Directional derivative along ``dq`` (9, N) of :func:`weighted_hessian` (``w`` held fixed)."""
-    n = q.shape[1]
-    qp, pp, wp, dqp = _pad([q, prm, w, dq], n)
-    dqp[:, n:] = 0.0
-    return np.asarray(_weighted_hessian_jvp(qp, pp, wp, dqp))[:, :, :n]
-
-
-def second_directional(q, prm, dq) -> np.ndarray:
-    """``d²/dε² outputs(q + ε dq)`` at ε = 0, (7, N)."""
-    n = q.shape[1]
-    qp, pp, dqp = _pad([q, prm, dq], n)
-    dqp[:, n:] = 0.0
-    return np.asarray(_second_directional(qp, pp, dqp))[:, :n]

@@ -77,12 +77,6 @@ def _vertex_hessian(q, prm, variant):
     return _hessian_tuple(tuple(q), tuple(prm), variant)
 
 
-@partial(jax.jit, static_argnames="variant")
-def _vertex_hessian_jvp(q, prm, dq, variant):
-    _, dh = jax.jvp(lambda qq: _hessian_tuple(qq, tuple(prm), variant), (tuple(q),), (tuple(dq),))
-    return dh
-
-
 def vertex_energies(q, prm, variant="2008"):
     """Bending and twisting energy per stencil: (2, N) array."""
     qp, pp, n = pad_stencils(q, prm, VERTEX_STIFFNESS)
@@ -99,11 +93,3 @@ def vertex_hessian(q, prm, variant="2008"):
     """Hessian of each stencil's energy: (13, 13, N) array."""
     qp, pp, n = pad_stencils(q, prm, VERTEX_STIFFNESS)
     return np.asarray(_vertex_hessian(qp, pp, variant))[:, :, :n]
-
-
-def vertex_hessian_derivative(q, prm, dq, variant="2008"):
-    """Directional derivative of each stencil's Hessian along ``dq`` (13, N): (13, 13, N)."""
-    qp, pp, n = pad_stencils(q, prm, VERTEX_STIFFNESS)
-    dqp = np.zeros_like(qp)
-    dqp[:, :n] = dq
-    return np.asarray(_vertex_hessian_jvp(qp, pp, dqp, variant))[:, :, :n]
