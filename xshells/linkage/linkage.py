@@ -340,9 +340,13 @@ class Linkage:
     def energy(self) -> float:
         return self.rods.energy()
 
+    def _instance_jacobian(self):
+        """Joint-map outputs (7, N) and Jacobian (7, 9, N) of every instance at the current state."""
+        return jmap.outputs_and_jacobian(self._instance_q(self._x), self._inst_prm)
+
     def _jacobian(self):
         """Rod variables' Jacobian with respect to ``x``: sparse (num rod vars, num_vars)."""
-        out, jac = jmap.outputs_and_jacobian(self._instance_q(self._x), self._inst_prm)
+        out, jac = self._instance_jacobian()
         n_inst = jac.shape[2]
         rows = np.broadcast_to(self._inst_rows[:, None, :], (7, 9, n_inst)).ravel()
         cols = np.broadcast_to((9 * self._inst_joint)[None, None, :] + np.arange(9)[None, :, None], (7, 9, n_inst)).ravel()
@@ -355,8 +359,13 @@ class Linkage:
         """``∂E/∂x`` (num_vars,), or ``[∂E/∂x, ∂E/∂p]`` with the rest lengths appended."""
         g = self.rods.gradient(with_rest_lengths)
         nv = self.rods.num_vars
-        J = self._jacobian()
-        gx = J.T @ g[:nv]
+        gx = np.zeros(self.num_vars)
+        gx[self._free_reduced] = g[self._free_rod]
+        _, jac = self._instance_jacobian()
+        contrib = np.einsum("oin,on->in", jac, g[self._inst_rows])
+        gx[: self.num_joint_vars] += np.bincount(
+            ((9 * self._inst_joint)[None, :] + np.arange(9)[:, None]).ravel(), weights=contrib.ravel(), minlength=self.num_joint_vars
+        )
         if not with_rest_lengths:
             return gx
         return np.concatenate([gx, self.rest_length_map.T @ g[nv:]])
