@@ -152,3 +152,28 @@ def test_rest_length_map_preserves_segment_lengths_of_straight_beams():
     for s in range(L.num_segments):
         e = edge[s * k : (s + 1) * k]
         assert np.isclose(e[1:-1].sum() + 0.5 * (e[0] + e[-1]), L.rest_lengths[s])
+
+
+def _cases():
+    import json
+
+    from data_paths import DATA
+
+    if not DATA.is_dir():
+        return []
+    return [c for c in json.load(open(DATA / "cases.json"))["cases"] if (DATA / c["file"]).exists()]
+
+
+@pytest.mark.parametrize("case", _cases(), ids=lambda c: c["name"])
+def test_every_paper_case_builds_with_the_dof_formula(case):
+    from data_paths import DATA
+
+    k = case.get("subdivision", 10)
+    L = Linkage(read_design(DATA / case["file"]), RECT, subdivision=k)
+    assert L.num_vars == L.graph.dof(k)
+    assert np.isfinite(L.energy())
+
+
+def test_paper_table_one_dof():
+    L = Linkage(read_design(EXAMPLES / "wiggly_banana_5" / "flat_opt.msh"), PLUS, subdivision=10)
+    assert (L.num_segments, L.num_joints, L.num_vars) == (264, 146, 8970)
