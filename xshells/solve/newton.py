@@ -44,6 +44,9 @@ class NewtonOptions:
         reports ``min_arc_length()``, else 1e-3).
     armijo : float
     max_backtracks : int
+    require_minimum : bool
+        At a point with a small gradient, also require a positive-definite
+        Hessian (one extra factorization); a saddle is escaped, not accepted.
     """
 
     max_iterations: int = 200
@@ -53,6 +56,7 @@ class NewtonOptions:
     saddle_step: float | None = None
     armijo: float = 1e-4
     max_backtracks: int = 40
+    require_minimum: bool = True
 
 
 @dataclass
@@ -68,6 +72,7 @@ class NewtonReport:
     saddle_escapes: int = 0
     time_s: float = 0.0
     message: str = ""
+    multiplier: float = 0.0
 
 
 def _largest_eigenvalue(A: sp.spmatrix) -> float:
@@ -77,8 +82,14 @@ def _largest_eigenvalue(A: sp.spmatrix) -> float:
         return float(np.max(np.abs(A).sum(axis=1)))  # Gershgorin bound
 
 
-def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = NewtonOptions(), callback=None) -> NewtonReport:
+def minimize(problem, *, fixed=None, force=None, constraint=None, options: NewtonOptions = NewtonOptions(),
+             callback=None) -> NewtonReport:
     """Minimize ``problem.energy() − force·x`` over the variables not in ``fixed``.
+
+    With ``constraint = (a, target)`` the minimization is subject to
+    ``a·x = target``, solved by block elimination of the KKT system (paper
+    eq. 4); a step that has to restore the constraint is taken in full, and
+    the report's ``multiplier`` is λ in ``∇E + λ a = 0``.
 
     Parameters
     ----------
@@ -87,6 +98,8 @@ def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = Newton
         Indices of variables held at their current values.
     force : (n,) array, optional
         A constant generalized force (dead load).
+    constraint : (a, target), optional
+        One linear equality constraint; ``a`` has shape (n,).
     options : NewtonOptions
     callback : callable(iteration, report), optional
         Called after each accepted step; return True to stop early.
@@ -113,19 +126,42 @@ def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = Newton
     def objective() -> float:
         return problem.energy() - f @ problem.get_vars()
 
+    if constraint is not None:
+        a_full = np.asarray(constraint[0], float)
+        target = float(constraint[1])
+        a = a_full[free_idx]
+        aa = float(a @ a)
+
     for it in range(options.max_iterations + 1):
         g = (problem.gradient() - f)[free_idx]
-        gnorm = float(np.linalg.norm(g))
+        if constraint is not None:
+            residual = target - float(a_full @ problem.get_vars())
+            lam = -float(a @ g) / aa
+            gnorm = float(np.linalg.norm(g + lam * a))
+            report.multiplier = lam
+            feasible = abs(residual) <= options.gradient_tolerance * np.sqrt(aa)
+        else:
+            residual, feasible = 0.0, True
+            gnorm = float(np.linalg.norm(g))
         report.energy.append(objective())
         report.gradient_norm.append(gnorm)
-        if gnorm < options.gradient_tolerance:
-            report.converged = True
-            report.message = "gradient below tolerance"
-            break
+        H = None
+        if gnorm < options.gradient_tolerance and feasible:
+            if not options.require_minimum:
+                report.converged, report.message = True, "gradient below tolerance"
+                break
+            H = sp.csr_matrix(problem.hessian())[free_idx][:, free_idx]
+            try:
+                chol.factorize(H)
+                report.converged, report.message = True, "gradient below tolerance at a minimum"
+                break
+            except NotPositiveDefinite:
+                sigma = 0.0  # a saddle: fall through to the negative-curvature step
         if it == options.max_iterations:
             report.message = f"stopped after {options.max_iterations} iterations with |g| = {gnorm:.3e}"
             break
-        H = sp.csr_matrix(problem.hessian())[free_idx][:, free_idx]
+        if H is None:
+            H = sp.csr_matrix(problem.hessian())[free_idx][:, free_idx]
         indefinite = False
         try:
             chol.factorize(H if sigma == 0 else H + sigma * M)
@@ -144,7 +180,13 @@ def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = Newton
         if sigma > 0 and not indefinite:
             indefinite = False
         report.sigma.append(sigma)
-        d = -chol.solve(g)
+        if constraint is None:
+            d = -chol.solve(g)
+        else:
+            u, v = chol.solve(np.stack([g, a], axis=1)).T
+            dlam = -(residual + a @ u) / (a @ v)
+            d = -u - dlam * v
+            report.multiplier = float(dlam)
         if sigma > 0:
             # Is H itself indefinite? (the shift may just be decaying)
             report.indefinite_events += int(indefinite)
@@ -154,6 +196,8 @@ def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = Newton
                     step = options.saddle_step or 1e-3
                     if hasattr(problem, "min_arc_length") and options.saddle_step is None:
                         step = 1e-2 * problem.min_arc_length()
+                    if constraint is not None:
+                        v -= a * (a @ v) / aa
                     v *= step / np.abs(v).max()
                     if v @ g > 0:
                         v = -v
@@ -168,6 +212,8 @@ def minimize(problem, *, fixed=None, force=None, options: NewtonOptions = Newton
         # When the predicted decrease is below the energy's round-off, the
         # energy cannot judge the step: take it and let the gradient decide.
         resolvable = -slope > 1e-13 * max(abs(e0), 1e-300)
+        if constraint is not None and abs(residual) > options.gradient_tolerance * np.sqrt(aa):
+            resolvable = False  # a step restoring the constraint is taken in full
         for _ in range(options.max_backtracks):
             problem.set_vars(x + alpha * full_d)
             if not resolvable or objective() <= e0 + options.armijo * alpha * min(slope, 0.0):

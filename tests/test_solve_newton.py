@@ -1,0 +1,77 @@
+"""The Newton solver: constraint by block elimination, fixed variables, saddle escape."""
+import numpy as np
+import scipy.sparse as sp
+
+from xshells.solve import NewtonOptions, minimize
+
+
+class Quadratic:
+    """E = ½ xᵀ A x − bᵀ x + c Σ x⁴ (c = 0: a quadratic)."""
+
+    def __init__(self, A, b, c=0.0, x0=None):
+        self.A, self.b, self.c = A, b, c
+        self.x = np.zeros(len(b)) if x0 is None else x0.copy()
+
+    def get_vars(self):
+        return self.x.copy()
+
+    def set_vars(self, x):
+        self.x = np.asarray(x, float).copy()
+
+    def energy(self):
+        return 0.5 * self.x @ self.A @ self.x - self.b @ self.x + self.c * np.sum(self.x**4)
+
+    def gradient(self):
+        return self.A @ self.x - self.b + 4 * self.c * self.x**3
+
+    def hessian(self):
+        return sp.csr_matrix(self.A + np.diag(12 * self.c * self.x**2))
+
+    def mass_matrix(self):
+        return sp.eye(len(self.b), format="csr")
+
+
+def test_linear_constraint_matches_kkt_solution():
+    rng = np.random.default_rng(0)
+    n = 8
+    Q = rng.standard_normal((n, n))
+    A = Q @ Q.T + n * np.eye(n)
+    b = rng.standard_normal(n)
+    a = rng.standard_normal(n)
+    target = 0.7
+    P = Quadratic(A, b)
+    report = minimize(P, constraint=(a, target), options=NewtonOptions(gradient_tolerance=1e-12))
+    K = np.block([[A, a[:, None]], [a[None, :], np.zeros((1, 1))]])
+    sol = np.linalg.solve(K, np.concatenate([b, [target]]))
+    assert report.converged
+    assert np.allclose(P.x, sol[:n], atol=1e-10)
+    assert np.isclose(report.multiplier, sol[n], atol=1e-9)
+    assert np.isclose(a @ P.x, target, atol=1e-12)
+
+
+def test_fixed_variables_stay_put():
+    A = np.diag([1.0, 2.0, 3.0])
+    P = Quadratic(A, np.array([1.0, 1.0, 1.0]), x0=np.array([5.0, 0.0, 0.0]))
+    minimize(P, fixed=[0], options=NewtonOptions(gradient_tolerance=1e-12))
+    assert P.x[0] == 5.0 and np.allclose(P.x[1:], [0.5, 1 / 3])
+
+
+def test_escapes_an_exact_saddle():
+    # E = -x0² + x0⁴ + x1²: x = 0 is a saddle with zero gradient; minima at x0 = ±1/√2
+    P = Quadratic(np.diag([-2.0, 2.0]), np.zeros(2), x0=np.zeros(2))
+    P.c = 0.0
+
+    class Quartic(Quadratic):
+        def energy(self):
+            return -self.x[0] ** 2 + self.x[0] ** 4 + self.x[1] ** 2
+
+        def gradient(self):
+            return np.array([-2 * self.x[0] + 4 * self.x[0] ** 3, 2 * self.x[1]])
+
+        def hessian(self):
+            return sp.csr_matrix(np.diag([-2 + 12 * self.x[0] ** 2, 2.0]))
+
+    Q = Quartic(np.eye(2), np.zeros(2), x0=np.zeros(2))
+    report = minimize(Q, options=NewtonOptions(gradient_tolerance=1e-10, saddle_step=1e-2))
+    assert report.converged and report.saddle_escapes >= 1
+    assert np.isclose(abs(Q.x[0]), 1 / np.sqrt(2), atol=1e-8)
