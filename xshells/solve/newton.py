@@ -83,7 +83,7 @@ def _largest_eigenvalue(A: sp.spmatrix) -> float:
 
 
 def minimize(problem, *, fixed=None, force=None, constraint=None, options: NewtonOptions = NewtonOptions(),
-             callback=None) -> NewtonReport:
+             callback=None, saddle_hint=None) -> NewtonReport:
     """Minimize ``problem.energy() − force·x`` over the variables not in ``fixed``.
 
     With ``constraint = (a, target)`` the minimization is subject to
@@ -103,6 +103,9 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     options : NewtonOptions
     callback : callable(iteration, report), optional
         Called after each accepted step; return True to stop early.
+    saddle_hint : (n,) array, optional
+        Orients a negative-curvature step so that ``saddle_hint · d ≥ 0``
+        (e.g. "buckle up"); by default it is oriented downhill.
 
     Returns
     -------
@@ -199,7 +202,11 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                     if constraint is not None:
                         v -= a * (a @ v) / aa
                     v *= step / np.abs(v).max()
-                    if v @ g > 0:
+                    if saddle_hint is not None:
+                        hint = np.asarray(saddle_hint, float)[free_idx]
+                        if hint @ v < 0 or (hint @ v == 0 and v @ g > 0):
+                            v = -v
+                    elif v @ g > 0:
                         v = -v
                     d = d + v
                     report.saddle_escapes += 1
@@ -235,6 +242,27 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             break
     report.time_s = time.perf_counter() - start
     return report
+
+
+def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None) -> np.ndarray:
+    """The ``k`` smallest eigenvalues of ``H d = λ M d`` (sorted), by shift-invert.
+
+    The shift ``−s`` (default: 1e-6 of ``λmax(H)/λmax(M)``, grown until
+    ``H + sM`` factors) is below every eigenvalue, so the ones nearest to it
+    are the smallest.
+    """
+    n = H.shape[0]
+    chol = SparseCholesky()
+    s = shift if shift is not None else 1e-6 * _largest_eigenvalue(H) / _largest_eigenvalue(M)
+    while True:
+        try:
+            chol.factorize(H + s * M)
+            break
+        except NotPositiveDefinite:
+            s *= 4
+    op = spla.LinearOperator((n, n), matvec=chol.solve, dtype=float)
+    lam = spla.eigsh(H, k=k, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-8, maxiter=2000, return_eigenvectors=False)
+    return np.sort(lam)
 
 
 def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float):
