@@ -16,7 +16,7 @@ from .errors import InputError
 
 # module path -> imported lazily so that ``xshells --help`` stays fast
 SUBCOMMANDS = [
-    "xshells.rod.cli",
+    "xshells.deploy.cli",
     "xshells.section.cli",
 ]
 

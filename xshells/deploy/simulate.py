@@ -39,8 +39,11 @@ class DeployOptions:
 
     steps: int = 40
     direction: str = "up"
-    newton: NewtonOptions = NewtonOptions(gradient_tolerance=1e-6, max_iterations=100)
-    final_tolerance_factor: float = 1e-2
+    # Escape along negative curvature whenever the Hessian is indefinite, not
+    # only near stationary points: deployments start from exactly symmetric
+    # flat states whose out-of-plane gradient is zero.
+    newton: NewtonOptions = NewtonOptions(gradient_tolerance=1e-6, max_iterations=200, saddle_gradient_factor=float("inf"))
+    final_tolerance_factor: float = 1e-1
 
 
 @dataclass
@@ -163,7 +166,11 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     a[linkage.angle_indices()[joints]] = 1.0 / len(joints)
     alpha0 = float(a @ linkage.get_vars())
     pins = linkage.rigid_pin_indices()
-    hint = np.asarray(linkage.height_selector().sum(axis=0)).ravel() * (1.0 if options.direction == "up" else -1.0)
+    # "up" = bulging along the layout normal: joints near the middle rise above those near the rim
+    P = linkage.joint_positions()
+    r2 = np.sum((P - P.mean(axis=0)) ** 2, axis=1)
+    bulge = r2.mean() - r2
+    hint = (linkage.height_selector().T @ bulge) * (1.0 if options.direction == "up" else -1.0)
     scale = _gradient_scale(linkage) * np.sqrt(linkage.num_vars)
     newton = NewtonOptions(**{**options.newton.__dict__, "gradient_tolerance": options.newton.gradient_tolerance * scale})
     result = DeploymentResult(target_angle_deg=float(np.degrees(target_angle)))

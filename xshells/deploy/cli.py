@@ -1,0 +1,95 @@
+"""``xshells deploy`` and ``xshells demo``."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ..errors import InputError
+
+DEMO_DESIGN = os.path.join(os.path.dirname(__file__), "..", "data", "examples", "manta_ray.obj")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("deploy", help="find the assembly state of a flat design and deploy it",
+                              description="Deploy a flat X-shell design by joint torques. Units follow the input (the bundled data: mm, MPa).")
+    p.add_argument("input", help="a case file (.json) or a design (.obj, .msh)")
+    p.add_argument("--material", help="TYPE:P1,P2,... (e.g. rectangle:10,7) or a cross-section JSON file")
+    p.add_argument("--young", type=float, help="Young's modulus (default 20000, as in the paper, MPa)")
+    p.add_argument("--poisson", type=float, help="Poisson's ratio (default 0.3)")
+    p.add_argument("--angle", type=float, help="target average opening angle, degrees")
+    p.add_argument("--steps", type=int, help="deployment increments (default 40)")
+    p.add_argument("--subdivision", type=int, help="edges per segment (default 10)")
+    p.add_argument("--rest-lengths", help="per-segment rest lengths file (skips the rest-length solve)")
+    p.add_argument("--direction", choices=["up", "down"], default="up", help="which way the flat state buckles: up = its middle rises along the layout normal")
+    p.add_argument("--out", default="deploy_out", help="output folder")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_deploy)
+
+    d = subparsers.add_parser("demo", help="deploy the bundled manta-ray design and write its outputs")
+    d.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
+    d.add_argument("--steps", type=int, default=40)
+    d.add_argument("--no-progress", action="store_true")
+    d.set_defaults(func=_demo)
+
+
+def _material_from_args(args):
+    from ..section import Material
+
+    E = args.young if args.young is not None else 20000.0
+    nu = args.poisson if args.poisson is not None else 0.3
+    spec = args.material or "rectangle:10,7"
+    if spec.endswith(".json"):
+        return Material.from_file(spec, young=args.young, poisson=args.poisson)
+    kind, _, params = spec.partition(":")
+    try:
+        values = [float(v) for v in params.split(",")] if params else []
+    except ValueError:
+        raise InputError(f"--material {spec}: parameters must be numbers, as in rectangle:10,7") from None
+    return Material.uniform(kind, values, E=E, nu=nu)
+
+
+def _deploy(args) -> int:
+    from .case import load_case, material_from_spec
+    from .run import run_deployment
+
+    if args.input.endswith(".json"):
+        if args.material:
+            raise InputError("--material contradicts the case file's material; edit the case file instead")
+        case = load_case(args.input)
+        material = material_from_spec(case.material)
+        kw = dict(subdivision=args.subdivision or case.subdivision, steps=args.steps or case.steps,
+                  target_angle=np.radians(args.angle) if args.angle is not None else case.angle_rad,
+                  open_by=case.open_by_rad, rest_lengths_path=args.rest_lengths or case.rest_lengths_path, name=case.name)
+        design = case.design_path
+    else:
+        material = _material_from_args(args)
+        kw = dict(subdivision=args.subdivision or 10, steps=args.steps or 40,
+                  target_angle=np.radians(args.angle) if args.angle is not None else None,
+                  rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input))
+        design = args.input
+    if kw["steps"] < 1:
+        raise InputError(f"--steps must be at least 1, got {kw['steps']}")
+    result = run_deployment(design, material, out_dir=args.out, direction=args.direction, progress=not args.no_progress, **kw)
+    _print_summary(result, args.out)
+    return 0 if result["reached"] else 1
+
+
+def _demo(args) -> int:
+    from ..section import Material
+    from .run import run_deployment
+
+    material = Material.uniform("rectangle", [10, 7], E=20000, nu=0.3)
+    result = run_deployment(DEMO_DESIGN, material, out_dir=args.out, subdivision=8, target_angle=np.radians(93),
+                            steps=args.steps, progress=not args.no_progress, name="manta_ray")
+    _print_summary(result, args.out)
+    return 0 if result["reached"] else 1
+
+
+def _print_summary(result, out) -> None:
+    d, f = result["deployed"], result["flat"]
+    print(f"{result['name']}: {result['segments']} segments, {result['joints']} joints, {result['dof']} DoF")
+    print(f"  flat:     energy {f['energy']:.6g}, average angle {f['average_angle_deg']:.2f}°")
+    print(f"  deployed: energy {d['energy']:.6g}, average angle {d['average_angle_deg']:.2f}°, max |z| {d['max_abs_z']:.4g}, torque {d.get('torque', float('nan')):.4g}")
+    print(f"  {result['message']}; {result['newton_iterations']} Newton iterations, {result['timings_s']['total']:.1f} s")
+    print(f"  outputs in {out}/")

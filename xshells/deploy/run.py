@@ -1,0 +1,130 @@
+"""The deployment job behind ``xshells deploy`` and ``xshells demo``: solve, then write every output."""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import time
+from dataclasses import asdict
+
+import numpy as np
+
+from ..io import read_design, read_rest_lengths
+from ..io.export import atomic_write_text
+from ..linkage.export import scalar_fields, write_centerlines, write_swept
+from ..linkage.linkage import Linkage
+from .simulate import DeployOptions, deploy, rest_length_solve
+
+
+def _state_summary(linkage: Linkage) -> dict:
+    parts = linkage.energy_parts()
+    z = linkage.height_selector() @ linkage.get_vars()
+    return {
+        "energy": parts.total,
+        "energy_stretch": parts.stretch,
+        "energy_bend": parts.bend,
+        "energy_twist": parts.twist,
+        "average_angle_deg": float(np.degrees(linkage.average_angle())),
+        "max_abs_z": float(np.abs(z - np.median(z)).max()),
+        "joint_positions": linkage.joint_positions().tolist(),
+    }
+
+
+def _write_outputs(out_dir: str, tag: str, linkage: Linkage) -> None:
+    from ..viz.render import render_linkage
+
+    write_centerlines(os.path.join(out_dir, f"{tag}_centerlines.obj"), linkage)
+    write_swept(os.path.join(out_dir, f"{tag}.obj"), linkage)
+    write_swept(os.path.join(out_dir, f"{tag}.ply"), linkage)
+    field = np.sqrt(np.maximum(scalar_fields(linkage)["bending_energy_density"], 0.0))
+    render_linkage(os.path.join(out_dir, f"{tag}.png"), linkage.rods.points, linkage.rods.edges, field,
+                   title=f"{tag}: average angle {np.degrees(linkage.average_angle()):.1f}°")
+
+
+def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,
+                   rest_lengths_path=None, direction="up", progress=True, name=None) -> dict:
+    """Build the linkage, find its assembly state, deploy it and write the outputs into ``out_dir``.
+
+    Returns the ``result.json`` content. Interrupting (Ctrl-C) keeps and
+    writes the steps finished so far.
+    """
+    os.makedirs(out_dir, exist_ok=True)
+    t0 = time.perf_counter()
+    design = read_design(design_path)
+    p = read_rest_lengths(rest_lengths_path, design.num_segments) if rest_lengths_path else None
+    linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
+    t1 = time.perf_counter()
+    if p is None:
+        rest_length_solve(linkage)
+    else:
+        from ..solve import NewtonOptions, minimize
+
+        minimize(linkage, fixed=linkage.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+    t_rest = time.perf_counter() - t1
+    flat = _state_summary(linkage)
+    _write_outputs(out_dir, "flat", linkage)
+    if target_angle is None:
+        target_angle = linkage.average_angle() + (open_by if open_by is not None else np.radians(60.0))
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=steps, desc=f"deploying {name or os.path.basename(str(design_path))}", unit="step")
+
+    def on_step(rec):
+        if bar is not None:
+            bar.set_postfix(angle=f"{rec.average_angle_deg:.1f}°", z=f"{rec.max_abs_z:.3g}")
+            bar.update(1)
+        return False
+
+    t2 = time.perf_counter()
+    interrupted = False
+    try:
+        res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction), callback=on_step)
+    except KeyboardInterrupt:
+        interrupted = True
+        res = None
+    finally:
+        if bar is not None:
+            bar.close()
+    t_deploy = time.perf_counter() - t2
+    deployed = _state_summary(linkage)
+    if res is not None:
+        deployed["torque"] = res.torque
+        deployed["min_hessian_eigenvalue"] = res.min_hessian_eigenvalue
+        deployed["stiffness_gap"] = res.stiffness_gap
+    _write_outputs(out_dir, "deployed", linkage)
+    steps_out = [asdict(s) for s in (res.steps if res is not None else [])]
+    result = {
+        "name": name,
+        "segments": linkage.num_segments,
+        "joints": linkage.num_joints,
+        "dof": linkage.num_vars,
+        "subdivision": linkage.subdivision,
+        "rest_lengths": linkage.rest_lengths.tolist(),
+        "flat": flat,
+        "deployed": deployed,
+        "target_angle_deg": float(np.degrees(target_angle)),
+        "reached": bool(res is not None and res.converged),
+        "message": "interrupted by the user" if interrupted else res.message,
+        "steps": steps_out,
+        "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy, "total": time.perf_counter() - t0},
+        "newton_iterations": res.newton_iterations if res is not None else 0,
+    }
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    buf = io.StringIO()
+    if steps_out:
+        w = csv.DictWriter(buf, fieldnames=list(steps_out[0].keys()))
+        w.writeheader()
+        w.writerows(steps_out)
+    atomic_write_text(os.path.join(out_dir, "deployment.csv"), buf.getvalue())
+    if steps_out:
+        from ..viz.render import plot_deployment
+
+        plot_deployment(os.path.join(out_dir, "deployment.png"), [s["average_angle_deg"] for s in steps_out],
+                        [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], title=name or "")
+    if interrupted:
+        raise KeyboardInterrupt
+    return result

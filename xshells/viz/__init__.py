@@ -1,0 +1,1 @@
+"""Figures: rendered linkage views and deployment plots (matplotlib, headless)."""

@@ -1,0 +1,70 @@
+"""Rendered views of a linkage with beams coloured by the square root of
+bending-energy density (as in the paper's Fig. 6), and deployment curves."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path) -> None:
+    tmp = str(path) + ".tmp.png"
+    fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    os.replace(tmp, path)
+
+
+def render_linkage(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray, title: str = "",
+                   label: str = "√(bending energy density)") -> None:
+    """Save a 3D view of rod centerlines coloured per edge.
+
+    Parameters
+    ----------
+    points : (V, 3) array
+    edges : (E, 2) int array
+    vertex_values : (V,) array
+        Colour field; each edge shows the mean of its endpoints.
+    """
+    plt = _pyplot()
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    segs = points[edges]
+    vals = 0.5 * (vertex_values[edges[:, 0]] + vertex_values[edges[:, 1]])
+    fig = plt.figure(figsize=(7, 5.5))
+    ax = fig.add_subplot(projection="3d")
+    lc = Line3DCollection(segs, array=vals, cmap="viridis", linewidths=1.6)
+    ax.add_collection3d(lc)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
+    ax.set_xlim(c[0] - r, c[0] + r)
+    ax.set_ylim(c[1] - r, c[1] + r)
+    ax.set_zlim(c[2] - r, c[2] + r)
+    ax.view_init(elev=28, azim=-60)
+    fig.colorbar(lc, ax=ax, shrink=0.6, label=label)
+    ax.set_title(title)
+    _save(fig, path)
+    plt.close(fig)
+
+
+def plot_deployment(path, angles_deg, energies, torques, title: str = "") -> None:
+    """Energy and actuation torque against the average opening angle."""
+    plt = _pyplot()
+    fig, ax1 = plt.subplots(figsize=(6.5, 4))
+    ax1.plot(angles_deg, energies, "o-", color="tab:blue", ms=3, label="elastic energy")
+    ax1.set_xlabel("average opening angle (°)")
+    ax1.set_ylabel("energy", color="tab:blue")
+    ax2 = ax1.twinx()
+    ax2.plot(angles_deg, torques, "s-", color="tab:red", ms=3, label="torque per joint")
+    ax2.set_ylabel("torque per actuated joint", color="tab:red")
+    ax1.set_title(title)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
