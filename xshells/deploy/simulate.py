@@ -115,6 +115,15 @@ def _gradient_scale(linkage: Linkage) -> float:
     return B / span**2
 
 
+def _noise_floor(linkage: Linkage) -> float:
+    """Gradient norm that round-off alone produces: stiff stretching of edges
+    whose endpoints carry the design's absolute coordinates."""
+    eps = np.finfo(float).eps
+    coords = float(np.abs(linkage.rods.points).max())
+    edge = float(linkage.rods.rest_lengths.min())
+    return 10.0 * eps * float(linkage.rods.ks.max()) * coords / edge * np.sqrt(linkage.num_vars)
+
+
 def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, min_rest_length: float | None = None):
     """Minimize the energy over the state and the rest lengths with joint positions held (eq. 2).
 
@@ -123,7 +132,8 @@ def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, mi
     the solve repeats (a simple active set).
     """
     scale = _gradient_scale(linkage)
-    opts = options or NewtonOptions(gradient_tolerance=1e-8 * scale * np.sqrt(linkage.num_vars), max_iterations=100)
+    opts = options or NewtonOptions(gradient_tolerance=max(1e-8 * scale * np.sqrt(linkage.num_vars), _noise_floor(linkage)),
+                                    max_iterations=100)
     eps = min_rest_length if min_rest_length is not None else 0.01 * float(np.min(linkage.rest_lengths))
     P = _RestLengthProblem(linkage)
     fixed = list((9 * np.arange(linkage.num_joints)[:, None] + np.arange(3)[None, :]).ravel())
@@ -172,7 +182,8 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     bulge = r2.mean() - r2
     hint = (linkage.height_selector().T @ bulge) * (1.0 if options.direction == "up" else -1.0)
     scale = _gradient_scale(linkage) * np.sqrt(linkage.num_vars)
-    newton = NewtonOptions(**{**options.newton.__dict__, "gradient_tolerance": options.newton.gradient_tolerance * scale})
+    floor = _noise_floor(linkage)
+    newton = NewtonOptions(**{**options.newton.__dict__, "gradient_tolerance": max(options.newton.gradient_tolerance * scale, floor)})
     result = DeploymentResult(target_angle_deg=float(np.degrees(target_angle)))
     Sz = linkage.height_selector()
     z0 = Sz @ linkage.get_vars()
@@ -180,7 +191,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         angle = alpha0 + (target_angle - alpha0) * i / options.steps
         opts = newton
         if i == options.steps:
-            opts = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": newton.gradient_tolerance * options.final_tolerance_factor})
+            opts = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
         report = minimize(linkage, fixed=pins, constraint=(a, angle), options=opts, saddle_hint=hint)
         result.newton_iterations += report.iterations
         parts = linkage.energy_parts()

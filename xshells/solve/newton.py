@@ -134,6 +134,24 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         target = float(constraint[1])
         a = a_full[free_idx]
         aa = float(a @ a)
+        a_sparse = sp.csr_matrix(a[None, :])
+        aug = None  # ρ of the augmented Hessian H + ρ a aᵀ, set from the first Hessian
+
+    def hessian():
+        """The free-variable Hessian; with a constraint, augmented by ρ a aᵀ.
+
+        The augmentation leaves the constrained Newton step unchanged (only
+        the multiplier shifts) but makes positive definiteness mean
+        stability on the constraint surface, so curvature along the
+        actuated direction is not mistaken for a saddle.
+        """
+        nonlocal aug
+        H = sp.csr_matrix(problem.hessian())[free_idx][:, free_idx]
+        if constraint is None:
+            return H
+        if aug is None:
+            aug = float(np.abs(H.diagonal()).max()) / aa
+        return (H + aug * (a_sparse.T @ a_sparse)).tocsr()
 
     for it in range(options.max_iterations + 1):
         g = (problem.gradient() - f)[free_idx]
@@ -153,7 +171,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             if not options.require_minimum:
                 report.converged, report.message = True, "gradient below tolerance"
                 break
-            H = sp.csr_matrix(problem.hessian())[free_idx][:, free_idx]
+            H = hessian()
             try:
                 chol.factorize(H)
                 report.converged, report.message = True, "gradient below tolerance at a minimum"
@@ -164,7 +182,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             report.message = f"stopped after {options.max_iterations} iterations with |g| = {gnorm:.3e}"
             break
         if H is None:
-            H = sp.csr_matrix(problem.hessian())[free_idx][:, free_idx]
+            H = hessian()
         indefinite = False
         try:
             chol.factorize(H if sigma == 0 else H + sigma * M)
@@ -189,7 +207,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             u, v = chol.solve(np.stack([g, a], axis=1)).T
             dlam = -(residual + a @ u) / (a @ v)
             d = -u - dlam * v
-            report.multiplier = float(dlam)
+            report.multiplier = float(dlam) + aug * residual
         if sigma > 0:
             # Is H itself indefinite? (the shift may just be decaying)
             report.indefinite_events += int(indefinite)
@@ -202,14 +220,18 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                     if constraint is not None:
                         v -= a * (a @ v) / aa
                     v *= step / np.abs(v).max()
-                    if saddle_hint is not None:
+                    # At a symmetric saddle the gradient cannot choose a side, so the
+                    # hint does; elsewhere the curvature step must go downhill.
+                    at_saddle = abs(v @ g) <= 1e-8 * np.linalg.norm(v) * max(gnorm, 1e-300) or gnorm < options.gradient_tolerance
+                    if saddle_hint is not None and at_saddle:
                         hint = np.asarray(saddle_hint, float)[free_idx]
-                        if hint @ v < 0 or (hint @ v == 0 and v @ g > 0):
+                        if hint @ v < 0:
                             v = -v
                     elif v @ g > 0:
                         v = -v
-                    d = d + v
-                    report.saddle_escapes += 1
+                    if (d + v) @ g < 0 or at_saddle:
+                        d = d + v
+                        report.saddle_escapes += 1
         full_d = np.zeros(n)
         full_d[free_idx] = d
         e0 = report.energy[-1]
