@@ -89,3 +89,84 @@ def test_cli_contradictory_options(tmp_path, capsys):
     assert main(["deploy", str(tmp_path / "case.json"), "--material", "rectangle:1,1"]) == 2
     err = capsys.readouterr().err
     assert "contradicts" in err and len(err.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------- real designs
+def _optimized(name):
+    from xshells.io import read_design, read_rest_lengths
+
+    from data_paths import EXAMPLES
+
+    base = EXAMPLES / name
+    flat, deployed = read_design(base / "flat_opt.msh"), read_design(base / "deployed_opt.msh")
+    p = read_rest_lengths(base / "design_parameters.txt", flat.num_segments)
+    material = Material.uniform("+", [5.0, 5.0, 0.2, 0.2], E=20000, nu=0.3, stiff_axis="D1")
+    return Linkage(flat, material, subdivision=10, rest_lengths=p), deployed
+
+
+def _kabsch_deviation(A, B):
+    ca, cb = A.mean(0), B.mean(0)
+    U, _, Vt = np.linalg.svd((A - ca).T @ (B - cb))
+    D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return np.linalg.norm((A - ca) @ R.T + cb - B, axis=1)
+
+
+@pytest.fixture(scope="module")
+def banana_energies():
+    from xshells.solve import NewtonOptions, minimize
+
+    out = {}
+    for name in ("wiggly_banana_5", "wiggly_banana_preopt"):
+        L, reference = _optimized(name)
+        minimize(L, fixed=L.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-6, saddle_gradient_factor=float("inf")))
+        # buckle to the same side as the reference ("up" = the middle rises along the layout normal)
+        P, ref = L.joint_positions(), reference.vertices[L.graph.joint_vertex]
+        r2 = np.sum((P - P.mean(0)) ** 2, axis=1)
+        side = (r2.mean() - r2) @ ((ref - ref.mean(0)) @ L.graph.layout_normal)
+        res = deploy(L, np.radians(80), DeployOptions(steps=20, direction="up" if side > 0 else "down"))
+        assert res.converged, res.message
+        ref = reference.vertices[L.graph.joint_vertex]
+        dev = _kabsch_deviation(L.joint_positions(), ref) / np.linalg.norm(np.ptp(ref, axis=0))
+        out[name] = (L.energy(), dev.max())
+    return out
+
+
+def test_optimized_designs_redeploy_onto_the_reference_states(banana_energies):
+    for name, (_, deviation) in banana_energies.items():
+        assert deviation < 0.01, name  # within 1% of the bounding-box diagonal
+
+
+def test_optimization_lowers_the_deployed_energy_five_fold(banana_energies):
+    assert banana_energies["wiggly_banana_preopt"][0] > 5 * banana_energies["wiggly_banana_5"][0]
+
+
+def test_equilibrium_under_the_deployment_torques_reproduces_the_deployment():
+    from xshells.deploy import solve_equilibrium
+
+    L = Linkage(warped_grid(4), FLAT_BEAM, subdivision=4)
+    rest_length_solve(L)
+    deploy(L, np.radians(50), DeployOptions(steps=4))
+    x50 = L.get_vars()
+    res = deploy(L, np.radians(55), DeployOptions(steps=1))
+    x55 = L.get_vars()
+    L.set_vars(x50)
+    report = solve_equilibrium(L, torques=np.full(L.num_joints, res.torque))
+    assert report.converged, report.message
+    assert abs(np.degrees(L.average_angle()) - 55) < 1e-3
+    assert np.abs(L.get_vars() - x55)[L.angle_indices()].max() < 1e-4
+
+
+def test_gravity_and_point_loads_have_the_right_resultant():
+    L = Linkage(warped_grid(3), FLAT_BEAM, subdivision=4)
+    g = L.gravity_force((0, 0, -9810.0))
+    mass = float(np.sum(L.rods.vertex_masses()))
+    # a uniform translation δx along z does work mass * g * δz
+    dz = np.zeros(L.num_vars)
+    dz[2 : L.num_joint_vars : 9] = 1.0
+    free_z = (L._free_rod < 3 * L.rods.num_vertices) & (L._free_rod % 3 == 2)
+    dz[L._free_reduced[free_z]] = 1.0
+    assert np.isclose(g @ dz, -9810.0 * mass)
+    F = np.zeros((L.num_joints, 3))
+    F[0] = [1.0, 2.0, 3.0]
+    assert np.allclose(L.joint_force(F)[:3], [1.0, 2.0, 3.0])

@@ -222,3 +222,39 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         result.message += f"; stability check failed: {exc}"
     result.time_s = time.perf_counter() - start
     return result
+
+
+def solve_equilibrium(linkage: Linkage, *, torques=None, gravity=None, joint_forces=None,
+                      options: NewtonOptions | None = None, fixed=None):
+    """Static equilibrium under loads: ``argmin E(x) − f·x`` (paper §6 for torques).
+
+    Parameters
+    ----------
+    torques : (nj,) array, optional
+        Joint torques τ acting on the opening angles (``f = S_αᵀ τ``).
+    gravity : (3,) array, optional
+        Gravitational acceleration as a dead load (needs densities).
+    joint_forces : (nj, 3) array, optional
+        Point forces at the joints.
+    fixed : int array, optional
+        Held variables (default: one joint's position and rotation).
+
+    Returns
+    -------
+    NewtonReport
+    """
+    f = np.zeros(linkage.num_vars)
+    if torques is not None:
+        tau = np.asarray(torques, float)
+        if tau.shape != (linkage.num_joints,):
+            raise InputError(f"torques: expected {linkage.num_joints} values (one per joint), got shape {tau.shape}")
+        f += linkage.angle_selector().T @ tau
+    if gravity is not None:
+        f += linkage.gravity_force(gravity)
+    if joint_forces is not None:
+        f += linkage.joint_force(joint_forces)
+    scale = _gradient_scale(linkage) * np.sqrt(linkage.num_vars)
+    opts = options or NewtonOptions(gradient_tolerance=max(1e-7 * scale, _noise_floor(linkage)), max_iterations=300,
+                                    saddle_gradient_factor=float("inf"))
+    pins = linkage.rigid_pin_indices() if fixed is None else fixed
+    return minimize(linkage, fixed=pins, force=f, options=opts)

@@ -393,6 +393,23 @@ class Linkage:
         J = self._jacobian()
         return (J.T @ self.rods.mass_matrix() @ J).tocsr()
 
+    def gravity_force(self, g=(0.0, 0.0, -9810.0)) -> np.ndarray:
+        """Generalized gravity force on ``x`` (``Jᵀ f`` of the rods' lumped gravity), (num_vars,).
+
+        ``g`` in the input's units (mm/s² for the bundled designs; then
+        densities in t/mm³ give forces in N).
+        """
+        return self._jacobian().T @ self.rods.gravity_force(g)
+
+    def joint_force(self, forces) -> np.ndarray:
+        """Generalized force of point forces at the joints: ``forces`` (nj, 3) → (num_vars,)."""
+        forces = np.asarray(forces, float)
+        if forces.shape != (self.num_joints, 3):
+            raise InputError(f"joint forces: expected shape ({self.num_joints}, 3), got {forces.shape}")
+        f = np.zeros(self.num_vars)
+        f[: self.num_joint_vars].reshape(-1, 9)[:, 0:3] = forces
+        return f
+
     # ------------------------------------------------------------- selectors
     def joint_positions(self) -> np.ndarray:
         """(nj, 3) joint positions, in the input file's vertex order."""

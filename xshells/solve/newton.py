@@ -77,7 +77,7 @@ class NewtonReport:
 
 def _largest_eigenvalue(A: sp.spmatrix) -> float:
     try:
-        return float(spla.eigsh(A, k=1, which="LA", tol=1e-2, return_eigenvectors=False, maxiter=200)[0])
+        return float(spla.eigsh(A, k=1, which="LA", tol=1e-2, return_eigenvectors=False, maxiter=200, v0=np.ones(A.shape[0]))[0])
     except (spla.ArpackNoConvergence, ValueError):
         return float(np.max(np.abs(A).sum(axis=1)))  # Gershgorin bound
 
@@ -283,7 +283,7 @@ def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None) -> np.nda
         except NotPositiveDefinite:
             s *= 4
     op = spla.LinearOperator((n, n), matvec=chol.solve, dtype=float)
-    lam = spla.eigsh(H, k=k, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-8, maxiter=2000, return_eigenvectors=False)
+    lam = spla.eigsh(H, k=k, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-8, maxiter=2000, return_eigenvectors=False, v0=np.ones(n))
     return np.sort(lam)
 
 
@@ -295,7 +295,7 @@ def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float):
     n = H.shape[0]
     op = spla.LinearOperator((n, n), matvec=chol.solve, dtype=float)
     try:
-        lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-sigma, which="LM", OPinv=op, tol=1e-6, maxiter=500)
+        lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-sigma, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n))
     except (spla.ArpackNoConvergence, ValueError):
         return None
     if lam[0] >= 0:
