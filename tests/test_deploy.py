@@ -170,3 +170,13 @@ def test_gravity_and_point_loads_have_the_right_resultant():
     F = np.zeros((L.num_joints, 3))
     F[0] = [1.0, 2.0, 3.0]
     assert np.allclose(L.joint_force(F)[:3], [1.0, 2.0, 3.0])
+
+
+def test_deployment_is_reproducible():
+    runs = []
+    for _ in range(2):
+        L = Linkage(warped_grid(4), FLAT_BEAM, subdivision=4)
+        rest_length_solve(L)
+        deploy(L, np.radians(70), DeployOptions(steps=5))
+        runs.append(L.get_vars())
+    assert np.array_equal(runs[0], runs[1])

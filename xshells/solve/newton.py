@@ -222,7 +222,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                     v *= step / np.abs(v).max()
                     # At a symmetric saddle the gradient cannot choose a side, so the
                     # hint does; elsewhere the curvature step must go downhill.
-                    at_saddle = abs(v @ g) <= 1e-8 * np.linalg.norm(v) * max(gnorm, 1e-300) or gnorm < options.gradient_tolerance
+                    at_saddle = abs(v @ g) <= 1e-4 * np.linalg.norm(v) * max(gnorm, 1e-300) or gnorm < options.gradient_tolerance
                     if saddle_hint is not None and at_saddle:
                         hint = np.asarray(saddle_hint, float)[free_idx]
                         if hint @ v < 0:
