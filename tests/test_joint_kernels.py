@@ -113,6 +113,25 @@ def test_weighted_hessian_matches_jax(omega):
         assert _rel(jk.weighted_hessian(q, prm, wm), np.asarray(_hess_ref(q, prm, wm))) < 1e-9
 
 
+def test_mixed_rotation_magnitudes():
+    """One batch holding ω = 0 exactly next to ω in every series/closed-form range."""
+    q, prm = random_instances(N, 31, 1.0)
+    scales = np.array([0.0, 1e-9, 1e-5, 1e-3, 0.05, 0.2, 1.0, 2.5])
+    q[3:6] *= np.resize(scales, N)
+    assert np.max(np.abs(jk.outputs(q, prm) - joints.outputs(q, prm))) < 1e-13
+    _, jac = jk.outputs_and_jacobian(q, prm)
+    assert _rel(jac, np.asarray(_jac_ref(q, prm))) < 1e-10
+    w = np.random.default_rng(2).standard_normal((7, N))
+    assert _rel(jk.weighted_hessian(q, prm, w), np.asarray(_hess_ref(q, prm, w))) < 1e-9
+
+
+def test_coefficient_series_continuous():
+    """Series branches agree with the closed forms at their switch-over points."""
+    for threshold, tol in ((1e-2, 1e-9), (1e-8, 1e-6)):
+        c = np.array(jk._coefficients(threshold * np.array([1 - 1e-12, 1 + 1e-12]), derivatives=True))
+        assert np.all(np.abs(c[:, 0] - c[:, 1]) <= tol * np.abs(c[:, 1]))
+
+
 def test_is_at_source():
     q, prm = random_instances(8, 3)
     assert jk.is_at_source(q)

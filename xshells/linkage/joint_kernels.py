@@ -41,6 +41,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..rod.analytic import _add_diag, _add_skew
+
 _I1 = np.array([1, 2, 0])
 _I2 = np.array([2, 0, 1])
 _EYE3 = np.eye(3)[:, :, None]
@@ -48,7 +50,7 @@ _EYE3 = np.eye(3)[:, :, None]
 
 def _cross(a, b):
     """Cross product over axis 0 (length 3), broadcasting the other axes."""
-    return a[_I1] * b[_I2] - a[_I2] * b[_I1]
+    return a.take(_I1, 0) * b.take(_I2, 0) - a.take(_I2, 0) * b.take(_I1, 0)
 
 
 def _dot(a, b):
@@ -60,62 +62,55 @@ def is_at_source(q: np.ndarray) -> bool:
     return not np.any(q[3:6])
 
 
-def _rodrigues_coefficients(s):
-    """``sin θ/θ`` and ``(1 − cos θ)/θ²`` exactly as ``joints.rotate`` computes them."""
-    small = s < 1e-8
-    safe = np.where(small, 1.0, s)
-    th = np.sqrt(safe)
-    a = np.where(small, 1.0 - s / 6.0 + s * s / 120.0, np.sin(th) / th)
-    b = np.where(small, 0.5 - s / 24.0 + s * s / 720.0, (1.0 - np.cos(th)) / safe)
-    return a, b
+def _coefficients(s, derivatives=False):
+    """Rotation coefficients of ``s = |ω|²``, closed forms patched by series where they cancel.
 
-
-def _jacobian_coefficients(s, derivatives=False):
-    """``B = (1 − cos θ)/θ²``, ``C = (θ − sin θ)/θ³`` and, optionally, ``dB/ds, dC/ds`` (``s = θ²``).
-
-    Taylor series below ``s = 1e-2`` (truncation below 1e-18), where the closed
-    forms lose digits to cancellation.
+    Returns ``a = sin θ/θ`` and ``b = (1 − cos θ)/θ²`` exactly as ``joints.rotate``
+    computes them (series below ``s = 1e-8``), then the left-Jacobian
+    coefficients ``B = (1 − cos θ)/θ²``, ``C = (θ − sin θ)/θ³`` and, optionally,
+    ``dB/ds, dC/ds``, with series below ``s = 1e-2`` (truncation below 1e-18).
     """
-    small = s < 1e-2
-    safe = np.where(small, 1.0, s)
-    th = np.sqrt(safe)
+    th = np.sqrt(s)
     sn, cs = np.sin(th), np.cos(th)
-    big_b = np.where(small, 0.5 + s * (-1 / 24 + s * (1 / 720 + s * (-1 / 40320 + s / 3628800))), (1.0 - cs) / safe)
-    big_c = np.where(small, 1 / 6 + s * (-1 / 120 + s * (1 / 5040 + s * (-1 / 362880 + s / 39916800))), (th - sn) / (safe * th))
-    if not derivatives:
-        return big_b, big_c
-    th4 = safe * safe
-    db = np.where(
-        small,
-        -1 / 24 + s * (1 / 360 + s * (-1 / 13440 + s * (1 / 907200 - s * 5 / 479001600))),
-        (th * sn - 2.0 * (1.0 - cs)) / (2.0 * th4),
-    )
-    dc = np.where(
-        small,
-        -1 / 120 + s * (1 / 2520 + s * (-1 / 120960 + s * (1 / 9979200 - s * 5 / 6227020800))),
-        (th * (1.0 - cs) - 3.0 * (th - sn)) / (2.0 * th4 * th),
-    )
-    return big_b, big_c, db, dc
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = sn / th
+        b = (1.0 - cs) / s
+        big_c = (th - sn) / (s * th)
+        if derivatives:
+            s2 = s * s
+            db = (th * sn - 2.0 * (1.0 - cs)) / (2.0 * s2)
+            dc = (th * (1.0 - cs) - 3.0 * (th - sn)) / (2.0 * s2 * th)
+    big_b = b.copy()
+    i = np.flatnonzero(s < 1e-2)
+    if i.size:
+        x = s[i]
+        big_b[i] = 0.5 + x * (-1 / 24 + x * (1 / 720 + x * (-1 / 40320 + x / 3628800)))
+        big_c[i] = 1 / 6 + x * (-1 / 120 + x * (1 / 5040 + x * (-1 / 362880 + x / 39916800)))
+        if derivatives:
+            db[i] = -1 / 24 + x * (1 / 360 + x * (-1 / 13440 + x * (1 / 907200 - x * 5 / 479001600)))
+            dc[i] = -1 / 120 + x * (1 / 2520 + x * (-1 / 120960 + x * (1 / 9979200 - x * 5 / 6227020800)))
+        j = np.flatnonzero(x < 1e-8)
+        if j.size:
+            x, i = x[j], i[j]
+            a[i] = 1.0 - x / 6.0 + x * x / 120.0
+            b[i] = 0.5 - x / 24.0 + x * x / 720.0
+    if derivatives:
+        return a, b, big_b, big_c, db, dc
+    return a, b, big_b, big_c
 
 
 def _left_jacobian(w, s, big_b, big_c):
     """``J = (1 − C s) I + B [ω]× + C ω ωᵀ``, (3, 3, N)."""
     jl = big_c * w[:, None] * w[None, :]
     jl += (1.0 - big_c * s) * _EYE3
-    bw = big_b * w
-    jl[1, 2] -= bw[0]
-    jl[2, 1] += bw[0]
-    jl[2, 0] -= bw[1]
-    jl[0, 2] += bw[1]
-    jl[0, 1] -= bw[2]
-    jl[1, 0] += bw[2]
+    _add_skew(jl, big_b * w)
     return jl
 
 
 class _Geometry:
     """Everything the outputs and their derivatives share."""
 
-    def __init__(self, q, prm):
+    def __init__(self, q, prm, derivatives=False):
         n_inst = q.shape[1]
         w = q[3:6]
         self.at_source = is_at_source(q)
@@ -125,7 +120,8 @@ class _Geometry:
             frame = v0
         else:
             self.s = _dot(w, w)
-            a, bb = _rodrigues_coefficients(self.s)
+            self.coefficients = _coefficients(self.s, derivatives)
+            a, bb = self.coefficients[:2]
             wv = _cross(w[:, None], v0)
             frame = v0 + a * wv + bb * _cross(w[:, None], wv)
         b, n = frame[:, 0], frame[:, 1]
@@ -136,7 +132,8 @@ class _Geometry:
         sx_sn = (2.0 * beam - 1.0) * sn  # −sin for beam A, +sin for beam B
         sx_c = (2.0 * beam - 1.0) * c
         self.te = sigma * (c * b + sx_sn * u)
-        self.ta = (0.5 * sigma) * (sx_c * u - sn * b)
+        self.ta = (0.5 * sigma) * (sx_c * u - sn * b)  # = ½ sx (n × te)
+        self.sx = 2.0 * beam - 1.0
         self.n = n
         self.beam = beam
         self.length = (1.0 - beam) * q[7] + beam * q[8]
@@ -145,7 +142,8 @@ class _Geometry:
         self.ts = ts
         te = self.te
         ct = _cross(ts, te)
-        self.denom = 1.0 + _dot(ts, te)
+        self.ts_te = _dot(ts, te)
+        self.denom = 1.0 + self.ts_te
         self.k = ct / self.denom
         self._ct = ct
 
@@ -157,10 +155,10 @@ class _Geometry:
         out[3:6] = q[0:3] + half
         d1s = prm[11:14]
         ct = self._ct
-        d1 = _dot(self.ts, te) * d1s + _cross(ct, d1s) + (_dot(ct, d1s) / self.denom) * ct
+        d1 = self.ts_te * d1s + _cross(ct, d1s) + (_dot(ct, d1s) / self.denom) * ct
         d2 = _cross(te, d1)
         phi = prm[15]
-        m1 = np.cos(phi) * _cross(n, te) - np.sin(phi) * n
+        m1 = (2.0 * np.cos(phi) * self.sx) * self.ta - np.sin(phi) * n  # n × te = 2 sx ta
         raw = np.arctan2(_dot(m1, d2), _dot(m1, d1))
         out[6] = raw + 2.0 * np.pi * np.round((prm[14] - raw) / (2.0 * np.pi))
         return out
@@ -190,10 +188,18 @@ def outputs_and_jacobian(q: np.ndarray, prm: np.ndarray):
         dte[0, 2], dte[1, 2] = -te[1], te[0]
         jac[6, 3:6] = grad_theta
     else:
-        big_b, big_c = _jacobian_coefficients(g.s)
-        jl = _left_jacobian(g.w, g.s, big_b, big_c)
-        dte = -_cross(te[:, None], jl)  # column j: J_j × te
-        jac[6, 3:6] = _dot(grad_theta[:, None], jl)
+        # (∂/∂ε) J with J = (1 − C s) I + B [ω]× + C ω ωᵀ:
+        # −[te]× J = −[te − C (te·ω) ω]× + B (te·ω) I − ω ⊗ (B te + C te × ω)
+        # gᵀ J = (1 − C s) g + B g × ω + C (g·ω) ω
+        omega, s = g.w, g.s
+        big_b, big_c = g.coefficients[2:4]
+        te_w = _dot(te, omega)
+        v = te - (big_c * te_w) * omega
+        row = big_b * te + big_c * _cross(te, omega)
+        dte = -omega[:, None] * row[None]
+        _add_diag(dte, big_b * te_w)
+        _add_skew(dte, -v)
+        jac[6, 3:6] = (1.0 - big_c * s) * grad_theta + big_b * _cross(grad_theta, omega) + (big_c * _dot(grad_theta, omega)) * omega
     jac[3:6, 3:6] = half_l * dte
     jac[0:3, 3:6] = -jac[3:6, 3:6]
     jac[3:6, 6] = half_l * ta
@@ -208,7 +214,7 @@ def outputs_and_jacobian(q: np.ndarray, prm: np.ndarray):
 
 def weighted_hessian(q: np.ndarray, prm: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Hessian of ``Σ_i w_i · output_i`` per instance, (9, 9, N), exact for any ``ω``; ``w`` is (7, N)."""
-    g = _Geometry(q, prm)
+    g = _Geometry(q, prm, derivatives=True)
     te, ta, k, ts, length, beam, denom = g.te, g.ta, g.k, g.ts, g.length, g.beam, g.denom
     n_inst = q.shape[1]
     wt = w[6]
@@ -234,7 +240,7 @@ def weighted_hessian(q: np.ndarray, prm: np.ndarray, w: np.ndarray) -> np.ndarra
     if g.at_source:
         hess[3:6, 3:6] = h_ee
     else:
-        big_b, big_c, db, dc = _jacobian_coefficients(g.s, derivatives=True)
+        big_b, big_c, db, dc = g.coefficients[2:]
         omega, s = g.w, g.s
         jl = _left_jacobian(omega, s, big_b, big_c)
         h_ee = np.einsum("ajn,abn,bkn->jkn", jl, h_ee, jl)
