@@ -129,11 +129,9 @@ class _Geometry:
         beam, sigma = prm[6], prm[7]
         half_alpha = 0.5 * q[6]
         c, sn = np.cos(half_alpha), np.sin(half_alpha)
-        sx_sn = (2.0 * beam - 1.0) * sn  # −sin for beam A, +sin for beam B
-        sx_c = (2.0 * beam - 1.0) * c
-        self.te = sigma * (c * b + sx_sn * u)
-        self.ta = (0.5 * sigma) * (sx_c * u - sn * b)  # = ½ sx (n × te)
-        self.sx = 2.0 * beam - 1.0
+        self.sx = sx = 2.0 * beam - 1.0  # −1 for beam A, +1 for beam B
+        self.te = sigma * (c * b + (sx * sn) * u)
+        self.ta = (0.5 * sigma) * ((sx * c) * u - sn * b)  # = ½ sx (n × te)
         self.n = n
         self.beam = beam
         self.length = (1.0 - beam) * q[7] + beam * q[8]
