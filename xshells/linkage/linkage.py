@@ -38,6 +38,7 @@ from ..errors import InputError
 from ..io.design import Design
 from ..rod import ElasticRods
 from ..rod import frames
+from . import joint_kernels as jk
 from . import joints as jmap
 from .graph import BEAM_A, INCOMING, OUTGOING, LinkageGraph, analyze
 
@@ -247,7 +248,7 @@ class Linkage:
         self._x = x
         self._refresh_instance_sources(theta_prev=np.zeros(len(ends)))
         # terminal angles from the joints; spread each rod's end-to-end twist over its interior angles
-        out = jmap.outputs(self._instance_q(x), self._inst_prm)
+        out = jk.outputs(self._instance_q(x), self._inst_prm)
         self._refresh_instance_sources(theta_prev=out[6])
         rod_v = self.rods.get_vars()
         rod_v[inst_rows[6]] = out[6]
@@ -278,14 +279,14 @@ class Linkage:
         return np.ascontiguousarray(xj[self._inst_joint].T)
 
     def _instance_outputs(self):
-        return jmap.outputs(self._instance_q(self._x), self._inst_prm)
+        return jk.outputs(self._instance_q(self._x), self._inst_prm)
 
     def rod_vars(self, x=None) -> np.ndarray:
         """The rods' variables (positions and angles) for reduced variables ``x``."""
         x = self._x if x is None else x
         v = np.empty(self.rods.num_vars)
         v[self._free_rod] = x[self._free_reduced]
-        out = jmap.outputs(self._instance_q(x), self._inst_prm)
+        out = jk.outputs(self._instance_q(x), self._inst_prm)
         v[self._inst_rows] = out
         return v
 
@@ -342,7 +343,7 @@ class Linkage:
 
     def _instance_jacobian(self):
         """Joint-map outputs (7, N) and Jacobian (7, 9, N) of every instance at the current state."""
-        return jmap.outputs_and_jacobian(self._instance_q(self._x), self._inst_prm)
+        return jk.outputs_and_jacobian(self._instance_q(self._x), self._inst_prm)
 
     def _jacobian(self):
         """Rod variables' Jacobian with respect to ``x``: sparse (num rod vars, num_vars)."""
@@ -380,7 +381,7 @@ class Linkage:
             J = sp.block_diag([J, self.rest_length_map], format="csr")
         Hx = (J.T @ H @ J).tocsr()
         w = g[self._inst_rows]
-        Hj = jmap.weighted_hessian(self._instance_q(self._x), self._inst_prm, w)
+        Hj = jk.weighted_hessian(self._instance_q(self._x), self._inst_prm, w)
         n_inst = Hj.shape[2]
         base = (9 * self._inst_joint)[None, None, :]
         rows = np.broadcast_to(base + np.arange(9)[:, None, None], (9, 9, n_inst)).ravel()
