@@ -379,7 +379,7 @@ class Linkage:
         J = self._jacobian()
         if with_rest_lengths:
             J = sp.block_diag([J, self.rest_length_map], format="csr")
-        Hx = (J.T @ H @ J).tocsr()
+        Hx = J.T.tocsr() @ (H @ J)
         w = g[self._inst_rows]
         Hj = jk.weighted_hessian(self._instance_q(self._x), self._inst_prm, w)
         n_inst = Hj.shape[2]
