@@ -17,6 +17,8 @@ import tracemalloc
 
 import numpy as np
 
+from timing import median_ms
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.join(HERE, "..", "..", "shared", "data", "elasticrods")
 BUNDLED = os.path.join(HERE, "..", "xshells", "data", "examples")
@@ -31,16 +33,6 @@ def cases():
             if c["name"] == "hourglass":
                 found.append(("hourglass (1532 seg)", os.path.join(DATA, c["file"]), ("rectangle", c["material"]["params"])))
     return found
-
-
-def median_ms(fn, repeats):
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return 1e3 * float(np.median(ts))
 
 
 def main(argv=None):

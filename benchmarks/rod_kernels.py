@@ -19,6 +19,8 @@ import tracemalloc
 
 import numpy as np
 
+from timing import median_ms
+
 
 def make_rods(num_rods: int, edges: int = 10, seed: int = 0):
     from xshells.rod import ElasticRods
@@ -40,16 +42,6 @@ def make_rods(num_rods: int, edges: int = 10, seed: int = 0):
     )
     obj.update_source_frame()
     return obj
-
-
-def median_ms(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return 1e3 * float(np.median(times))
 
 
 def peak_mb(fn) -> float:
