@@ -29,20 +29,25 @@ class SparseCholesky:
         self.n = 0
 
     def factorize(self, A: sp.spmatrix) -> None:
-        """Factorize ``A`` (full symmetric or its lower triangle; only the lower triangle is read).
+        """Factorize ``A``: a symmetric sparse matrix, full or lower triangle (only the lower triangle is read).
 
         Raises
         ------
         NotPositiveDefinite
         """
-        L = sp.tril(A, format="csc")
-        L.sort_indices()
-        key = (L.shape, L.indptr.tobytes(), L.indices.tobytes())
+        # Read as CSC, the CSR arrays of A describe Aᵀ; CHOLMOD is told to read
+        # its upper triangle, which is A's lower one: no triangle extraction.
+        L = A.tocsr() if A.format != "csr" else A
+        if not L.has_sorted_indices:
+            L = L.copy()
+            L.sort_indices()
+        key = (L.shape, len(L.indices), hash(L.indptr.tobytes()), hash(L.indices.tobytes()))
         if key != self._pattern:
             self.n = L.shape[0]
             cols = np.repeat(np.arange(L.shape[1]), np.diff(L.indptr))
             self._A = spmatrix(L.data.astype(float), L.indices.astype(int).tolist(), cols.tolist(), L.shape)
-            self._symbolic = cholmod.symbolic(self._A)
+            # the spmatrix holds Aᵀ (CSR arrays read as CSC): its upper triangle is the lower one of A
+            self._symbolic = cholmod.symbolic(self._A, uplo="U")
             self._pattern = key
         else:
             self._A.V = matrix(L.data.astype(float))
