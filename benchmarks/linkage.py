@@ -15,8 +15,6 @@ import os
 import time
 import tracemalloc
 
-import numpy as np
-
 from timing import median_ms
 
 HERE = os.path.dirname(os.path.abspath(__file__))

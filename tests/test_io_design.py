@@ -17,7 +17,7 @@ from xshells.io import (
     Design, design_from_arrays, read_design, read_rest_lengths, write_design_obj, write_polylines_obj,
 )
 
-from data_paths import DATA, EXAMPLES, REPO, needs_data  # noqa: F401
+from data_paths import DATA, EXAMPLES, needs_data  # noqa: F401
 
 
 def _design_files() -> list[Path]:

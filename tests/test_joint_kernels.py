@@ -153,10 +153,6 @@ if __name__ == "__main__":
     for om in (0.0, 0.2):
         q, prm = random_instances(n, 0, om)
         w = np.random.default_rng(1).standard_normal((7, n))
-        joints.outputs_and_jacobian(q, prm)
-        joints.weighted_hessian(q, prm, w)
         print(f"N = {n}, |ω| = {om}")
         print(f"  numpy jacobian        {_median_ms(lambda: jk.outputs_and_jacobian(q, prm)):.3f} ms")
         print(f"  numpy weighted hessian {_median_ms(lambda: jk.weighted_hessian(q, prm, w)):.3f} ms")
-        print(f"  jax   jacobian        {_median_ms(lambda: joints.outputs_and_jacobian(q, prm), 50):.3f} ms")
-        print(f"  jax   weighted hessian {_median_ms(lambda: joints.weighted_hessian(q, prm, w), 20):.3f} ms")

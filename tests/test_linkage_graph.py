@@ -12,7 +12,7 @@ from xshells.errors import InputError
 from xshells.io import design_from_arrays, read_design
 from xshells.linkage.graph import BEAM_A, BEAM_B, analyze, reduced_dof_count
 
-from data_paths import DATA, EXAMPLES, REPO, needs_data  # noqa: F401
+from data_paths import DATA, EXAMPLES, needs_data  # noqa: F401
 
 
 def _linkage_files() -> list[Path]:
@@ -29,7 +29,7 @@ def _cross_section_files() -> list[Path]:
 
 def _check_invariants(g):
     d = g.design
-    E, V = d.edges, d.vertices
+    E = d.edges
     nj = g.num_joints
     assert g.num_joints + g.num_free_ends + len(g.unused_vertices) == d.num_vertices
     assert np.array_equal(g.valence[g.joint_vertex] >= 2, np.ones(nj, bool))

@@ -6,20 +6,20 @@ from xshells.rod import rods as rods_module
 from rod_helpers import random_rod
 
 
-def _energy_at(rod, x, with_L=False):
+def _set(rod, x, with_L=False):
     nv = rod.num_vars
     rod.set_vars(x[:nv])
     if with_L:
         rod.set_rest_lengths(x[nv:])
-    return rod.energy()
+    return rod
+
+
+def _energy_at(rod, x, with_L=False):
+    return _set(rod, x, with_L).energy()
 
 
 def _gradient_at(rod, x, with_L=False):
-    nv = rod.num_vars
-    rod.set_vars(x[:nv])
-    if with_L:
-        rod.set_rest_lengths(x[nv:])
-    return rod.gradient(with_L)
+    return _set(rod, x, with_L).gradient(with_L)
 
 
 def _state(rod, with_L):

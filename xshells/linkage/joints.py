@@ -94,44 +94,9 @@ def _outputs(q, prm):
     return jnp.stack(instance_outputs(tuple(q), tuple(prm)))
 
 
-def _jacobian_tuple(qt, pt):
-    """(7, 9, N): derivative of each output along each of the 9 variables."""
-    def column(v):
-        return jnp.stack(jax.jvp(lambda qq: instance_outputs(qq, pt), (qt,), (v,))[1])
-
-    return jnp.moveaxis(jax.vmap(column)(_basis(qt)), 0, 1)
-
-
-def _basis(qt):
-    n, size = len(qt), qt[0].shape[0]
-    return tuple(jnp.broadcast_to((jnp.arange(n) == k).astype(qt[0].dtype)[:, None], (n, size)) for k in range(n))
-
-
-def _weighted_hessian_tuple(qt, pt, w):
-    """(9, 9, N): Hessian of ``Σ_i w_i · output_i`` per instance (forward over forward mode)."""
-    wt = jnp.stack(w)
-
-    def column(v):  # derivative of the Jacobian along basis direction v: (7, 9, N)
-        return jax.jvp(lambda qq: _jacobian_tuple(qq, pt), (qt,), (v,))[1]
-
-    d2 = jax.vmap(column)(_basis(qt))  # (9, 7, 9, N)
-    return jnp.einsum("bian,in->ban", d2, wt)
-
-
 @jax.jit
 def _evaluate(q, prm):
     return _outputs(q, prm)
-
-
-@jax.jit
-def _evaluate_with_jacobian(q, prm):
-    qt, pt = tuple(q), tuple(prm)
-    return jnp.stack(instance_outputs(qt, pt)), _jacobian_tuple(qt, pt)
-
-
-@jax.jit
-def _weighted_hessian(q, prm, w):
-    return _weighted_hessian_tuple(tuple(q), tuple(prm), tuple(w))
 
 
 def _pad(arrays, n):
@@ -150,18 +115,3 @@ def outputs(q: np.ndarray, prm: np.ndarray) -> np.ndarray:
     n = q.shape[1]
     qp, pp = _pad([q, prm], n)
     return np.asarray(_evaluate(qp, pp))[:, :n]
-
-
-def outputs_and_jacobian(q: np.ndarray, prm: np.ndarray):
-    """Instance outputs (7, N) and their Jacobian (7, 9, N)."""
-    n = q.shape[1]
-    qp, pp = _pad([q, prm], n)
-    out, jac = _evaluate_with_jacobian(qp, pp)
-    return np.asarray(out)[:, :n], np.asarray(jac)[:, :, :n]
-
-
-def weighted_hessian(q: np.ndarray, prm: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Hessian of ``w · outputs`` per instance, (9, 9, N); ``w`` is (7, N)."""
-    n = q.shape[1]
-    qp, pp, wp = _pad([q, prm, w], n)
-    return np.asarray(_weighted_hessian(qp, pp, wp))[:, :, :n]

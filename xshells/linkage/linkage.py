@@ -347,7 +347,7 @@ class Linkage:
 
     def _jacobian(self):
         """Rod variables' Jacobian with respect to ``x``: sparse (num rod vars, num_vars)."""
-        out, jac = self._instance_jacobian()
+        _, jac = self._instance_jacobian()
         n_inst = jac.shape[2]
         rows = np.broadcast_to(self._inst_rows[:, None, :], (7, 9, n_inst)).ravel()
         cols = np.broadcast_to((9 * self._inst_joint)[None, None, :] + np.arange(9)[None, :, None], (7, 9, n_inst)).ravel()
@@ -373,7 +373,6 @@ class Linkage:
 
     def hessian(self, with_rest_lengths: bool = False) -> sp.csr_matrix:
         """Sparse symmetric Hessian in ``x`` (and ``p`` appended, if asked)."""
-        nv = self.rods.num_vars
         H = self.rods.hessian(with_rest_lengths)
         g = self.rods.gradient()
         J = self._jacobian()

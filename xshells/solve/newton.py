@@ -198,8 +198,6 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                     break
                 except NotPositiveDefinite:
                     sigma *= 4
-        if sigma > 0 and not indefinite:
-            indefinite = False
         report.sigma.append(sigma)
         if constraint is None:
             d = -chol.solve(g)
