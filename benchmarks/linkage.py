@@ -3,7 +3,10 @@
 Prints case, segments, DoF, median gradient and Hessian times and peak
 memory of a Hessian. Targets (issue 4): the authors' C++ takes 0.46 ms
 (gradient) and 6.3 ms (Hessian) at 312 segments, k = 10 (10.6k DoF), and
-2.4 ms / 34 ms at 1,532 segments (52k DoF).
+2.4 ms / 34 ms at 1,532 segments (52k DoF). A Hessian directional
+derivative (``xshells.linkage.derivatives``) should cost no more than one
+Hessian: columns "dH c ms" (central scheme) and "dH f ms" (forward scheme,
+reusing the Hessian at the state).
 
     python benchmarks/linkage.py [--repeats 10]
 """
@@ -39,21 +42,28 @@ def main(argv=None):
     ap.add_argument("--subdivision", type=int, default=10)
     args = ap.parse_args(argv)
     from xshells.io import read_design
+    import numpy as np
+
+    from xshells.linkage.derivatives import hessian_derivative
     from xshells.linkage.linkage import Linkage
     from xshells.section import Material
 
-    print(f"{'case':<22} {'segments':>8} {'DoF':>7} {'build s':>8} {'gradient ms':>12} {'Hessian ms':>11} {'peak MB':>8}")
+    print(f"{'case':<22} {'segments':>8} {'DoF':>7} {'build s':>8} {'gradient ms':>12} {'Hessian ms':>11} {'dH c ms':>8} {'dH f ms':>8} {'peak MB':>8}")
     for name, path, (kind, params) in cases():
         t = time.perf_counter()
         L = Linkage(read_design(path), Material.uniform(kind, params, E=20000, nu=0.3), subdivision=args.subdivision)
         build = time.perf_counter() - t
         g = median_ms(L.gradient, args.repeats)
         h = median_ms(L.hessian, args.repeats)
+        d = np.random.default_rng(0).standard_normal(L.num_vars) * 1e-2
+        dhc = median_ms(lambda: hessian_derivative(L, d), args.repeats)
+        H0 = L.hessian()
+        dhf = median_ms(lambda: hessian_derivative(L, d, scheme="forward", hessian=H0), args.repeats)
         tracemalloc.start()
         L.hessian()
         peak = tracemalloc.get_traced_memory()[1] / 2**20
         tracemalloc.stop()
-        print(f"{name:<22} {L.num_segments:>8} {L.num_vars:>7} {build:>8.2f} {g:>12.2f} {h:>11.2f} {peak:>8.1f}")
+        print(f"{name:<22} {L.num_segments:>8} {L.num_vars:>7} {build:>8.2f} {g:>12.2f} {h:>11.2f} {dhc:>8.2f} {dhf:>8.2f} {peak:>8.1f}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,97 @@
+"""Directional derivatives of the linkage Hessian (third derivatives of E)."""
+import numpy as np
+import pytest
+
+from xshells.errors import InputError
+from xshells.linkage.derivatives import hessian_derivative, hessian_derivative_product
+
+from test_linkage import banana, nonuniform, perturbed
+
+
+def scaled_direction(L, rng, with_p):
+    """A random direction with lengths in the design's units and angles in radians."""
+    ell = 0.1 * np.mean(L.rest_lengths)
+    d = rng.standard_normal(L.num_vars)
+    d[: L.num_joint_vars] *= np.tile([ell, ell, ell, 1e-2, 1e-2, 1e-2, 1e-2, 0.1 * ell, 0.1 * ell], L.num_joints)
+    is_angle = L._free_rod >= 3 * L.rods.num_vertices
+    d[L._free_reduced] *= np.where(is_angle, 1e-2, ell)
+    dp = 0.1 * ell * rng.standard_normal(L.num_segments) if with_p else None
+    return d, dp
+
+
+def mixed_difference(L, dx, dp, u, a, with_p):
+    """Second method: ``dH[δ] u`` from four gradients, ``∂²g/∂s∂t`` at ``z + sδ + tu``."""
+    x0, p0 = L.get_vars(), L.rest_lengths
+    nx = L.num_vars
+    out = 0.0
+    for s, t, sign in ((a, a, 1), (a, -a, -1), (-a, a, -1), (-a, -a, 1)):
+        L.set_vars(x0 + s * dx + t * u[:nx])
+        p = p0 + (s * dp if dp is not None else 0.0) + (t * u[nx:] if with_p else 0.0)
+        L.set_rest_lengths(p)
+        out = out + sign * L.gradient(with_p)
+    L.set_vars(x0)
+    L.set_rest_lengths(p0)
+    return out / (4 * a * a)
+
+
+@pytest.mark.parametrize("make,with_p,at_source", [
+    (nonuniform, False, True), (nonuniform, True, False), (banana, False, False), (banana, True, True),
+])
+def test_matches_mixed_gradient_differences(make, with_p, at_source):
+    L = perturbed(make(k=4), seed=3)
+    if not at_source:  # a state away from the stored source frame
+        rng = np.random.default_rng(9)
+        d, _ = scaled_direction(L, rng, False)
+        L.set_vars(L.get_vars() + 0.3 * d)
+    rng = np.random.default_rng(1)
+    dx, dp = scaled_direction(L, rng, with_p)
+    ux, up = scaled_direction(L, rng, with_p)
+    u = np.concatenate([ux, up]) if with_p else ux
+    x0 = L.get_vars()
+    dH = hessian_derivative(L, dx, dp, with_rest_lengths=with_p)
+    assert np.array_equal(L.get_vars(), x0)  # state restored exactly
+    ref = dH @ u
+    fd = [mixed_difference(L, dx, dp, u, a, with_p) for a in (1e-3, 5e-4, 2.5e-4)]
+    errs = [np.linalg.norm(f - ref) / np.linalg.norm(ref) for f in fd]
+    # second-order convergence of the reference towards ours: our value is the limit
+    assert errs[0] / errs[1] > 3.5 and errs[1] / errs[2] > 3.5, errs
+    richardson = (4 * fd[2] - fd[1]) / 3
+    assert np.linalg.norm(richardson - ref) / np.linalg.norm(ref) < 1e-6, errs
+    # the product helper and the forward scheme agree
+    assert np.allclose(hessian_derivative_product(L, dx, dp, u, with_rest_lengths=with_p), ref)
+    fwd = hessian_derivative(L, dx, dp, with_rest_lengths=with_p, scheme="forward") @ u
+    assert np.linalg.norm(fwd - ref) / np.linalg.norm(ref) < 1e-5
+
+
+def test_symmetric_and_linear_in_direction():
+    L = perturbed(banana(k=4), seed=5)
+    rng = np.random.default_rng(2)
+    d1, p1 = scaled_direction(L, rng, True)
+    d2, p2 = scaled_direction(L, rng, True)
+    A = hessian_derivative(L, d1, p1, with_rest_lengths=True)
+    B = hessian_derivative(L, d2, p2, with_rest_lengths=True)
+    C = hessian_derivative(L, 2 * d1 - d2, 2 * p1 - p2, with_rest_lengths=True)
+    scale = abs(A).max()
+    assert abs(A - A.T).max() < 1e-12 * scale
+    assert abs(C - (2 * A - B)).max() < 1e-7 * scale
+
+
+def test_rigid_translation_leaves_hessian_unchanged():
+    L = perturbed(nonuniform(k=4), seed=4)
+    rng = np.random.default_rng(0)
+    d, _ = scaled_direction(L, rng, False)
+    t = np.zeros(L.num_vars)
+    t[: L.num_joint_vars] = np.tile([1.0, -2.0, 0.5, 0, 0, 0, 0, 0, 0], L.num_joints)
+    is_pos = L._free_rod < 3 * L.rods.num_vertices
+    t[L._free_reduced[is_pos]] = np.tile([1.0, -2.0, 0.5], is_pos.sum() // 3)
+    ref = abs(hessian_derivative(L, d)).max()
+    assert abs(hessian_derivative(L, t)).max() < 1e-6 * ref
+
+
+def test_zero_direction_and_bad_input():
+    L = nonuniform(k=3)
+    assert hessian_derivative(L, np.zeros(L.num_vars)).nnz == 0
+    with pytest.raises(InputError, match="expected"):
+        hessian_derivative(L, np.zeros(3))
+    with pytest.raises(InputError, match="scheme"):
+        hessian_derivative(L, np.ones(L.num_vars), scheme="complex")
