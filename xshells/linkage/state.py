@@ -103,3 +103,29 @@ def load_linkage(path) -> Linkage:
     L._refresh_instance_sources(theta_prev=data["theta_prev"].copy())
     L.set_vars(data["x"])
     return L
+
+
+def snapshot(linkage: Linkage) -> dict:
+    """An in-memory copy of the linkage's state (variables, rest lengths and frames)."""
+    return dict(
+        x=linkage.get_vars(),
+        rest_lengths=linkage.rest_lengths,
+        joint_b0=linkage.joint_b0.copy(),
+        joint_n0=linkage.joint_n0.copy(),
+        rod_t_src=linkage.rods.t_src.copy(),
+        rod_d1_src=linkage.rods.d1_src.copy(),
+        rod_ref_twist_src=linkage.rods.ref_twist_src.copy(),
+        theta_prev=linkage._inst_prm[14].copy(),
+    )
+
+
+def restore(linkage: Linkage, snap: dict) -> None:
+    """Put the linkage back in a state taken by :func:`snapshot` (bit for bit)."""
+    linkage.set_rest_lengths(snap["rest_lengths"])
+    linkage.joint_b0 = snap["joint_b0"].copy()
+    linkage.joint_n0 = snap["joint_n0"].copy()
+    linkage.rods.t_src = snap["rod_t_src"].copy()
+    linkage.rods.d1_src = snap["rod_d1_src"].copy()
+    linkage.rods.ref_twist_src = snap["rod_ref_twist_src"].copy()
+    linkage._refresh_instance_sources(theta_prev=snap["theta_prev"].copy())
+    linkage.set_vars(snap["x"])

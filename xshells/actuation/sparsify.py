@@ -1,0 +1,400 @@
+"""Sparse actuation: few joint torques that still deploy to the target (paper §6, eqs. 7–8).
+
+The deployed equilibrium under a vector of joint torques ``τ`` is
+``x̃(τ) = argmin E(x) − τ·S_α x`` (one joint's position and rotation held).
+Dense actuation (every joint pushing with the deployment's multiplier
+``τ_ref``) reproduces the angle-driven deployment exactly, and its joint
+positions are the targets. Sparsification solves eq. 8,
+
+    min_{0 ≤ t ≤ (τ_max/τ_ref)^p}  f(t) = T(x̃(τ(t))) / l₀² + η/n Σ t_i,   τ_i = τ_ref t_i^{1/p},
+
+where ``T(x) = ½ Σ_j w_j |P_j(x) − P_j^tgt|²`` (equal weights summing to 1,
+no surface term), ``l₀`` is the bounding-box diagonal of the targets and
+``n`` the number of joints. Scaling by ``l₀²`` and by ``τ_ref`` makes ``η``
+dimensionless: at ``t = 1`` (dense actuation) the regularizer is ``η`` and
+the fit is exact.
+
+Derivatives (adjoint method, all with one factorization of the equilibrium
+Hessian ``H`` on the free variables):
+
+* ``H λ = ∇T``, ``∂f/∂τ = S_α λ / l₀²``;
+* for a direction ``δτ``: ``H δx = S_αᵀ δτ`` and
+  ``H δλ = ∇²T δx − dH[δx] λ``; then ``δ(∂f/∂τ) = S_α δλ / l₀²``;
+* the chain rule through ``τ(t)`` adds ``(∂f/∂τ) τ''(t) δt``.
+
+``dH[δx]`` is the Hessian's directional derivative
+(:mod:`xshells.linkage.derivatives`).
+
+The bound-constrained problem is solved by a projected trust-region
+Newton-CG (Steihaug CG on the free variables, in the spirit of Lin & Moré's
+TRON): components at a bound whose gradient pushes outwards are held, the
+others take the Newton-CG step, and the trial point is projected onto the
+box. Components that reach zero switch their actuator off exactly.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from ..linkage.derivatives import hessian_derivative
+from ..linkage.state import restore, snapshot
+from ..solve import NewtonOptions, NotPositiveDefinite, SparseCholesky, minimize
+
+
+@dataclass(frozen=True)
+class SparsifyOptions:
+    """Settings of :func:`sparsify`.
+
+    Attributes
+    ----------
+    eta : float
+        Weight of the sparsity term (dimensionless, see the module notes).
+    p : float
+        Power of the ℓp "norm", 0 < p ≤ 1 (eq. 8).
+    tau_max : float or None
+        Largest torque one actuator may apply, in the energy's units (N·mm
+        for designs in mm and MPa); None for no limit.
+    max_iterations : int
+        Outer trust-region iterations.
+    tolerance : float
+        Stop when the projected gradient's largest entry falls below this
+        (in units of ``f``, which is dimensionless).
+    off_threshold : float
+        An actuator whose torque is below this fraction of ``τ_ref`` counts
+        as off in the reported count.
+    initial_radius : float
+        First trust radius, in ``t`` units (``t = 1`` is dense actuation).
+    max_cg_iterations : int
+    """
+
+    eta: float = 1e-4
+    p: float = 0.5
+    tau_max: float | None = None
+    max_iterations: int = 100
+    tolerance: float = 1e-9
+    off_threshold: float = 1e-3
+    initial_radius: float = 1.0
+    max_cg_iterations: int = 50
+
+    def __post_init__(self):
+        if not (np.isfinite(self.eta) and self.eta >= 0):
+            raise InputError(f"eta must be a non-negative number, got {self.eta}")
+        if not (0 < self.p <= 1):
+            raise InputError(f"p must lie in (0, 1], got {self.p}")
+        if self.tau_max is not None and not (self.tau_max > 0):
+            raise InputError(f"tau_max must be positive, got {self.tau_max}")
+
+
+@dataclass
+class IterationRecord:
+    iteration: int
+    objective: float
+    fit: float
+    regularizer: float
+    num_actuators: int
+    radius: float
+    projected_gradient: float
+    accepted: bool
+
+
+@dataclass
+class SparsifyResult:
+    torques: np.ndarray
+    actuated: np.ndarray
+    objective: float
+    fit_mean: float
+    fit_max: float
+    work: float
+    iterations: int
+    converged: bool
+    message: str
+    time_s: float
+    history: list = field(default_factory=list)
+
+
+def _equilibrium_options(linkage, tau_ref) -> NewtonOptions:
+    # Tight: the adjoint gradient is only as accurate as the equilibrium. The
+    # floor is what round-off in the stiff stretching terms leaves.
+    eps = np.finfo(float).eps
+    coords = float(np.abs(linkage.rods.points).max())
+    floor = 10.0 * eps * float(linkage.rods.ks.max()) * coords / float(linkage.rods.rest_lengths.min()) * np.sqrt(linkage.num_vars)
+    return NewtonOptions(gradient_tolerance=max(1e-9 * tau_ref * np.sqrt(linkage.num_joints), floor), max_iterations=100,
+                         saddle_gradient_factor=float("inf"))
+
+
+class TorqueFit:
+    """``f(t)`` of eq. 8 with its adjoint gradient and Hessian-vector products.
+
+    Parameters
+    ----------
+    linkage : Linkage
+        At the densely actuated deployed equilibrium; it follows every
+        evaluation (warm starts) and is left at the last evaluated state.
+    tau_ref : float
+        The dense actuation torque (the deployment's multiplier per joint).
+    p, eta : float
+    targets : (n, 3) array, optional
+        Target joint positions (default: the current ones).
+    weights : (n,) array, optional
+        Fitting weights (default equal, summing to one).
+    """
+
+    def __init__(self, linkage, tau_ref: float, p: float = 0.5, eta: float = 1e-4, targets=None, weights=None):
+        if not (np.isfinite(tau_ref) and tau_ref > 0):
+            raise InputError(f"the dense actuation torque must be positive (an opening deployment), got {tau_ref}")
+        self.L = linkage
+        self.tau_ref, self.p, self.eta = float(tau_ref), float(p), float(eta)
+        n = linkage.num_joints
+        self.targets = linkage.joint_positions() if targets is None else np.asarray(targets, float)
+        self.weights = np.full(n, 1.0 / n) if weights is None else np.asarray(weights, float)
+        self.l0 = float(np.linalg.norm(np.ptp(self.targets, axis=0)))
+        self.pins = linkage.rigid_pin_indices()
+        self.free = np.setdiff1d(np.arange(linkage.num_vars), self.pins)
+        self.angle_rows = linkage.angle_indices()
+        self.pos_rows = (9 * np.arange(n))[:, None] + np.arange(3)[None, :]
+        self.chol = SparseCholesky()
+        self.newton = _equilibrium_options(linkage, self.tau_ref)
+        self._t = None
+        self.equilibrium_iterations = 0
+
+    # ---------------------------------------------------------------- maps
+    def torques(self, t) -> np.ndarray:
+        return self.tau_ref * np.power(np.maximum(t, 0.0), 1.0 / self.p)
+
+    def _dtau(self, t):
+        q = 1.0 / self.p
+        return self.tau_ref * q * np.power(np.maximum(t, 0.0), q - 1.0)
+
+    def _d2tau(self, t):
+        q = 1.0 / self.p
+        if q == 1.0:
+            return np.zeros_like(t)
+        return self.tau_ref * q * (q - 1.0) * np.power(np.maximum(t, 0.0), q - 2.0)
+
+    def fit_terms(self) -> tuple[float, np.ndarray]:
+        """``T(x)`` and the joint deviations ``P − P_tgt`` (n, 3) at the linkage's state."""
+        dev = self.L.joint_positions() - self.targets
+        return 0.5 * float(np.sum(self.weights[:, None] * dev**2)), dev
+
+    # ----------------------------------------------------------- evaluation
+    def _solve_equilibrium(self, t) -> None:
+        tau = self.torques(t)
+        force = np.zeros(self.L.num_vars)
+        force[self.angle_rows] = tau
+        if self._t is not None:  # first-order predictor with the factorization at hand
+            dx = force - self._force
+            x = self.L.get_vars()
+            x[self.free] += self.chol.solve(dx[self.free])
+            self.L.set_vars(x)
+        report = minimize(self.L, fixed=self.pins, force=force, options=self.newton)
+        self.equilibrium_iterations += report.iterations
+        if not report.converged:
+            raise ArithmeticError(f"equilibrium under the trial torques did not converge ({report.message})")
+        self.L.update_source_frame()
+        H = self.L.hessian()[self.free][:, self.free]
+        try:
+            self.chol.factorize(H)
+        except NotPositiveDefinite:
+            raise ArithmeticError("the equilibrium under the trial torques is unstable (indefinite Hessian)") from None
+        self._t = np.array(t, float)
+        self._force = force
+
+    def evaluate(self, t) -> float:
+        """``f(t)``; moves the linkage to ``x̃(τ(t))`` and factorizes its Hessian."""
+        t = np.asarray(t, float)
+        if self._t is None or not np.array_equal(t, self._t):
+            self._solve_equilibrium(t)
+        T, dev = self.fit_terms()
+        self._dev = dev
+        gT = np.zeros(self.L.num_vars)
+        gT[self.pos_rows] = self.weights[:, None] * dev
+        self._lam = np.zeros(self.L.num_vars)
+        self._lam[self.free] = self.chol.solve(gT[self.free])
+        return T / self.l0**2 + self.eta / len(t) * float(np.sum(t))
+
+    def parts(self, t) -> tuple[float, float]:
+        """(fit term ``T/l₀²``, regularizer) at ``t``."""
+        f = self.evaluate(t)
+        reg = self.eta / len(t) * float(np.sum(t))
+        return f - reg, reg
+
+    def gradient(self, t) -> np.ndarray:
+        t = np.asarray(t, float)
+        self.evaluate(t)
+        g_tau = self._lam[self.angle_rows] / self.l0**2
+        return g_tau * self._dtau(t) + self.eta / len(t)
+
+    def hessp(self, t, v) -> np.ndarray:
+        """Hessian of ``f`` at ``t`` times ``v`` (two back-solves and one Hessian derivative)."""
+        t, v = np.asarray(t, float), np.asarray(v, float)
+        self.evaluate(t)
+        dtau = self._dtau(t) * v
+        rhs = np.zeros(self.L.num_vars)
+        rhs[self.angle_rows] = dtau
+        dx = np.zeros(self.L.num_vars)
+        dx[self.free] = self.chol.solve(rhs[self.free])
+        r = np.zeros(self.L.num_vars)
+        r[self.pos_rows] = self.weights[:, None] * dx[self.pos_rows]
+        if np.any(self._lam) and np.any(dx):
+            r -= hessian_derivative(self.L, dx, scheme="central") @ self._lam
+        dlam = np.zeros(self.L.num_vars)
+        dlam[self.free] = self.chol.solve(r[self.free])
+        g_tau = self._lam[self.angle_rows] / self.l0**2
+        return dlam[self.angle_rows] / self.l0**2 * self._dtau(t) + g_tau * self._d2tau(t) * v
+
+
+def _steihaug(hessp, g, radius, tol, max_iter):
+    """Steihaug–Toint CG for ``min gᵀs + ½ sᵀHs`` with ``‖s‖ ≤ radius``."""
+    s = np.zeros_like(g)
+    r = -g
+    d = r.copy()
+    rr = r @ r
+    if np.sqrt(rr) <= tol:
+        return s
+    for _ in range(max_iter):
+        Hd = hessp(d)
+        dHd = d @ Hd
+        if dHd <= 0:
+            return s + _to_boundary(s, d, radius) * d
+        a = rr / dHd
+        if np.linalg.norm(s + a * d) >= radius:
+            return s + _to_boundary(s, d, radius) * d
+        s = s + a * d
+        r = r - a * Hd
+        rr_new = r @ r
+        if np.sqrt(rr_new) <= tol:
+            return s
+        d = r + (rr_new / rr) * d
+        rr = rr_new
+    return s
+
+
+def _to_boundary(s, d, radius):
+    a, b, c = d @ d, 2 * s @ d, s @ s - radius**2
+    return (-b + np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a)
+
+
+def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions(), *, targets=None, weights=None,
+             t0=None, flat_energy: float = 0.0, callback=None) -> SparsifyResult:
+    """Sparse joint torques that deploy ``linkage`` to its current (densely actuated) shape.
+
+    Parameters
+    ----------
+    linkage : Linkage
+        At the densely actuated deployed equilibrium (e.g. after
+        :func:`xshells.deploy.simulate.deploy`); it ends at the sparsely
+        actuated equilibrium.
+    tau_ref : float
+        The dense torque per joint (``DeploymentResult.torque``).
+    options : SparsifyOptions
+    targets, weights : optional
+        See :class:`TorqueFit`.
+    t0 : (n,) array, optional
+        Starting point in ``t`` (default 1: dense actuation).
+    flat_energy : float
+        Energy of the flat assembly state: the reported work is the energy
+        stored from there to the sparse equilibrium, which is what the
+        actuators do over any quasi-static deployment (the loads are
+        conservative).
+    callback : callable(IterationRecord) -> bool, optional
+        Progress; return True to stop (the result keeps the last accepted
+        iterate).
+
+    Returns
+    -------
+    SparsifyResult
+    """
+    start = time.perf_counter()
+    o = options
+    n = linkage.num_joints
+    fit = TorqueFit(linkage, tau_ref, o.p, o.eta, targets, weights)
+    ub = np.inf if o.tau_max is None else (o.tau_max / tau_ref) ** o.p
+    t = np.clip(np.ones(n) if t0 is None else np.asarray(t0, float), 0.0, ub)
+    if t.shape != (n,):
+        raise InputError(f"t0: expected {n} values (one per joint), got shape {t.shape}")
+    f = fit.evaluate(t)
+    g = fit.gradient(t)
+    radius = o.initial_radius
+    history, converged, message = [], False, "reached the iteration limit"
+    best = snapshot(linkage)
+    it = 0
+    for it in range(1, o.max_iterations + 1):
+        at_lower = (t <= 0.0) & (g > 0)
+        at_upper = (t >= ub) & (g < 0)
+        held = at_lower | at_upper
+        pg = np.where(held, 0.0, g)
+        pg_inf = float(np.abs(np.clip(t - g, 0.0, ub) - t).max())
+        if pg_inf <= o.tolerance:
+            converged, message = True, "projected gradient below tolerance"
+            break
+        freeset = ~held
+
+        def hp(v):
+            w = np.zeros(n)
+            w[freeset] = v
+            return fit.hessp(t, w)[freeset]
+
+        s_free = _steihaug(hp, pg[freeset], radius, 1e-2 * min(1.0, np.linalg.norm(pg)) * np.linalg.norm(pg), o.max_cg_iterations)
+        s = np.zeros(n)
+        s[freeset] = s_free
+        t_trial = np.clip(t + s, 0.0, ub)
+        step = t_trial - t
+        if not np.any(step):
+            message = "no progress possible (step vanished)"
+            break
+        predicted = -(g @ step + 0.5 * step @ fit.hessp(t, step))
+        try:
+            f_trial = fit.evaluate(t_trial)
+            ok = True
+        except ArithmeticError:
+            f_trial, ok = np.inf, False
+        actual = f - f_trial
+        rho = actual / predicted if predicted > 0 else -1.0
+        accepted = ok and actual > 0 and rho > 1e-4
+        if accepted:
+            t, f = t_trial, f_trial
+            g = fit.gradient(t)
+            best = snapshot(linkage)
+            if rho > 0.75 and np.linalg.norm(step) > 0.8 * radius:
+                radius *= 2.0
+            elif rho < 0.25:
+                radius *= 0.25
+        else:
+            radius = 0.25 * min(radius, np.linalg.norm(step))
+            # back to the accepted state (and its factorization)
+            restore(linkage, best)
+            fit._t = None
+            fit.evaluate(t)
+        fit_val, reg = f - o.eta / n * np.sum(t), o.eta / n * np.sum(t)
+        rec = IterationRecord(it, float(f), float(fit_val), float(reg), int(np.sum(fit.torques(t) > o.off_threshold * tau_ref)),
+                              float(radius), pg_inf, bool(accepted))
+        history.append(rec)
+        if callback is not None and callback(rec):
+            message = "stopped by request"
+            break
+        if radius < 1e-12:
+            message = "trust region collapsed"
+            break
+    fit.evaluate(t)
+    tau = fit.torques(t)
+    tau[tau < o.off_threshold * tau_ref] = 0.0
+    _, dev = fit.fit_terms()
+    dist = np.linalg.norm(dev, axis=1)
+    span = fit.l0
+    return SparsifyResult(
+        torques=tau,
+        actuated=np.flatnonzero(tau > 0),
+        objective=float(f),
+        fit_mean=float(dist.mean() / span),
+        fit_max=float(dist.max() / span),
+        work=float(linkage.energy()) - flat_energy,
+        iterations=it,
+        converged=converged,
+        message=message,
+        time_s=time.perf_counter() - start,
+        history=history,
+    )
+
