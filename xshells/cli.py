@@ -18,6 +18,7 @@ from .errors import InputError
 SUBCOMMANDS = [
     "xshells.deploy.cli",
     "xshells.section.cli",
+    "xshells.actuation.cli",
 ]
 
 

@@ -278,7 +278,7 @@ def _to_boundary(s, d, radius):
 
 
 def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions(), *, targets=None, weights=None,
-             t0=None, flat_energy: float = 0.0, callback=None) -> SparsifyResult:
+             t0=None, allowed=None, flat_energy: float = 0.0, callback=None) -> SparsifyResult:
     """Sparse joint torques that deploy ``linkage`` to its current (densely actuated) shape.
 
     Parameters
@@ -294,6 +294,9 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
         See :class:`TorqueFit`.
     t0 : (n,) array, optional
         Starting point in ``t`` (default 1: dense actuation).
+    allowed : (n,) bool array, optional
+        Joints that may carry an actuator (default all); the others get
+        no torque.
     flat_energy : float
         Energy of the flat assembly state: the reported work is the energy
         stored from there to the sparse equilibrium, which is what the
@@ -311,73 +314,84 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
     o = options
     n = linkage.num_joints
     fit = TorqueFit(linkage, tau_ref, o.p, o.eta, targets, weights)
-    ub = np.inf if o.tau_max is None else (o.tau_max / tau_ref) ** o.p
-    t = np.clip(np.ones(n) if t0 is None else np.asarray(t0, float), 0.0, ub)
+    ub = np.full(n, np.inf if o.tau_max is None else (o.tau_max / tau_ref) ** o.p)
+    if allowed is not None:
+        allowed = np.asarray(allowed, bool)
+        if allowed.shape != (n,) or not allowed.any():
+            raise InputError(f"allowed: expected {n} flags (one per joint), at least one set")
+        ub[~allowed] = 0.0
+    t = np.ones(n) if t0 is None else np.asarray(t0, float)
     if t.shape != (n,):
         raise InputError(f"t0: expected {n} values (one per joint), got shape {t.shape}")
+    t = np.clip(t, 0.0, ub)
     f = fit.evaluate(t)
     g = fit.gradient(t)
     radius = o.initial_radius
     history, converged, message = [], False, "reached the iteration limit"
     best = snapshot(linkage)
     it = 0
-    for it in range(1, o.max_iterations + 1):
-        at_lower = (t <= 0.0) & (g > 0)
-        at_upper = (t >= ub) & (g < 0)
-        held = at_lower | at_upper
-        pg = np.where(held, 0.0, g)
-        pg_inf = float(np.abs(np.clip(t - g, 0.0, ub) - t).max())
-        if pg_inf <= o.tolerance:
-            converged, message = True, "projected gradient below tolerance"
-            break
-        freeset = ~held
+    try:
+        for it in range(1, o.max_iterations + 1):
+            at_lower = (t <= 0.0) & (g > 0)
+            at_upper = (t >= ub) & (g < 0)
+            held = at_lower | at_upper
+            pg = np.where(held, 0.0, g)
+            pg_inf = float(np.abs(np.clip(t - g, 0.0, ub) - t).max())
+            if pg_inf <= o.tolerance:
+                converged, message = True, "projected gradient below tolerance"
+                break
+            freeset = ~held
 
-        def hp(v):
-            w = np.zeros(n)
-            w[freeset] = v
-            return fit.hessp(t, w)[freeset]
+            def hp(v):
+                w = np.zeros(n)
+                w[freeset] = v
+                return fit.hessp(t, w)[freeset]
 
-        s_free = _steihaug(hp, pg[freeset], radius, 1e-2 * min(1.0, np.linalg.norm(pg)) * np.linalg.norm(pg), o.max_cg_iterations)
-        s = np.zeros(n)
-        s[freeset] = s_free
-        t_trial = np.clip(t + s, 0.0, ub)
-        step = t_trial - t
-        if not np.any(step):
-            message = "no progress possible (step vanished)"
-            break
-        predicted = -(g @ step + 0.5 * step @ fit.hessp(t, step))
-        try:
-            f_trial = fit.evaluate(t_trial)
-            ok = True
-        except ArithmeticError:
-            f_trial, ok = np.inf, False
-        actual = f - f_trial
-        rho = actual / predicted if predicted > 0 else -1.0
-        accepted = ok and actual > 0 and rho > 1e-4
-        if accepted:
-            t, f = t_trial, f_trial
-            g = fit.gradient(t)
-            best = snapshot(linkage)
-            if rho > 0.75 and np.linalg.norm(step) > 0.8 * radius:
-                radius *= 2.0
-            elif rho < 0.25:
-                radius *= 0.25
-        else:
-            radius = 0.25 * min(radius, np.linalg.norm(step))
-            # back to the accepted state (and its factorization)
-            restore(linkage, best)
-            fit._t = None
-            fit.evaluate(t)
-        fit_val, reg = f - o.eta / n * np.sum(t), o.eta / n * np.sum(t)
-        rec = IterationRecord(it, float(f), float(fit_val), float(reg), int(np.sum(fit.torques(t) > o.off_threshold * tau_ref)),
-                              float(radius), pg_inf, bool(accepted))
-        history.append(rec)
-        if callback is not None and callback(rec):
-            message = "stopped by request"
-            break
-        if radius < 1e-12:
-            message = "trust region collapsed"
-            break
+            s_free = _steihaug(hp, pg[freeset], radius, 1e-2 * min(1.0, np.linalg.norm(pg)) * np.linalg.norm(pg), o.max_cg_iterations)
+            s = np.zeros(n)
+            s[freeset] = s_free
+            t_trial = np.clip(t + s, 0.0, ub)
+            step = t_trial - t
+            if not np.any(step):
+                message = "no progress possible (step vanished)"
+                break
+            predicted = -(g @ step + 0.5 * step @ fit.hessp(t, step))
+            try:
+                f_trial = fit.evaluate(t_trial)
+                ok = True
+            except ArithmeticError:
+                f_trial, ok = np.inf, False
+            actual = f - f_trial
+            rho = actual / predicted if predicted > 0 else -1.0
+            accepted = ok and actual > 0 and rho > 1e-4
+            if accepted:
+                t, f = t_trial, f_trial
+                g = fit.gradient(t)
+                best = snapshot(linkage)
+                if rho > 0.75 and np.linalg.norm(step) > 0.8 * radius:
+                    radius *= 2.0
+                elif rho < 0.25:
+                    radius *= 0.25
+            else:
+                radius = 0.25 * min(radius, np.linalg.norm(step))
+                # back to the accepted state (and its factorization)
+                restore(linkage, best)
+                fit._t = None
+                fit.evaluate(t)
+            fit_val, reg = f - o.eta / n * np.sum(t), o.eta / n * np.sum(t)
+            rec = IterationRecord(it, float(f), float(fit_val), float(reg), int(np.sum(fit.torques(t) > o.off_threshold * tau_ref)),
+                                  float(radius), pg_inf, bool(accepted))
+            history.append(rec)
+            if callback is not None and callback(rec):
+                message = "stopped by request"
+                break
+            if radius < 1e-12:
+                message = "trust region collapsed"
+                break
+    except KeyboardInterrupt:  # keep the last accepted iterate
+        message = "interrupted by the user"
+        restore(linkage, best)
+        fit._t = None
     fit.evaluate(t)
     tau = fit.torques(t)
     tau[tau < o.off_threshold * tau_ref] = 0.0

@@ -68,3 +68,68 @@ def plot_deployment(path, angles_deg, energies, torques, title: str = "") -> Non
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
+
+
+def render_actuators(path, linkage, actuated, torques, reference=None, title: str = "") -> None:
+    """The deployed linkage with its actuated joints marked (paper Fig. 8).
+
+    Parameters
+    ----------
+    linkage : Linkage
+        At the sparsely actuated equilibrium.
+    actuated : (m,) int array
+        Joint numbers carrying an actuator.
+    torques : (n,) array
+        Torque per joint; marker areas scale with it.
+    reference : (n, 3) array, optional
+        Dense-actuation joint positions, drawn as small grey dots.
+    """
+    plt = _pyplot()
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    rods = linkage.rods
+    segs = [rods.points[a:b] for a, b in zip(rods.vertex_offsets[:-1], rods.vertex_offsets[1:])]
+    P = linkage.joint_positions()
+    fig = plt.figure(figsize=(7, 5.5))
+    ax = fig.add_subplot(projection="3d")
+    ax.add_collection3d(Line3DCollection(segs, colors="0.35", linewidths=1.1))
+    if reference is not None:
+        R = np.asarray(reference)
+        ax.scatter(R[:, 0], R[:, 1], R[:, 2], s=3, c="0.6", depthshade=False, label="dense actuation")
+    actuated = np.asarray(actuated, int)
+    if len(actuated):
+        tau = np.asarray(torques)[actuated]
+        size = 30 + 170 * tau / tau.max()
+        ax.scatter(P[actuated, 0], P[actuated, 1], P[actuated, 2], s=size, c="tab:red", edgecolors="k",
+                   depthshade=False, label="actuators (area ∝ torque)")
+    pts = rods.points
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
+    ax.set_xlim(c[0] - r, c[0] + r)
+    ax.set_ylim(c[1] - r, c[1] + r)
+    ax.set_zlim(c[2] - r, c[2] + r)
+    ax.view_init(elev=28, azim=-60)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(title)
+    _save(fig, path)
+    plt.close(fig)
+
+
+def plot_actuation_tradeoff(path, rows, title: str = "") -> None:
+    """Fitting distance against the number of actuators, one curve per ``p`` (paper Fig. 9).
+
+    ``rows``: dicts with ``p``, ``num_actuators`` and ``fit_mean`` (relative to the span).
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for p in sorted({r["p"] for r in rows}, reverse=True):
+        sel = sorted((r for r in rows if r["p"] == p), key=lambda r: r["num_actuators"])
+        ax.plot([r["num_actuators"] for r in sel], [100 * r["fit_mean"] for r in sel], "o-", ms=4, label=f"p = {p:g}")
+    ax.set_xlabel("number of actuators")
+    ax.set_ylabel("mean joint distance to the dense deployment (% of span)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    ax.set_title(title)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)

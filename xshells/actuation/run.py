@@ -1,0 +1,224 @@
+"""The sparsification job: dense deployment, then sparse torques, written to a folder.
+
+``run_sparsify`` is what ``xshells sparsify`` runs; ``run_sweep`` runs a
+sweep over ``η`` for several ``p`` and draws the Fig. 9 trade-off.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..deploy.case import load_case, material_from_spec
+from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
+from ..errors import InputError
+from ..io.design import read_design, read_rest_lengths
+from ..io.export import atomic_write_text
+from ..linkage.linkage import Linkage
+from ..linkage.state import restore, snapshot
+from ..solve import NewtonOptions, minimize
+from .sparsify import SparsifyOptions, sparsify
+
+
+@dataclass
+class DenseDeployment:
+    """The densely actuated deployment that sparsification starts from."""
+
+    linkage: Linkage
+    state: dict
+    tau_ref: float
+    flat_energy: float
+    time_s: float
+    name: str
+
+
+def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeployment:
+    """Assembly state and dense deployment of a case (rest lengths from the case, else the rest-length solve)."""
+    t0 = time.perf_counter()
+    case = load_case(case_path)
+    design = read_design(case.design_path)
+    p = read_rest_lengths(case.rest_lengths_path, design.num_segments) if case.rest_lengths_path else None
+    L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
+    if p is None:
+        rest_length_solve(L)
+    else:
+        minimize(L, fixed=L.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+    flat_energy = L.energy()
+    if angle_deg is not None:
+        target = np.radians(angle_deg)
+    elif case.angle_rad is not None:
+        target = case.angle_rad
+    else:
+        target = L.average_angle() + (case.open_by_rad if case.open_by_rad is not None else np.radians(60.0))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=case.steps, desc=f"dense deployment of {case.name}", unit="step")
+    try:
+        res = deploy(L, target, DeployOptions(steps=case.steps), callback=(lambda rec: bar.update(1) and False) if bar else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not res.converged:
+        raise InputError(f"{case_path}: the dense deployment did not reach its target ({res.message})")
+    if not res.torque > 0:
+        raise InputError(f"{case_path}: the dense deployment needs a closing torque ({res.torque:.4g}); sparse actuation assumes opening torques")
+    return DenseDeployment(L, snapshot(L), float(res.torque), float(flat_energy), time.perf_counter() - t0, case.name)
+
+
+def _allowed_from_vertices(L: Linkage, candidates) -> np.ndarray | None:
+    if candidates is None:
+        return None
+    vertex_to_joint = {int(v): j for j, v in enumerate(L.graph.joint_vertex)}
+    allowed = np.zeros(L.num_joints, bool)
+    nv = len(L.design.vertices)
+    for v in candidates:
+        v = int(v)
+        if not 0 <= v < nv:
+            raise InputError(f"candidate joint {v} is out of range: the design has vertices 0..{nv - 1}")
+        if v not in vertex_to_joint:
+            raise InputError(f"candidate {v} is a free end, not a joint")
+        allowed[vertex_to_joint[v]] = True
+    return allowed
+
+
+def _result_dict(dense: DenseDeployment, res, options: SparsifyOptions) -> dict:
+    L = dense.linkage
+    jv = np.asarray(L.graph.joint_vertex)
+    return {
+        "name": dense.name,
+        "actuated_joints": [int(jv[j]) for j in res.actuated],
+        "torques": [float(res.torques[j]) for j in res.actuated],
+        "num_actuators": int(len(res.actuated)),
+        "fit_mean": res.fit_mean,
+        "fit_max": res.fit_max,
+        "work": res.work,
+        "dense_torque": dense.tau_ref,
+        "dense_work": float(_dense_energy(dense) - dense.flat_energy),
+        "eta": options.eta,
+        "p": options.p,
+        "tau_max": options.tau_max,
+        "objective": res.objective,
+        "iterations": res.iterations,
+        "converged": res.converged,
+        "message": res.message,
+        "time_s": res.time_s,
+        "dense_deployment_time_s": dense.time_s,
+        "joint_vertices": jv.tolist(),
+        "all_torques": res.torques.tolist(),
+        "units": "torques and work in the energy's units (N·mm for designs in mm and MPa); fit distances relative to the bounding-box diagonal of the dense deployment",
+    }
+
+
+def _dense_energy(dense: DenseDeployment) -> float:
+    if not hasattr(dense, "_energy"):
+        current = snapshot(dense.linkage)
+        restore(dense.linkage, dense.state)
+        dense._energy = dense.linkage.energy()
+        restore(dense.linkage, current)
+    return dense._energy
+
+
+def run_sparsify(case_path, out_dir, options: SparsifyOptions = SparsifyOptions(), *, candidates=None,
+                 angle_deg=None, progress=True, dense: DenseDeployment | None = None) -> dict:
+    """Sparse actuation of a case; writes ``result.json``, ``torques.txt`` and ``actuators.png`` into ``out_dir``.
+
+    Returns the ``result.json`` content. Ctrl-C during the optimization keeps
+    and writes the last accepted iterate.
+    """
+    os.makedirs(out_dir, exist_ok=True)
+    dense = dense or dense_deployment(case_path, angle_deg=angle_deg, progress=progress)
+    L = dense.linkage
+    allowed = _allowed_from_vertices(L, candidates)
+    restore(L, dense.state)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(desc="sparsifying", unit="it", total=options.max_iterations)
+
+    def on_iter(rec):
+        if bar is not None:
+            bar.set_postfix(actuators=rec.num_actuators, f=f"{rec.objective:.4g}")
+            bar.update(1)
+        return False
+
+    try:
+        res = sparsify(L, dense.tau_ref, options, allowed=allowed, flat_energy=dense.flat_energy, callback=on_iter)
+    finally:
+        if bar is not None:
+            bar.close()
+    result = _result_dict(dense, res, options)
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    atomic_write_text(os.path.join(out_dir, "torques.txt"), "".join(f"{v:.10g}\n" for v in res.torques))
+    from ..viz.render import render_actuators
+
+    restore_after = snapshot(L)
+    restore(L, dense.state)
+    dense_joints = L.joint_positions()
+    restore(L, restore_after)
+    render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints,
+                     title=f"{dense.name}: {len(res.actuated)} actuators (η = {options.eta:g}, p = {options.p:g})")
+    return result
+
+
+DEFAULT_ETAS = tuple(float(v) for v in np.geomspace(1e-5, 1e-2, 8))
+DEFAULT_PS = (1.0, 0.5, 0.25)
+
+
+def run_sweep(case_path, out_dir, *, etas=DEFAULT_ETAS, ps=DEFAULT_PS, base: SparsifyOptions = SparsifyOptions(),
+              angle_deg=None, progress=True) -> list[dict]:
+    """Sparsify for every ``(p, η)``; writes ``sweep.csv`` and ``sweep.png`` (Fig. 9) into ``out_dir``.
+
+    Every run starts from the dense deployment, so each point is what a
+    single ``xshells sparsify`` gives (warm starts from a neighbouring ``η``
+    were measured to land in worse local minima). Rows are written as they
+    finish, so an interrupted sweep keeps them.
+    """
+    for eta in etas:
+        SparsifyOptions(eta=eta, p=base.p)  # validates
+    for p in ps:
+        SparsifyOptions(eta=base.eta, p=p)
+    os.makedirs(out_dir, exist_ok=True)
+    dense = dense_deployment(case_path, angle_deg=angle_deg, progress=progress)
+    L = dense.linkage
+    rows: list[dict] = []
+    total = len(etas) * len(ps)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc="sweep", unit="run")
+    try:
+        for p in ps:
+            for eta in sorted(etas):
+                restore(L, dense.state)
+                opts = replace(base, eta=eta, p=p)
+                res = sparsify(L, dense.tau_ref, opts, flat_energy=dense.flat_energy)
+                rows.append({"p": p, "eta": eta, "num_actuators": len(res.actuated), "fit_mean": res.fit_mean,
+                             "fit_max": res.fit_max, "work": res.work, "iterations": res.iterations, "time_s": res.time_s,
+                             "actuated_joints": " ".join(str(int(L.graph.joint_vertex[j])) for j in res.actuated)})
+                _write_sweep(out_dir, rows, dense.name)
+                if bar is not None:
+                    bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    return rows
+
+
+def _write_sweep(out_dir, rows, name) -> None:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(rows[0].keys()))
+    w.writeheader()
+    w.writerows(rows)
+    atomic_write_text(os.path.join(out_dir, "sweep.csv"), buf.getvalue())
+    from ..viz.render import plot_actuation_tradeoff
+
+    plot_actuation_tradeoff(os.path.join(out_dir, "sweep.png"), rows, title=name)
