@@ -1,0 +1,134 @@
+"""Design objective (eq. 5) and flat-state constraints: adjoint gradients and Hessian-vector products."""
+import copy
+
+import numpy as np
+import pytest
+
+from xshells.deploy import DeployOptions, deploy
+from xshells.design.objective import DesignProblem, DesignWeights, ks_min
+from xshells.errors import InputError
+from xshells.io import read_design, read_rest_lengths
+from xshells.linkage.linkage import Linkage
+from xshells.section import Material
+from xshells.solve import NewtonOptions, minimize
+
+from data_paths import EXAMPLES
+
+PLUS = Material.uniform("+", [5.0, 5.0, 0.2, 0.2], E=20000, nu=0.3, stiff_axis="D1")
+
+
+class PointFit:
+    """Point-to-point fitting only (the surface term has its own tests)."""
+
+    def __init__(self, targets, weights):
+        self.targets, self.weights = targets, weights
+
+    def value(self, P):
+        return 0.5 * np.sum(self.weights[:, None] * (P - self.targets) ** 2)
+
+    def gradient(self, P):
+        return self.weights[:, None] * (P - self.targets)
+
+    def hessian_vector(self, P, dP):
+        return self.weights[:, None] * dP
+
+
+@pytest.fixture(scope="module")
+def banana():
+    """The wiggly banana before optimization (a real design), coarse (k = 4), flat and deployed to 80°."""
+    folder = EXAMPLES / "wiggly_banana_preopt"
+    d = read_design(folder / "flat_opt.msh")
+    L = Linkage(d, PLUS, subdivision=4, rest_lengths=read_rest_lengths(folder / "design_parameters.txt", d.num_segments))
+    minimize(L, fixed=L.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+    D = copy.deepcopy(L)
+    assert deploy(D, np.radians(80), DeployOptions(steps=10)).converged
+    rng = np.random.default_rng(0)
+    span = np.linalg.norm(np.ptp(D.joint_positions(), axis=0))
+    fit = PointFit(D.joint_positions() + 0.01 * span * rng.standard_normal((L.num_joints, 3)), np.full(L.num_joints, 1.0 / L.num_joints))
+    return DesignProblem(L, np.radians(80), DesignWeights(gamma=0.3, beta=100.0), fitting=fit, deployed=D)
+
+
+def _fd(f, g, hp, q, v, steps):
+    g0, H0 = g(q) @ v, hp(q, v)
+    ge, he = [], []
+    for h in steps:
+        ge.append(abs((f(q + h * v) - f(q - h * v)) / (2 * h) - g0) / abs(g0))
+        he.append(np.linalg.norm((g(q + h * v) - g(q - h * v)) / (2 * h) - H0) / np.linalg.norm(H0))
+    return ge, he
+
+
+@pytest.fixture(scope="module")
+def buckled_grid():
+    """A small incompatible grid whose flat state leaves the plane once its rest lengths change."""
+    from xshells.deploy import rest_length_solve
+    from test_deploy import FLAT_BEAM, warped_grid
+
+    L = Linkage(warped_grid(4), FLAT_BEAM, subdivision=4)
+    rest_length_solve(L)
+    D = copy.deepcopy(L)
+    assert deploy(D, np.radians(60), DeployOptions(steps=6)).converged
+    fit = PointFit(D.joint_positions(), np.full(L.num_joints, 1.0 / L.num_joints))
+    return DesignProblem(L, np.radians(60), DesignWeights(gamma=0.3, beta=100.0), fitting=fit, deployed=D)
+
+
+def test_planarity_derivatives_match_finite_differences(buckled_grid):
+    prob = buckled_grid
+    rng = np.random.default_rng(0)
+    q = 1 + 0.01 * rng.standard_normal(len(prob.p0))
+    v = rng.standard_normal(len(q))
+    assert prob.planarity(q) > 1e-4  # the flat state has left the plane: c and its derivatives are not trivially 0
+    ge, he = _fd(prob.planarity, prob.planarity_gradient, prob.planarity_hessp, q, v, (2.5e-4, 1.25e-4, 6.25e-5))
+    assert ge[-1] < 2e-3 and he[-1] < 5e-3, (ge, he)
+    assert ge[0] / ge[1] > 3 and he[0] / he[1] > 3, (ge, he)
+
+
+def test_planar_flat_state_has_zero_planarity(banana):
+    assert banana.planarity(banana._q) < 1e-20
+    assert np.abs(banana.planarity_gradient(banana._q)).max() < 1e-8
+
+
+@pytest.mark.parametrize("which", ["J", "min_angle"])
+def test_adjoint_derivatives_match_finite_differences(banana, which):
+    prob = banana
+    f, g, hp = {"J": (prob.objective, prob.gradient, prob.hessp),
+                "planarity": (prob.planarity, prob.planarity_gradient, prob.planarity_hessp),
+                "min_angle": (prob.min_angle, prob.min_angle_gradient, prob.min_angle_hessp)}[which]
+    rng = np.random.default_rng(1)
+    # away from the initial design, but not so far that the nearly closed flat state inverts
+    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
+    v = rng.standard_normal(len(q))
+    ge, he = _fd(f, g, hp, q, v, (1e-4, 5e-5, 2.5e-5))
+    assert ge[-1] < 1e-3 and he[-1] < 3e-3, (ge, he)
+    # second-order convergence onto our derivatives
+    assert ge[0] / ge[1] > 3 and he[0] / he[1] > 3, (ge, he)
+    assert ge[1] / ge[2] > 3 and he[1] / he[2] > 3, (ge, he)
+
+
+def test_hessian_vector_product_is_symmetric(banana):
+    prob = banana
+    rng = np.random.default_rng(2)
+    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
+    u, v = rng.standard_normal(len(q)), rng.standard_normal(len(q))
+    assert u @ prob.hessp(q, v) == pytest.approx(v @ prob.hessp(q, u), rel=1e-5)
+
+
+def test_energy_terms_are_normalized_at_the_start(banana):
+    t = banana.terms(banana._q)
+    assert t["J"] == pytest.approx(0.3 * t["flat_energy"] + 0.7 * t["deployed_energy"] + 50.0 * t["fit"])
+
+
+def test_ks_minimum_is_overflow_safe_and_conservative():
+    a = np.array([1000.0, 1000.5, 1001.0])
+    v, w, curv = ks_min(a, 0.01)
+    assert np.isfinite(v) and v <= a.min() and v > a.min() - 0.01 * np.log(3) - 1e-12
+    assert w.sum() == pytest.approx(1.0)
+    h = 1e-6
+    d = np.array([0.3, -0.2, 0.5])
+    fd = (ks_min(a + h * d, 0.01)[1] - ks_min(a - h * d, 0.01)[1]) / (2 * h)
+    assert np.allclose(curv(d), fd, atol=1e-6)
+
+
+@pytest.mark.parametrize("kw,match", [(dict(gamma=1.5), "gamma"), (dict(gamma=-0.1), "gamma"), (dict(beta=-1), "beta")])
+def test_bad_weights(kw, match):
+    with pytest.raises(InputError, match=match):
+        DesignWeights(**kw)

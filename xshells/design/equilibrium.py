@@ -1,0 +1,131 @@
+"""An equilibrium at a fixed average opening angle, with its sensitivities (paper Appendix B).
+
+The equilibrium ``x*(p)`` minimizes ``E(x, p)`` subject to ``a·x = ᾱ`` (``a``
+averages the joint angles) with one joint's position and rotation held.
+Differentiating its optimality conditions gives linear systems with the KKT
+matrix
+
+    K = [[H, a], [aᵀ, 0]]
+
+on the free variables. ``H`` alone need not be positive definite (the
+mechanism's opening mode is held only by the constraint), but on ``aᵀw = 0``
+``H w = (H + ρ a aᵀ) w``, and the augmented matrix is positive definite at a
+stable constrained equilibrium. So every KKT solve is two back-solves with
+one Cholesky factor of ``H + ρ a aᵀ`` (one of them, with ``a``, cached).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..linkage.derivatives import hessian_derivative
+from ..solve import NewtonOptions, NotPositiveDefinite, SparseCholesky, minimize
+
+
+class ConstrainedEquilibrium:
+    """One state of the linkage (flat or deployed) held at an average angle.
+
+    Parameters
+    ----------
+    linkage : Linkage
+        Owned by this object: it follows the design parameters.
+    angle : float
+        Average opening angle ᾱ (radians).
+    pins : (6,) int array, optional
+        Held variables (default: the central joint's position and rotation,
+        chosen once so that they never move between solves).
+    """
+
+    def __init__(self, linkage, angle: float, pins=None, newton: NewtonOptions | None = None):
+        self.L = linkage
+        self.angle = float(angle)
+        n = linkage.num_vars
+        self.pins = linkage.rigid_pin_indices() if pins is None else np.asarray(pins, int)
+        self.free = np.setdiff1d(np.arange(n), self.pins)
+        self.a = np.zeros(n)
+        self.a[linkage.angle_indices()] = 1.0 / linkage.num_joints
+        self.af = self.a[self.free]
+        self.newton = newton or _default_newton(linkage)
+        self.chol = SparseCholesky()
+        self.newton_iterations = 0
+        self.Hfull = None
+
+    @property
+    def nx(self) -> int:
+        return self.L.num_vars
+
+    def solve(self) -> None:
+        """Newton-solve at the current rest lengths from the current state, then factorize."""
+        report = minimize(self.L, fixed=self.pins, constraint=(self.a, self.angle), options=self.newton)
+        self.newton_iterations += report.iterations
+        if not report.converged:
+            raise ArithmeticError(f"equilibrium at {np.degrees(self.angle):.2f}° did not converge ({report.message})")
+        self.L.update_source_frame()
+        self.factorize()
+
+    def factorize(self) -> None:
+        """Hessian blocks at the current state and the Cholesky factor of ``H + ρ a aᵀ`` (free variables)."""
+        nx = self.nx
+        Hfull = self.L.hessian(with_rest_lengths=True).tocsr()
+        self.Hfull = Hfull
+        self.Hxp = Hfull[:nx, nx:].tocsr()
+        self.Hpx = Hfull[nx:, :nx].tocsr()
+        self.Hpp = Hfull[nx:, nx:].tocsr()
+        H = Hfull[:nx, :nx][self.free][:, self.free]
+        idx = np.flatnonzero(self.af)
+        rho = 10.0 * float(np.abs(H.diagonal()).max()) / float(self.af @ self.af)
+        for _ in range(8):
+            aa = sp.csr_matrix((np.full(len(idx) ** 2, rho * self.af[idx[0]] ** 2),
+                                (np.repeat(idx, len(idx)), np.tile(idx, len(idx)))), shape=H.shape)
+            try:
+                self.chol.factorize((H + aa).tocsr())
+                break
+            except NotPositiveDefinite:
+                rho *= 100.0
+        else:
+            raise ArithmeticError(f"the constrained equilibrium at {np.degrees(self.angle):.2f}° is unstable")
+        self._v = self.chol.solve(self.af)
+        self._av = float(self.af @ self._v)
+
+    def kkt_solve(self, r: np.ndarray) -> np.ndarray:
+        """``w`` with ``H w + a μ = r``, ``aᵀw = 0`` on the free variables; (num_vars,), zero on the pins."""
+        u = self.chol.solve(np.asarray(r, float)[self.free])
+        w = np.zeros(self.nx)
+        w[self.free] = u - (float(self.af @ u) / self._av) * self._v
+        return w
+
+    def state_derivative(self, dp: np.ndarray) -> np.ndarray:
+        """First-order change ``δx = ∂x*/∂p · δp``."""
+        return self.kkt_solve(-(self.Hxp @ dp))
+
+    def energy_gradient_p(self) -> np.ndarray:
+        """``∂E/∂p`` at the state (equal to ``dE(x*(p), p)/dp``: the angle is held)."""
+        return self.L.gradient(with_rest_lengths=True)[self.nx:]
+
+    def hessian_derivative(self, dx, dp) -> sp.csr_matrix:
+        """Directional derivative of the (x, p) Hessian along ``(δx, δp)``."""
+        return hessian_derivative(self.L, dx, dp, with_rest_lengths=True)
+
+    def second_order_change(self, dx, dp, D=None) -> np.ndarray:
+        """``δpᵀ ∂²x*/∂p² δp`` (Appendix A), given ``δx`` for ``δp``."""
+        D = self.hessian_derivative(dx, dp) if D is None else D
+        z = D @ np.concatenate([dx, dp])
+        return self.kkt_solve(-z[: self.nx])
+
+    def predict(self, dp) -> np.ndarray:
+        """Second-order Taylor prediction of ``x*(p + δp)`` (without moving the state)."""
+        dx = self.state_derivative(dp)
+        return self.L.get_vars() + dx + 0.5 * self.second_order_change(dx, dp)
+
+
+def _default_newton(linkage) -> NewtonOptions:
+    # Tight: adjoint gradients are only as accurate as the equilibria. The
+    # floor is what round-off in the stiff stretching terms leaves.
+    eps = np.finfo(float).eps
+    rods = linkage.rods
+    coords = float(np.abs(rods.points).max())
+    floor = 10.0 * eps * float(rods.ks.max()) * coords / float(rods.rest_lengths.min()) * np.sqrt(linkage.num_vars)
+    B = float(np.max(rods.bending_stiffness))
+    span = float(np.ptp(linkage.joint_positions(), axis=0).max())
+    return NewtonOptions(gradient_tolerance=max(1e-10 * B / span**2 * np.sqrt(linkage.num_vars), floor), max_iterations=100,
+                         saddle_gradient_factor=float("inf"))

@@ -1,0 +1,336 @@
+"""The design objective J(p) of eq. 5 and the flat-state constraints, with adjoint derivatives.
+
+Variables are the per-segment rest lengths, scaled by their initial values
+(``q = p / p₀``) so that a trust radius of 0.1 means "10 % longer or
+shorter" for every segment.
+
+* ``J = γ/E₀ E(x₂D*) + (1−γ)/E₀ E(x₃D*) + β/(2 l₀²) T(x₃D*)``;
+* planarity ``c = ‖S_z x₂D* − h₀‖²`` (``h₀`` the flat layout's height);
+* minimum angle ``KS(S_α x₂D*, s)`` in the overflow-safe form of Appendix A.
+
+Gradients use one adjoint solve per state-only term; Hessian-vector products
+use the forward sensitivity ``δx``, the adjoint's variation ``δw`` and the
+Hessian's directional derivative (Appendix B), all with the factorizations
+of the two equilibria.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .equilibrium import ConstrainedEquilibrium
+
+
+@dataclass(frozen=True)
+class DesignWeights:
+    """Weights of eq. 5.
+
+    Attributes
+    ----------
+    gamma : float
+        Share of the flat state's energy, in [0, 1].
+    beta : float
+        Weight of the fitting term (≥ 0).
+    ks_sharpness : float
+        ``s`` of the KS minimum (radians).
+    """
+
+    gamma: float = 0.5
+    beta: float = 5000.0
+    ks_sharpness: float = 0.01
+
+    def __post_init__(self):
+        if not (0.0 <= self.gamma <= 1.0):
+            raise InputError(f"gamma must lie in [0, 1], got {self.gamma}")
+        if not (self.beta >= 0.0 and np.isfinite(self.beta)):
+            raise InputError(f"beta must be a non-negative number, got {self.beta}")
+        if not self.ks_sharpness > 0:
+            raise InputError(f"the KS sharpness must be positive, got {self.ks_sharpness}")
+
+
+def ks_min(alpha: np.ndarray, s: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """Smooth minimum ``KS(α, s) = min α − s log Σ exp((min α − α_i)/s)``.
+
+    Returns
+    -------
+    value : float
+    weights : (n,) array
+        ``∂KS/∂α`` (the softmin weights, summing to one).
+    curvature : callable
+        ``v ↦ ∂²KS/∂α² v``.
+    """
+    m = float(alpha.min())
+    e = np.exp((m - alpha) / s)
+    total = float(e.sum())
+    pi = e / total
+
+    def curvature(v):
+        return -(pi * v - pi * float(pi @ v)) / s
+
+    return m - s * np.log(total), pi, curvature
+
+
+class _StateTerm:
+    """A scalar function of one equilibrium state: value, ∇ₓ and ∇²ₓ·v, as callables on the linkage."""
+
+    def __init__(self, value, gradient, hessian_vector):
+        self.value, self.gradient, self.hessian_vector = value, gradient, hessian_vector
+
+
+def _move_equilibrium(eq, dp, p) -> None:
+    """Re-solve one equilibrium at new rest lengths ``p``: from the second-order prediction
+    (Appendix A), or, if that fails, from the current state."""
+    from ..linkage.state import restore, snapshot
+
+    start = snapshot(eq.L)
+    x_pred = eq.predict(dp)
+    eq.L.set_rest_lengths(p)
+    if np.isfinite(x_pred).all():
+        try:
+            eq.L.set_vars(x_pred)
+            eq.solve()
+            return
+        except (ArithmeticError, InputError):
+            restore(eq.L, start)
+            eq.L.set_rest_lengths(p)
+    eq.solve()
+
+
+class DesignProblem:
+    """J, c and the KS angle constraint as functions of the scaled rest lengths ``q``.
+
+    Parameters
+    ----------
+    linkage : Linkage
+        At its flat assembly state (the rest lengths it holds are ``p₀``).
+    target_angle : float
+        ᾱ_tgt (radians).
+    weights : DesignWeights
+    fitting : object
+        The fitting term on joint positions (see :mod:`.fitting`):
+        ``value(P)``, ``gradient(P)`` (n, 3), ``hessian_vector(P, dP)`` (n, 3).
+        Default: the paper's defaults at the initial deployed state.
+    flat_angle : float, optional
+        ᾱ₀ (default: the flat state's current average angle).
+    deployed : Linkage, optional
+        An already deployed copy of ``linkage`` at ``target_angle`` (skips
+        the deployment).
+    deploy_steps : int
+        Angle increments for the initial deployment.
+    """
+
+    def __init__(self, linkage, target_angle: float, weights: DesignWeights = DesignWeights(), fitting=None,
+                 flat_angle: float | None = None, deployed=None, deploy_steps: int = 20, direction: str = "up"):
+        self.w = weights
+        self.p0 = linkage.rest_lengths
+        flat_angle = linkage.average_angle() if flat_angle is None else float(flat_angle)
+        self.flat = ConstrainedEquilibrium(linkage, flat_angle)
+        if deployed is None:
+            from ..deploy.simulate import DeployOptions, deploy
+
+            deployed = copy.deepcopy(linkage)
+            res = deploy(deployed, target_angle, DeployOptions(steps=deploy_steps, direction=direction))
+            if not res.converged:
+                raise InputError(f"the initial design does not deploy to {np.degrees(target_angle):.2f}° ({res.message})")
+        self.deployed = ConstrainedEquilibrium(deployed, target_angle)
+        self.flat.solve()
+        self.deployed.solve()
+        n = linkage.num_joints
+        self.pos_rows = ((9 * np.arange(n))[:, None] + np.arange(3)[None, :])
+        self.angle_rows = linkage.angle_indices()
+        self.Sz = linkage.height_selector()
+        self.h0 = float(np.mean(self.Sz @ linkage.get_vars()))
+        if fitting is None:
+            from .fitting import FittingTerm
+
+            fitting = FittingTerm.paper_defaults(self.deployed.L)
+        self.fitting = fitting
+        P = self.deployed.L.joint_positions()
+        self.l0 = float(np.linalg.norm(np.ptp(P, axis=0)))
+        self.E0 = float(self.deployed.L.energy())
+        self._q = np.ones(len(self.p0))
+        self._cache: dict = {}
+
+    # ------------------------------------------------------------ state terms
+    def _fit_term(self) -> _StateTerm:
+        L, rows, fit = self.deployed.L, self.pos_rows, self.fitting
+
+        def value():
+            return float(fit.value(L.joint_positions()))
+
+        def gradient():
+            g = np.zeros(L.num_vars)
+            g[rows] = fit.gradient(L.joint_positions())
+            return g
+
+        def hessian_vector(dx):
+            h = np.zeros(L.num_vars)
+            h[rows] = fit.hessian_vector(L.joint_positions(), dx[rows])
+            return h
+
+        return _StateTerm(value, gradient, hessian_vector)
+
+    def _planarity_term(self) -> _StateTerm:
+        L, Sz = self.flat.L, self.Sz
+
+        def value():
+            h = Sz @ L.get_vars() - self.h0
+            return float(h @ h)
+
+        def gradient():
+            return 2.0 * (Sz.T @ (Sz @ L.get_vars() - self.h0))
+
+        def hessian_vector(dx):
+            return 2.0 * (Sz.T @ (Sz @ dx))
+
+        return _StateTerm(value, gradient, hessian_vector)
+
+    def _angle_term(self) -> _StateTerm:
+        L, rows, s = self.flat.L, self.angle_rows, self.w.ks_sharpness
+
+        def value():
+            return ks_min(L.get_vars()[rows], s)[0]
+
+        def gradient():
+            g = np.zeros(L.num_vars)
+            g[rows] = ks_min(L.get_vars()[rows], s)[1]
+            return g
+
+        def hessian_vector(dx):
+            h = np.zeros(L.num_vars)
+            h[rows] = ks_min(L.get_vars()[rows], s)[2](dx[rows])
+            return h
+
+        return _StateTerm(value, gradient, hessian_vector)
+
+    # -------------------------------------------------------------- updates
+    def set_q(self, q) -> None:
+        """Move both equilibria to the design ``p = q p₀`` (second-order predictor, then Newton)."""
+        q = np.asarray(q, float)
+        if q.shape != self._q.shape:
+            raise InputError(f"expected {len(self._q)} design variables, got shape {q.shape}")
+        if np.array_equal(q, self._q):
+            return
+        dp = (q - self._q) * self.p0
+        p = q * self.p0
+        if not (p > 0).all():
+            raise ArithmeticError("a rest length would become non-positive")
+        from ..linkage.state import restore, snapshot
+
+        saved = [snapshot(eq.L) for eq in (self.flat, self.deployed)]
+        try:
+            for eq in (self.flat, self.deployed):
+                _move_equilibrium(eq, dp, p)
+        except ArithmeticError:
+            for eq, st in zip((self.flat, self.deployed), saved):  # stay at the last good design
+                restore(eq.L, st)
+                eq.factorize()
+            self._cache = {}
+            raise
+        self._q = q.copy()
+        self._cache = {}
+
+    def _adjoint(self, name, eq, term):
+        key = ("adjoint", name)
+        if key not in self._cache:
+            self._cache[key] = eq.kkt_solve(term.gradient())
+        return self._cache[key]
+
+    def _sensitivity(self, eq, dp, key):
+        k = ("dx", key, dp.tobytes())
+        if k not in self._cache:
+            self._cache = {kk: v for kk, v in self._cache.items() if kk[0] != "dx" or kk[1] != key}
+            dx = eq.state_derivative(dp)
+            self._cache[k] = (dx, eq.hessian_derivative(dx, dp))
+        return self._cache[k]
+
+    def _state_gradient_p(self, eq, term, name):
+        """``d term(x*(p))/dp = −H_pxᵀ w`` with ``K w = ∇ₓ term``."""
+        w = self._adjoint(name, eq, term)
+        return -(eq.Hpx @ w)
+
+    def _state_hessp_p(self, eq, term, name, dp, key):
+        w = self._adjoint(name, eq, term)
+        dx, D = self._sensitivity(eq, dp, key)
+        nx = eq.nx
+        Dw = D @ np.concatenate([w, np.zeros(len(dp))])
+        dw = eq.kkt_solve(term.hessian_vector(dx) - Dw[:nx])
+        return -(eq.Hpx @ dw + Dw[nx:])
+
+    @staticmethod
+    def _energy_hessp_p(eq, dx, dp):
+        return eq.Hpx @ dx + eq.Hpp @ dp
+
+    # ----------------------------------------------------------- objective
+    def terms(self, q) -> dict:
+        """``J`` and its three terms (dimensionless) at ``q``."""
+        self.set_q(q)
+        e2, e3 = self.flat.L.energy() / self.E0, self.deployed.L.energy() / self.E0
+        t = self._fit_term().value() / self.l0**2
+        w = self.w
+        return {"J": w.gamma * e2 + (1 - w.gamma) * e3 + 0.5 * w.beta * t, "flat_energy": e2, "deployed_energy": e3, "fit": t}
+
+    def objective(self, q) -> float:
+        return self.terms(q)["J"]
+
+    def gradient(self, q) -> np.ndarray:
+        self.set_q(q)
+        w = self.w
+        g = (w.gamma * self.flat.energy_gradient_p() + (1 - w.gamma) * self.deployed.energy_gradient_p()) / self.E0
+        if w.beta:
+            g = g + 0.5 * w.beta / self.l0**2 * self._state_gradient_p(self.deployed, self._fit_term(), "fit")
+        return g * self.p0
+
+    def hessp(self, q, v) -> np.ndarray:
+        self.set_q(q)
+        dp = np.asarray(v, float) * self.p0
+        w = self.w
+        out = np.zeros(len(dp))
+        if w.gamma:
+            dx2 = self._flat_dx(dp)
+            out += w.gamma / self.E0 * self._energy_hessp_p(self.flat, dx2, dp)
+        dx3, _ = self._sensitivity(self.deployed, dp, "3d")
+        out += (1 - w.gamma) / self.E0 * self._energy_hessp_p(self.deployed, dx3, dp)
+        if w.beta:
+            out += 0.5 * w.beta / self.l0**2 * self._state_hessp_p(self.deployed, self._fit_term(), "fit", dp, "3d")
+        return out * self.p0
+
+    def _flat_dx(self, dp):
+        k = ("dx2", dp.tobytes())
+        if k not in self._cache:
+            self._cache[k] = self.flat.state_derivative(dp)
+        return self._cache[k]
+
+    # ---------------------------------------------------------- constraints
+    def planarity(self, q) -> float:
+        self.set_q(q)
+        return self._planarity_term().value() / self.l0**2
+
+    def planarity_gradient(self, q) -> np.ndarray:
+        self.set_q(q)
+        return self._state_gradient_p(self.flat, self._planarity_term(), "planarity") / self.l0**2 * self.p0
+
+    def planarity_hessp(self, q, v) -> np.ndarray:
+        self.set_q(q)
+        dp = np.asarray(v, float) * self.p0
+        return self._state_hessp_p(self.flat, self._planarity_term(), "planarity", dp, "2d") / self.l0**2 * self.p0
+
+    def min_angle(self, q) -> float:
+        self.set_q(q)
+        return self._angle_term().value()
+
+    def min_angle_gradient(self, q) -> np.ndarray:
+        self.set_q(q)
+        return self._state_gradient_p(self.flat, self._angle_term(), "angle") * self.p0
+
+    def min_angle_hessp(self, q, v) -> np.ndarray:
+        self.set_q(q)
+        dp = np.asarray(v, float) * self.p0
+        return self._state_hessp_p(self.flat, self._angle_term(), "angle", dp, "2d") * self.p0
+
+    @property
+    def rest_lengths(self) -> np.ndarray:
+        return self._q * self.p0
