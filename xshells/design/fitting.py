@@ -1,0 +1,436 @@
+"""The fitting term T of the design optimization (paper §5, eq. 6, and Appendix B).
+
+    T(x) = ½ ‖x − P_surf(x)‖²_{W_surf} + ½ ‖x − x_tgt‖²_W
+
+acts on the joint positions ``P`` (n, 3) of the deployed linkage. ``P_surf``
+projects each joint onto its closest point on a target triangle mesh; by
+default (the paper's "improve an existing design" mode) that mesh is the
+linkage's own joint graph faces at the current deployed state, triangulated
+and refined by two Loop subdivisions, and ``x_tgt`` are the current joint
+positions.
+
+Derivatives: the gradient of ½|p − C(p)|² is ``p − C(p)`` (the projection's
+own variation is orthogonal to ``p − C``), and its derivative is ``I − J``
+with ``J = ∂C/∂p``: ``I − n nᵀ`` over a triangle's interior, ``e eᵀ`` on an
+edge, ``0`` at a vertex. This is exact away from the measure-zero set where
+the closest point jumps.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = [
+    "joint_faces",
+    "triangulate_faces",
+    "target_surface",
+    "read_surface",
+    "closest_points",
+    "FittingTerm",
+]
+
+# Barycentric coordinates below this (relative) value count as zero: the
+# closest point lies on the opposite edge (or, with two of them, at a vertex).
+_BARY_TOL = 1e-9
+
+
+# ------------------------------------------------------------ joint faces
+def _layout_coordinates(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """2D coordinates of points (n, 3) in the plane with unit ``normal`` (3,), right-handed about it; (n, 2)."""
+    n = np.asarray(normal, float)
+    n = n / np.linalg.norm(n)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(n, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    return np.c_[points @ u, points @ v]
+
+
+def joint_edges(segment_joints: np.ndarray) -> np.ndarray:
+    """Unique joint-to-joint edges, (e, 2) int with ``a < b``; segments to free ends (-1) dropped."""
+    sj = np.asarray(segment_joints, dtype=np.int64).reshape(-1, 2)
+    sj = sj[(sj >= 0).all(axis=1) & (sj[:, 0] != sj[:, 1])]
+    if len(sj) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    return np.unique(np.sort(sj, axis=1), axis=0)
+
+
+def _prune_dangling(num: int, edges: np.ndarray) -> np.ndarray:
+    """Drop edges to vertices of degree ≤ 1, repeatedly (they bound no face); (e', 2)."""
+    keep = np.ones(len(edges), dtype=bool)
+    while True:
+        deg = np.bincount(edges[keep].ravel(), minlength=num)
+        bad = keep & ((deg[edges[:, 0]] <= 1) | (deg[edges[:, 1]] <= 1))
+        if not bad.any():
+            return edges[keep]
+        keep &= ~bad
+
+
+def _signed_area(xy: np.ndarray) -> float:
+    """Shoelace signed area of a polygon (k, 2), positive counter-clockwise."""
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def planar_faces(xy: np.ndarray, edges: np.ndarray) -> list[list[int]]:
+    """Bounded faces of a plane straight-line graph, counter-clockwise.
+
+    Parameters
+    ----------
+    xy : (n, 2) float
+        Vertex positions in the plane.
+    edges : (e, 2) int
+        Undirected edges (no duplicates).
+
+    Returns
+    -------
+    list of list of int
+        Each bounded face as its vertex cycle. The faces of negative or zero
+        signed area (the unbounded face of each connected component, and
+        slivers) are dropped.
+    """
+    xy = np.asarray(xy, float)
+    edges = _prune_dangling(len(xy), np.asarray(edges, np.int64).reshape(-1, 2))
+    nbrs: dict[int, list[int]] = {}
+    for a, b in edges.tolist():
+        nbrs.setdefault(a, []).append(b)
+        nbrs.setdefault(b, []).append(a)
+    # Neighbours of each vertex sorted counter-clockwise, and the position of
+    # each in that order.
+    order: dict[int, list[int]] = {}
+    rank: dict[tuple[int, int], int] = {}
+    for v, ns in nbrs.items():
+        d = xy[ns] - xy[v]
+        ns = [ns[i] for i in np.argsort(np.arctan2(d[:, 1], d[:, 0]), kind="stable")]
+        order[v] = ns
+        for i, w in enumerate(ns):
+            rank[(v, w)] = i
+    visited: set[tuple[int, int]] = set()
+    faces = []
+    for a, b in edges.tolist():
+        for start in ((a, b), (b, a)):
+            if start in visited:
+                continue
+            face, (u, v) = [], start
+            while (u, v) not in visited:
+                visited.add((u, v))
+                face.append(u)
+                # Turn as far right as possible at v: the neighbour just
+                # before u in counter-clockwise order keeps the face on the left.
+                ns = order[v]
+                w = ns[(rank[(v, u)] - 1) % len(ns)]
+                u, v = v, w
+            if _signed_area(xy[face]) > 0:
+                faces.append(face)
+    return faces
+
+
+def joint_faces(linkage) -> list[list[int]]:
+    """Bounded faces of a linkage's planar joint graph in its flat layout.
+
+    Joints are connected where a segment joins them (segments to free ends
+    are ignored); the graph is embedded in the plane of the layout (the
+    design's vertices projected along ``graph.layout_normal``) and its faces
+    are traced; the unbounded face is dropped.
+
+    Parameters
+    ----------
+    linkage : Linkage
+
+    Returns
+    -------
+    list of list of int
+        Each face (the quads of an X-shell, plus triangles and pentagons at
+        the boundary) as joint numbers, counter-clockwise about the layout
+        normal.
+    """
+    g = linkage.graph
+    flat = np.asarray(g.design.vertices, float)[np.asarray(g.joint_vertex)]
+    xy = _layout_coordinates(flat, g.layout_normal)
+    return planar_faces(xy, joint_edges(g.segment_joints))
+
+
+# --------------------------------------------------------- target surface
+def triangulate_faces(P: np.ndarray, faces) -> np.ndarray:
+    """Split polygons into triangles: quads along the shorter diagonal, others fanned.
+
+    Parameters
+    ----------
+    P : (n, 3) float
+        Vertex positions (decide the quad diagonals).
+    faces : sequence of sequences of int
+        Polygons of ≥ 3 vertices.
+
+    Returns
+    -------
+    (f, 3) int64
+        Triangles, oriented like their polygons.
+    """
+    P = np.asarray(P, float)
+    tris = []
+    for face in faces:
+        f = [int(i) for i in face]
+        if len(f) == 4:
+            a, b, c, d = f
+            if np.linalg.norm(P[a] - P[c]) <= np.linalg.norm(P[b] - P[d]):
+                tris += [(a, b, c), (a, c, d)]
+            else:
+                tris += [(a, b, d), (b, c, d)]
+        else:
+            tris += [(f[0], f[i], f[i + 1]) for i in range(1, len(f) - 1)]
+    return np.array(tris, dtype=np.int64).reshape(-1, 3)
+
+
+def target_surface(linkage, faces=None, subdivisions: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's default target surface: the triangulated joint faces, Loop-subdivided.
+
+    Parameters
+    ----------
+    linkage : Linkage
+        Its current (deployed) joint positions are the mesh vertices.
+    faces : list of list of int, optional
+        Joint faces (default: :func:`joint_faces`).
+    subdivisions : int
+        Loop subdivision steps (≥ 0).
+
+    Returns
+    -------
+    V : (m, 3) float
+    F : (f, 3) int64
+    """
+    P = np.asarray(linkage.joint_positions(), float)
+    faces = joint_faces(linkage) if faces is None else faces
+    F = triangulate_faces(P, faces)
+    if len(F) == 0:
+        raise InputError("the linkage's joint graph encloses no face: no target surface can be built")
+    V = P
+    if subdivisions > 0:
+        import igl
+
+        used = np.unique(F)
+        remap = np.full(len(P), -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        V, F = igl.loop(np.ascontiguousarray(P[used]), np.ascontiguousarray(remap[F]), int(subdivisions))
+    return np.asarray(V, float), np.asarray(F, np.int64)
+
+
+def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a user-supplied triangle mesh (OBJ, PLY, STL, ... via meshio).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    V : (m, 3) float
+    F : (f, 3) int64
+        All triangle cells of the file.
+
+    Raises
+    ------
+    InputError
+        One line naming the file: unreadable, or without triangles.
+    """
+    import meshio
+
+    path = Path(path)
+    try:
+        mesh = meshio.read(str(path))
+    except Exception as exc:  # meshio raises many kinds for bad files
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(f"{path}: cannot read the target surface: {msg}") from None
+    tris = [np.asarray(c.data, np.int64) for c in mesh.cells if c.type == "triangle" and len(c.data)]
+    if not tris:
+        raise InputError(f"{path}: the target surface has no triangles")
+    V = np.asarray(mesh.points, float)
+    if V.ndim != 2 or V.shape[1] not in (2, 3):
+        raise InputError(f"{path}: the target surface's points are not 2D or 3D")
+    if V.shape[1] == 2:
+        V = np.c_[V, np.zeros(len(V))]
+    F = np.concatenate(tris)
+    if F.min() < 0 or F.max() >= len(V) or not np.isfinite(V).all():
+        raise InputError(f"{path}: the target surface has invalid vertex indices or coordinates")
+    return V, F
+
+
+# ------------------------------------------------------- closest points
+def _barycentric(C: np.ndarray, A: np.ndarray, B: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates of points C (n, 3) in triangles (A, B, D), each (n, 3); (n, 3)."""
+    e0, e1, r = B - A, D - A, C - A
+    d00 = np.einsum("ij,ij->i", e0, e0)
+    d01 = np.einsum("ij,ij->i", e0, e1)
+    d11 = np.einsum("ij,ij->i", e1, e1)
+    d20 = np.einsum("ij,ij->i", r, e0)
+    d21 = np.einsum("ij,ij->i", r, e1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(den > 0, den, 1.0)
+    b1 = (d11 * d20 - d01 * d21) / den
+    b2 = (d00 * d21 - d01 * d20) / den
+    return np.c_[1.0 - b1 - b2, b1, b2]
+
+
+def closest_points(V: np.ndarray, F: np.ndarray, P: np.ndarray, tol: float = _BARY_TOL):
+    """Closest points of query points on a triangle mesh, and their Jacobians.
+
+    Parameters
+    ----------
+    V : (m, 3) float
+        Mesh vertices.
+    F : (f, 3) int
+        Triangles.
+    P : (n, 3) float
+        Query points.
+    tol : float
+        A barycentric coordinate ≤ ``tol`` counts as zero.
+
+    Returns
+    -------
+    C : (n, 3) float
+        Closest points.
+    J : (n, 3, 3) float
+        ``∂C/∂P``: ``I − n nᵀ`` when ``C`` is interior to its triangle (``n``
+        the unit normal), ``e eᵀ`` on an edge (``e`` the unit edge vector),
+        ``0`` at a vertex.
+    """
+    import igl
+
+    V = np.ascontiguousarray(V, dtype=float)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    P = np.ascontiguousarray(np.asarray(P, float).reshape(-1, 3))
+    if len(P) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3, 3))
+    _, I, C = igl.point_mesh_squared_distance(P, V, F)
+    T = V[F[I]]  # (n, 3 corners, 3)
+    bary = _barycentric(C, T[:, 0], T[:, 1], T[:, 2])
+    zero = bary <= tol
+    nzero = zero.sum(axis=1)
+    J = np.zeros((len(P), 3, 3))
+
+    inner = nzero == 0
+    if inner.any():
+        nrm = np.cross(T[inner, 1] - T[inner, 0], T[inner, 2] - T[inner, 0])
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        J[inner] = np.eye(3) - nrm[:, :, None] * nrm[:, None, :]
+
+    edge = nzero == 1
+    if edge.any():
+        k = np.argmax(zero[edge], axis=1)  # the vertex opposite the edge
+        rows = np.flatnonzero(edge)
+        e = T[rows, (k + 2) % 3] - T[rows, (k + 1) % 3]
+        e /= np.linalg.norm(e, axis=1, keepdims=True)
+        J[edge] = e[:, :, None] * e[:, None, :]
+    return np.asarray(C, float), J
+
+
+# ------------------------------------------------------------ fitting term
+class FittingTerm:
+    """T(P) = ½ Σ ws_j |P_j − C_j(P_j)|² + ½ Σ w_j |P_j − tgt_j|² on joint positions.
+
+    Parameters
+    ----------
+    targets : (n, 3) float
+        Target joint positions x_tgt.
+    weights : (n,) float
+        Point-to-point weights (diagonal of W, per joint).
+    surface_weights : (n,) float, optional
+        Point-to-surface weights (diagonal of W_surf, per joint); default zero.
+    surface : (V (m, 3), F (f, 3)), optional
+        Target triangle mesh; required when any surface weight is nonzero.
+    """
+
+    def __init__(self, targets, weights, surface_weights=None, surface=None):
+        self.targets = np.array(targets, float).reshape(-1, 3)
+        n = len(self.targets)
+        self.weights = _weights(weights, n, "weights")
+        self.surface_weights = _weights(np.zeros(n) if surface_weights is None else surface_weights, n,
+                                        "surface_weights")
+        if surface is None:
+            if np.any(self.surface_weights != 0):
+                raise InputError("surface weights are given but no target surface")
+            self.surface = None
+        else:
+            V, F = surface
+            V, F = np.array(V, float).reshape(-1, 3), np.array(F, np.int64).reshape(-1, 3)
+            if len(F) == 0:
+                raise InputError("the target surface has no triangles")
+            self.surface = (V, F)
+        for a in (self.targets, self.weights, self.surface_weights):
+            a.setflags(write=False)
+
+    @classmethod
+    def paper_defaults(cls, linkage, surface=None) -> "FittingTerm":
+        """The paper's weights for improving an existing design (§5).
+
+        Targets are the current joint positions; the surface is
+        :func:`target_surface` of the linkage unless given. W_surf totals 0.9
+        spread equally over the joints; W totals 0.1, with joints of valence 2
+        (corners) weighted 10× the others. All weights sum to one.
+        """
+        P = linkage.joint_positions()
+        n = len(P)
+        surface = target_surface(linkage) if surface is None else surface
+        valence = np.asarray(linkage.graph.valence)[np.asarray(linkage.graph.joint_vertex)]
+        w = np.where(valence == 2, 10.0, 1.0)
+        return cls(P, 0.1 * w / w.sum(), np.full(n, 0.9 / n), surface)
+
+    def _check(self, P) -> np.ndarray:
+        P = np.asarray(P, float)
+        if P.shape != self.targets.shape:
+            raise ValueError(f"joint positions must have shape {self.targets.shape}, got {P.shape}")
+        return P
+
+    def _project(self, P):
+        """Closest surface points (n, 3) and their Jacobians (n, 3, 3), or None without a surface."""
+        if self.surface is None:
+            return None
+        return closest_points(*self.surface, P)
+
+    def value(self, P) -> float:
+        """T at joint positions P (n, 3)."""
+        P = self._check(P)
+        t = 0.5 * float(np.sum(self.weights * np.sum((P - self.targets) ** 2, axis=1)))
+        proj = self._project(P)
+        if proj is not None:
+            t += 0.5 * float(np.sum(self.surface_weights * np.sum((P - proj[0]) ** 2, axis=1)))
+        return t
+
+    def gradient(self, P) -> np.ndarray:
+        """∂T/∂P = W_surf (P − C) + W (P − tgt), shape (n, 3)."""
+        P = self._check(P)
+        g = self.weights[:, None] * (P - self.targets)
+        proj = self._project(P)
+        if proj is not None:
+            g += self.surface_weights[:, None] * (P - proj[0])
+        return g
+
+    def hessian_vector(self, P, dP) -> np.ndarray:
+        """∂²T/∂P² dP = W_surf (dP − J dP) + W dP (Appendix B), shape (n, 3)."""
+        P = self._check(P)
+        dP = np.asarray(dP, float).reshape(P.shape)
+        h = self.weights[:, None] * dP
+        proj = self._project(P)
+        if proj is not None:
+            h += self.surface_weights[:, None] * (dP - np.einsum("nij,nj->ni", proj[1], dP))
+        return h
+
+    def __repr__(self) -> str:
+        surf = "none" if self.surface is None else f"{len(self.surface[0])} vertices, {len(self.surface[1])} triangles"
+        return (f"FittingTerm(joints={len(self.targets)}, sum W={self.weights.sum():.4g}, "
+                f"sum W_surf={self.surface_weights.sum():.4g}, surface: {surf})")
+
+
+def _weights(w, n: int, name: str) -> np.ndarray:
+    """Per-joint nonnegative weights as a fresh (n,) float array."""
+    w = np.array(w, float)
+    if w.ndim == 0:
+        w = np.full(n, float(w))
+    if w.shape != (n,):
+        raise InputError(f"{name} must have one entry per joint ({n}), got shape {w.shape}")
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise InputError(f"{name} must be finite and nonnegative")
+    return w
+
