@@ -17,6 +17,7 @@ the closest point jumps.
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -239,7 +240,9 @@ def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
 
     path = Path(path)
     try:
-        mesh = meshio.read(str(path))
+        with warnings.catch_warnings():  # meshio warns while guessing at malformed files
+            warnings.simplefilter("ignore")
+            mesh = meshio.read(str(path))
     except Exception as exc:  # meshio raises many kinds for bad files
         msg = " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(f"{path}: cannot read the target surface: {msg}") from None
