@@ -1,5 +1,6 @@
 """The fitting term T of eq. 6: joint faces, target surface, closest points, derivatives."""
 from collections import Counter
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,7 +16,8 @@ from xshells.design.fitting import (
     triangulate_faces,
 )
 from xshells.errors import InputError
-from xshells.io import read_design
+from xshells.io import design_from_arrays, read_design
+from xshells.linkage.graph import analyze
 from xshells.linkage.grids import rhombic_grid
 from xshells.linkage.linkage import Linkage
 from xshells.section import Material
@@ -93,6 +95,26 @@ def test_planar_faces_mixed_polygons_and_dangling_edges():
     faces = planar_faces(xy, edges)
     assert sorted(sorted(f) for f in faces) == [[0, 1, 2, 8], [0, 3, 8]]
     assert all(polygon_area(xy[f]) > 0 for f in faces)
+
+
+def test_hole_faces_are_dropped():
+    # A 4 x 4 grid without its centre joint: the four central quads become an octagonal hole.
+    d = rhombic_grid(4, 4)
+    centre = 2 * 5 + 2
+    edges = np.array([e for e in d.edges.tolist() if centre not in e])
+    g = analyze(design_from_arrays(d.vertices, edges))
+    L = SimpleNamespace(graph=g)
+    faces = joint_faces(L)
+    assert len(faces) == 12 and all(len(f) == 4 for f in faces)
+    every = joint_faces(L, max_sides=None)
+    assert sorted(map(len, every)) == [4] * 12 + [8]
+
+
+def test_crossing_segments_are_an_error():
+    bowtie = design_from_arrays(np.array([[0, 0, 0], [1, 1, 0], [1, 0, 0], [0, 1, 0]], float),
+                                np.array([[0, 1], [1, 2], [2, 3], [3, 0]]))
+    with pytest.raises(InputError, match="cross"):
+        joint_faces(SimpleNamespace(graph=analyze(bowtie)))
 
 
 # --------------------------------------------------------- target surface

@@ -25,6 +25,8 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = [
+    "joint_edges",
+    "planar_faces",
     "joint_faces",
     "triangulate_faces",
     "target_surface",
@@ -129,7 +131,7 @@ def planar_faces(xy: np.ndarray, edges: np.ndarray) -> list[list[int]]:
     return faces
 
 
-def joint_faces(linkage) -> list[list[int]]:
+def joint_faces(linkage, max_sides: int | None = 6) -> list[list[int]]:
     """Bounded faces of a linkage's planar joint graph in its flat layout.
 
     Joints are connected where a segment joins them (segments to free ends
@@ -140,6 +142,10 @@ def joint_faces(linkage) -> list[list[int]]:
     Parameters
     ----------
     linkage : Linkage
+    max_sides : int or None
+        Faces with more sides are holes in the X-shell (a beam network's
+        faces are quads, with triangles and pentagons at the boundary) and
+        are dropped; None keeps every bounded face.
 
     Returns
     -------
@@ -147,11 +153,26 @@ def joint_faces(linkage) -> list[list[int]]:
         Each face (the quads of an X-shell, plus triangles and pentagons at
         the boundary) as joint numbers, counter-clockwise about the layout
         normal.
+
+    Raises
+    ------
+    InputError
+        The segments cross each other in the layout plane (a design that is
+        not a flat layout), so the traced faces are not those of a plane
+        graph (the Euler characteristic V − E + F is not 1).
     """
     g = linkage.graph
     flat = np.asarray(g.design.vertices, float)[np.asarray(g.joint_vertex)]
     xy = _layout_coordinates(flat, g.layout_normal)
-    return planar_faces(xy, joint_edges(g.segment_joints))
+    edges = joint_edges(g.segment_joints)
+    faces = planar_faces(xy, edges)
+    chi = g.num_joints - len(edges) + len(faces)
+    if chi != 1:
+        raise InputError(f"{g.design.label()}: segments cross in the layout plane (V - E + F = {chi}, not 1), "
+                         "so the joint faces cannot be found; give a target surface instead")
+    if max_sides is not None:
+        faces = [f for f in faces if len(f) <= max_sides]
+    return faces
 
 
 # --------------------------------------------------------- target surface
