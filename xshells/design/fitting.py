@@ -337,7 +337,7 @@ def closest_points(V: np.ndarray, F: np.ndarray, P: np.ndarray, tol: float = _BA
     inner = nzero == 0
     if inner.any():
         nrm = np.cross(T[inner, 1] - T[inner, 0], T[inner, 2] - T[inner, 0])
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         J[inner] = np.eye(3) - nrm[:, :, None] * nrm[:, None, :]
 
     edge = nzero == 1
@@ -345,7 +345,7 @@ def closest_points(V: np.ndarray, F: np.ndarray, P: np.ndarray, tol: float = _BA
         k = np.argmax(zero[edge], axis=1)  # the vertex opposite the edge
         rows = np.flatnonzero(edge)
         e = T[rows, (k + 2) % 3] - T[rows, (k + 1) % 3]
-        e /= np.linalg.norm(e, axis=1, keepdims=True)
+        e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
         J[edge] = e[:, :, None] * e[:, None, :]
     return np.asarray(C, float), J
 
