@@ -1,0 +1,295 @@
+"""The editable flat layout of the app: immutable layouts, edits, warps, undo/redo and live topology checks.
+
+Everything here is plain NumPy, so it is tested without a browser. A
+:class:`Layout` never changes; every edit returns a new one and the
+:class:`History` keeps them for undo/redo.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+
+# Segments shorter than this fraction of the layout's span count as zero-length
+# (the joint frame of a zero-length segment is undefined).
+ZERO_LENGTH_RELATIVE = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class Layout:
+    """A flat beam network: joint positions in the plane and segments between them.
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (n, 2)
+    edges : ndarray of int, shape (m, 2)
+    """
+
+    vertices: np.ndarray
+    edges: np.ndarray
+
+    def __post_init__(self):
+        V = np.array(self.vertices, dtype=float).reshape(-1, 2)
+        E = np.array(self.edges, dtype=np.int64).reshape(-1, 2)
+        V.setflags(write=False)
+        E.setflags(write=False)
+        object.__setattr__(self, "vertices", V)
+        object.__setattr__(self, "edges", E)
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    @property
+    def num_segments(self) -> int:
+        return int(self.edges.shape[0])
+
+    def span(self) -> float:
+        """Largest extent of the layout (1 when empty or degenerate)."""
+        if self.num_vertices == 0:
+            return 1.0
+        return float(np.ptp(self.vertices, axis=0).max()) or 1.0
+
+    def segment_lengths(self) -> np.ndarray:
+        V, E = self.vertices, self.edges
+        return np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1) if len(E) else np.zeros(0)
+
+    def same_as(self, other: "Layout") -> bool:
+        return (self.vertices.shape == other.vertices.shape and self.edges.shape == other.edges.shape
+                and np.array_equal(self.vertices, other.vertices) and np.array_equal(self.edges, other.edges))
+
+
+def layout_from_design(design) -> Layout:
+    """The flat layout of a :class:`xshells.io.design.Design` (its in-plane coordinates).
+
+    A design drawn off the z = 0 plane is projected onto its best-fit plane.
+    """
+    V = np.asarray(design.vertices, float)
+    if np.ptp(V[:, 2]) == 0:
+        return Layout(V[:, :2], design.edges)
+    c = V.mean(axis=0)
+    _, _, vt = np.linalg.svd(V - c, full_matrices=False)
+    return Layout((V - c) @ vt[:2].T, design.edges)
+
+
+def layout_to_design(layout: Layout, source: str | None = None):
+    """A validated :class:`Design` (z = 0); raises InputError like the file readers."""
+    from ..io.design import design_from_arrays
+
+    return design_from_arrays(np.c_[layout.vertices, np.zeros(layout.num_vertices)], layout.edges, source)
+
+
+# ----------------------------------------------------------------------------- edits
+def move_joint(layout: Layout, v: int, xy) -> Layout:
+    _check_vertex(layout, v)
+    V = layout.vertices.copy()
+    V[v] = np.asarray(xy, float)[:2]
+    return Layout(V, layout.edges)
+
+
+def add_joint(layout: Layout, xy, connect_to: int | None = None) -> Layout:
+    """Append a vertex at ``xy``, optionally joined to vertex ``connect_to`` by a new segment."""
+    V = np.vstack([layout.vertices, np.asarray(xy, float)[:2]])
+    E = layout.edges
+    if connect_to is not None:
+        _check_vertex(layout, connect_to)
+        E = np.vstack([E, [connect_to, len(V) - 1]])
+    return Layout(V, E)
+
+
+def delete_joint(layout: Layout, v: int) -> Layout:
+    """Remove vertex ``v`` and its segments; later vertex indices shift down by one."""
+    _check_vertex(layout, v)
+    E = layout.edges[~np.any(layout.edges == v, axis=1)]
+    E = np.where(E > v, E - 1, E)
+    return Layout(np.delete(layout.vertices, v, axis=0), E)
+
+
+def add_segment(layout: Layout, a: int, b: int) -> Layout:
+    """Join vertices ``a`` and ``b``; self-loops are refused, duplicates are left for validation to flag."""
+    _check_vertex(layout, a)
+    _check_vertex(layout, b)
+    if a == b:
+        raise InputError(f"a segment needs two different joints, got {a} twice")
+    return Layout(layout.vertices, np.vstack([layout.edges, [a, b]]))
+
+
+def delete_segment(layout: Layout, s: int) -> Layout:
+    if not 0 <= s < layout.num_segments:
+        raise InputError(f"no segment {s} (the layout has {layout.num_segments})")
+    return Layout(layout.vertices, np.delete(layout.edges, s, axis=0))
+
+
+def remove_unused_vertices(layout: Layout) -> Layout:
+    used = np.unique(layout.edges)
+    new = np.full(layout.num_vertices, -1, dtype=np.int64)
+    new[used] = np.arange(len(used))
+    return Layout(layout.vertices[used], new[layout.edges])
+
+
+def _check_vertex(layout: Layout, v: int) -> None:
+    if not 0 <= int(v) < layout.num_vertices:
+        raise InputError(f"no joint {v} (the layout has {layout.num_vertices})")
+
+
+# ----------------------------------------------------------------------------- warps
+def _frame(layout: Layout):
+    """Centroid and half-spans along x and y (for dimensionless warps)."""
+    V = layout.vertices
+    c = 0.5 * (V.min(axis=0) + V.max(axis=0))
+    h = np.maximum(0.5 * np.ptp(V, axis=0), 1e-12 * layout.span())
+    return c, h
+
+
+def warp_scale(layout: Layout, sx: float, sy: float | None = None) -> Layout:
+    """Scale about the layout's centre (``sy`` defaults to ``sx``)."""
+    sy = sx if sy is None else sy
+    if not (np.isfinite(sx) and np.isfinite(sy) and sx > 0 and sy > 0):
+        raise InputError(f"scale factors must be positive, got {sx}, {sy}")
+    c, _ = _frame(layout)
+    return Layout(c + (layout.vertices - c) * [sx, sy], layout.edges)
+
+
+def warp_bend(layout: Layout, amount: float) -> Layout:
+    """Bend the layout into an arc: ``y += amount·h_y·(x/h_x)²`` (``amount`` in half-heights)."""
+    c, h = _frame(layout)
+    u = (layout.vertices - c) / h
+    V = layout.vertices.copy()
+    V[:, 1] += float(amount) * h[1] * u[:, 0] ** 2
+    return Layout(V, layout.edges)
+
+
+def warp_pinch(layout: Layout, amount: float) -> Layout:
+    """Pinch the waist: ``y ← y·(1 − amount·(1 − (x/h_x)²))`` (``amount`` < 1 keeps the order of joints)."""
+    if not amount < 1:
+        raise InputError(f"pinch amount must be below 1, got {amount}")
+    c, h = _frame(layout)
+    u = (layout.vertices - c) / h
+    V = layout.vertices.copy()
+    V[:, 1] = c[1] + (V[:, 1] - c[1]) * (1.0 - float(amount) * (1.0 - np.clip(u[:, 0], -1, 1) ** 2))
+    return Layout(V, layout.edges)
+
+
+# ----------------------------------------------------------------------------- validation
+def topology_problems(layout: Layout) -> list[str]:
+    """Every defect that keeps the layout from being simulated, one line each (empty: fine).
+
+    Checks: no segments, self-loops, valence above 4, duplicate edges,
+    zero-length segments, disconnected parts; then the linkage analysis
+    (e.g. a valence-3 joint that cannot be paired).
+    """
+    V, E = layout.vertices, layout.edges
+    if len(E) == 0:
+        return ["the layout has no segments"]
+    out: list[str] = []
+    if not np.all(np.isfinite(V)):
+        out.append("a joint has a non-finite coordinate")
+    loops = np.flatnonzero(E[:, 0] == E[:, 1])
+    if loops.size:
+        out.append(f"segment {loops[0]} is a self-loop")
+    val = np.bincount(E.ravel(), minlength=len(V))
+    high = np.flatnonzero(val > 4)
+    if high.size:
+        out.append(f"valence > 4 at joint{'s' if high.size > 1 else ''} "
+                   + ", ".join(f"{v} ({val[v]})" for v in high[:6]) + (" …" if high.size > 6 else ""))
+    key = np.sort(E, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    dup = np.flatnonzero(counts[inv.ravel()] > 1)
+    if dup.size:
+        out.append("duplicate edge: segments " + ", ".join(str(s) for s in dup[:6]) + " join the same joints")
+    short = np.flatnonzero(layout.segment_lengths() <= ZERO_LENGTH_RELATIVE * layout.span())
+    if short.size:
+        out.append("zero-length segment" + ("s " if short.size > 1 else " ") + ", ".join(str(s) for s in short[:6]))
+    parts = components(layout)
+    if parts > 1:
+        out.append(f"disconnected: the layout falls into {parts} parts")
+    if not out:
+        try:
+            from ..linkage.graph import analyze
+
+            analyze(layout_to_design(layout))
+        except InputError as exc:
+            out.append(str(exc).replace("<arrays>: ", ""))
+    return out
+
+
+def components(layout: Layout) -> int:
+    """Number of connected parts among the vertices that carry a segment."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n, E = layout.num_vertices, layout.edges
+    if len(E) == 0:
+        return 0
+    A = coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n))
+    _, label = connected_components(A, directed=False)
+    return int(len(np.unique(label[np.unique(E)])))
+
+
+# ----------------------------------------------------------------------------- picking
+def nearest_vertex(layout: Layout, xy, radius: float | None = None) -> int | None:
+    """Index of the vertex nearest ``xy`` (None if farther than ``radius``)."""
+    if layout.num_vertices == 0:
+        return None
+    d = np.linalg.norm(layout.vertices - np.asarray(xy, float)[:2], axis=1)
+    v = int(np.argmin(d))
+    return v if radius is None or d[v] <= radius else None
+
+
+def nearest_segment(layout: Layout, xy, radius: float | None = None) -> int | None:
+    """Index of the segment nearest ``xy`` (point-to-segment distance)."""
+    if layout.num_segments == 0:
+        return None
+    p = np.asarray(xy, float)[:2]
+    a, b = layout.vertices[layout.edges[:, 0]], layout.vertices[layout.edges[:, 1]]
+    ab = b - a
+    t = np.clip(np.sum((p - a) * ab, 1) / np.maximum(np.sum(ab * ab, 1), 1e-300), 0, 1)
+    d = np.linalg.norm(a + t[:, None] * ab - p, axis=1)
+    s = int(np.argmin(d))
+    return s if radius is None or d[s] <= radius else None
+
+
+# ----------------------------------------------------------------------------- undo / redo
+@dataclass
+class History:
+    """Undo/redo over immutable layouts (bounded, oldest dropped first)."""
+
+    current: Layout
+    limit: int = 200
+    _undo: list = field(default_factory=list)
+    _redo: list = field(default_factory=list)
+
+    def push(self, layout: Layout) -> Layout:
+        """Make ``layout`` current; a no-op edit is not recorded."""
+        if layout.same_as(self.current):
+            return self.current
+        self._undo.append(self.current)
+        del self._undo[: max(0, len(self._undo) - self.limit)]
+        self._redo.clear()
+        self.current = layout
+        return layout
+
+    def undo(self) -> Layout:
+        if self._undo:
+            self._redo.append(self.current)
+            self.current = self._undo.pop()
+        return self.current
+
+    def redo(self) -> Layout:
+        if self._redo:
+            self._undo.append(self.current)
+            self.current = self._redo.pop()
+        return self.current
+
+    def reset(self, layout: Layout) -> None:
+        self.current, self._undo, self._redo = layout, [], []
+
+    @property
+    def can_undo(self) -> bool:
+        return bool(self._undo)
+
+    @property
+    def can_redo(self) -> bool:
+        return bool(self._redo)

@@ -1,0 +1,167 @@
+"""Opening designs in the app: files named on the command line, browser uploads, generated grids.
+
+Uploads are size-limited and only *parsed* (OBJ/``.msh`` through the design
+readers, case JSON with :mod:`json`); nothing in them is executed. An
+uploaded case may name its design only as a file uploaded earlier in the
+same session, never as a path, so an upload cannot make the app read files
+the user did not open. Every problem is an :class:`InputError` with one line.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..deploy.case import DEFAULT_MATERIAL, load_case
+from ..errors import InputError
+from .core import Layout, layout_from_design
+
+MAX_UPLOAD_BYTES = 5 * 1024 * 1024
+DESIGN_SUFFIXES = (".obj", ".msh")
+
+
+@dataclass(frozen=True)
+class Project:
+    """What the app starts from: a layout and its simulation settings.
+
+    Attributes
+    ----------
+    name : str
+    layout : Layout
+    material : dict
+        A case's material object (``type``, ``params``, ``E``, ``nu``).
+    subdivision : int
+    target_angle_deg : float or None
+        Deployed average opening angle (None: flat + 60°, as ``xshells deploy``).
+    rest_lengths : ndarray or None
+    """
+
+    name: str
+    layout: Layout
+    material: dict = field(default_factory=lambda: dict(DEFAULT_MATERIAL))
+    subdivision: int = 8
+    target_angle_deg: float | None = None
+    rest_lengths: np.ndarray | None = None
+
+
+def open_path(path: str) -> Project:
+    """A project from a design (``.obj``, ``.msh``) or a case (``.json``) the user named."""
+    from ..io import read_design, read_rest_lengths
+
+    ext = os.path.splitext(path)[1].lower()
+    if not os.path.isfile(path):
+        raise InputError(f"{path}: no such file")
+    if ext == ".json":
+        case = load_case(path)
+        design = read_design(case.design_path)
+        p = read_rest_lengths(case.rest_lengths_path, design.num_segments) if case.rest_lengths_path else None
+        angle = np.degrees(case.angle_rad) if case.angle_rad is not None else None
+        return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p)
+    if ext in DESIGN_SUFFIXES:
+        design = read_design(path)
+        layout = layout_from_design(design)
+        return Project(os.path.splitext(os.path.basename(path))[0], layout, default_material(layout))
+    raise InputError(f"{path}: open a design (.obj, .msh) or a case file (.json)")
+
+
+def default_material(layout: Layout) -> dict:
+    """The paper's 10 × 7 mm rectangle, scaled down for designs drawn in larger units.
+
+    Bundled designs in mm have segments of ~50–150; a design whose mean
+    segment is below 80 units gets a section scaled by ``mean / 80`` so the
+    beams stay slender (a 10 mm wide beam on a 1-unit segment cannot be simulated).
+    """
+    mean = float(layout.segment_lengths().mean()) if layout.num_segments else 80.0
+    s = min(1.0, mean / 80.0)
+    m = dict(DEFAULT_MATERIAL)
+    m["params"] = [float(f"{v * s:.4g}") for v in DEFAULT_MATERIAL["params"]]
+    return m
+
+
+def _safe_name(name: str) -> str:
+    base = os.path.basename(str(name).replace("\\", "/")) or "upload"
+    return "".join(c if c.isalnum() or c in "._-" else "_" for c in base)[:100]
+
+
+def parse_design_bytes(name: str, content: bytes):
+    """A Design from uploaded bytes, parsed from a private temporary file (the readers take paths)."""
+    from ..io import read_design
+
+    ext = os.path.splitext(name)[1].lower()
+    with tempfile.TemporaryDirectory(prefix="xshells-upload-") as tmp:
+        path = os.path.join(tmp, _safe_name(name))
+        with open(path, "wb") as fh:
+            fh.write(content)
+        try:
+            design = read_design(path)
+        except InputError as exc:
+            # name the upload, not the temporary path
+            raise InputError(str(exc).replace(path, _safe_name(name))) from None
+        except (ValueError, KeyError, IndexError, UnicodeDecodeError, RuntimeError) as exc:  # meshio's own errors
+            raise InputError(f"{_safe_name(name)}: cannot read this {ext} file ({type(exc).__name__})") from None
+    return design
+
+
+class UploadStore:
+    """Designs uploaded in this session, by file name, so that an uploaded case can refer to one."""
+
+    def __init__(self, limit: int = MAX_UPLOAD_BYTES):
+        self.limit = limit
+        self._designs: dict[str, object] = {}
+
+    def open_upload(self, name: str, content: bytes) -> Project:
+        """A project from an uploaded file; raises InputError (one line) on anything wrong."""
+        name = _safe_name(name)
+        if len(content) > self.limit:
+            raise InputError(f"{name}: {len(content) / 2**20:.1f} MB is over the {self.limit / 2**20:.0f} MB upload limit")
+        ext = os.path.splitext(name)[1].lower()
+        if ext in DESIGN_SUFFIXES:
+            design = parse_design_bytes(name, content)
+            self._designs[name] = design
+            layout = layout_from_design(design)
+            return Project(os.path.splitext(name)[0], layout, default_material(layout))
+        if ext == ".json":
+            return self._case_from_bytes(name, content)
+        raise InputError(f"{name}: upload a design (.obj, .msh) or a case file (.json)")
+
+    def _case_from_bytes(self, name: str, content: bytes) -> Project:
+        try:
+            spec = json.loads(content.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{name}: not valid JSON ({getattr(exc, 'msg', 'not UTF-8')})") from None
+        if not isinstance(spec, dict) or "file" not in spec:
+            raise InputError(f"{name}: a case is a JSON object with at least a 'file' key")
+        ref = _safe_name(spec.get("flat_file") or spec["file"])
+        design = self._designs.get(ref)
+        if design is None:
+            raise InputError(f"{name}: upload its design file '{ref}' first (an uploaded case cannot read files by path)")
+        material = spec.get("material") or dict(DEFAULT_MATERIAL)
+        if not isinstance(material, dict) or material.get("type") == "contour":
+            raise InputError(f"{name}: uploaded cases support parametric materials only (type, params, E, nu)")
+        try:
+            angle = spec.get("angle_deg")
+            angle = float(angle) if angle is not None else (np.degrees(float(spec["angle_rad"])) if spec.get("angle_rad") is not None else None)
+            sub = int(spec.get("subdivision", 8))
+        except (TypeError, ValueError):
+            raise InputError(f"{name}: angle and subdivision must be numbers") from None
+        if spec.get("rest_lengths"):
+            raise InputError(f"{name}: rest-length files are not read from uploads; remove 'rest_lengths'")
+        return Project(str(spec.get("name", os.path.splitext(name)[0])), layout_from_design(design), dict(material), sub, angle)
+
+
+def grid_project(nx: int, ny: int, angle_deg: float = 90.0, spacing: float = 100.0) -> Project:
+    """A regular rhombic grid of ``nx`` × ``ny`` segments crossing at ``angle_deg``."""
+    from ..linkage.grids import rhombic_grid
+
+    if not (1 <= nx <= 60 and 1 <= ny <= 60):
+        raise InputError(f"grid size must be 1 to 60 segments per side, got {nx} × {ny}")
+    if not 5 <= angle_deg <= 175:
+        raise InputError(f"grid angle must lie between 5° and 175°, got {angle_deg}")
+    if not spacing > 0:
+        raise InputError(f"grid spacing must be positive, got {spacing}")
+    d = rhombic_grid(nx, ny, spacing=spacing, angle=np.radians(angle_deg))
+    layout = layout_from_design(d)
+    return Project(f"grid_{nx}x{ny}", layout, default_material(layout))
