@@ -19,6 +19,7 @@ SUBCOMMANDS = [
     "xshells.deploy.cli",
     "xshells.section.cli",
     "xshells.actuation.cli",
+    "xshells.app.cli",
 ]
 
 

@@ -1,0 +1,43 @@
+"""``xshells app``: start the interactive design tool in the browser."""
+from __future__ import annotations
+
+import os
+
+from ..errors import InputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("app", help="the interactive design tool in the browser",
+                              description="Edit a flat X-shell layout, deploy it interactively and export it for fabrication. "
+                                          "Serves on 127.0.0.1 (this machine only) unless --host is given.")
+    p.add_argument("input", nargs="?", help="a design (.obj, .msh) or a case file (.json); default: a 6 × 6 grid")
+    p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; 0.0.0.0 exposes it to the network)")
+    p.add_argument("--out", default="xshells_app_out", help="folder for exports (default: xshells_app_out)")
+    p.set_defaults(func=_app)
+
+
+def start(input_path: str | None = None, *, host: str = "127.0.0.1", port: int = 8080, out_dir: str = "xshells_app_out"):
+    """Build the session and the server; returns the :class:`~xshells.app.ui.App` (already serving)."""
+    from .loading import grid_project, open_path
+    from .session import Session
+    from .ui import App
+
+    if not 0 < port < 65536:
+        raise InputError(f"--port must be 1 to 65535, got {port}")
+    project = open_path(input_path) if input_path else grid_project(6, 6)
+    return App(Session(project, out_dir=out_dir), host=host, port=port)
+
+
+def _app(args) -> int:
+    import time
+
+    if args.input and not os.path.isfile(args.input):
+        raise InputError(f"{args.input}: no such file")
+    app = start(args.input, host=args.host, port=args.port, out_dir=args.out)
+    print(f"xshells app: http://{args.host}:{app.server.get_port()}  (Ctrl-C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    finally:
+        app.stop()

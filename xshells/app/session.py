@@ -1,0 +1,340 @@
+"""One editing session of the app, independent of the browser: project, edits, material, solves, exports.
+
+The UI layer (:mod:`.ui`) only forwards user actions to a :class:`Session`
+and draws what the session reports through its listeners:
+
+* ``"layout"`` — the flat layout changed (payload: the :class:`Layout`);
+* ``"problems"`` — topology problems (list of one-line messages);
+* ``"material"`` — the material summary text;
+* ``"flat"`` / ``"deployed"`` — a :class:`View` of the flat assembly state / the deployed state;
+* ``"stability"`` — ``(λ_min, gap)`` at the shown deployed state;
+* ``"status"`` — a one-line message (errors included);
+* ``"progress"`` — ``(fraction, text)`` of the running job.
+
+Solves run on the session's :class:`~.worker.Worker`; a newer angle request
+cancels the solve still running for an older one.
+"""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from . import core, exports
+from .loading import Project, UploadStore, grid_project, open_path
+from .sim import Cancelled, Simulation, StateInfo
+from .worker import Worker
+
+FIELDS = {
+    "bending energy": "bending_energy_density",
+    "bending stress": "bending_stress",
+    "twisting energy": "twisting_energy_density",
+    "stretching stress": "stretching_stress",
+}
+
+
+@dataclass(frozen=True)
+class View:
+    """What the 3D view draws for one state: the swept beam mesh and a scalar field on it."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    field: np.ndarray
+    field_name: str
+    joints: np.ndarray
+    info: StateInfo
+    solve_time_s: float = 0.0
+
+
+def material_summary(material) -> str:
+    """Stiffnesses of a material as one short Markdown block."""
+    B1, B2 = material.bending_stiffness
+    return (f"A = {material.area:.4g}, E = {material.E:.4g}, ν = {material.nu:.3g}, G = {material.G:.4g}  \n"
+            f"stretching EA = {material.stretching_stiffness:.4g}  \n"
+            f"bending EI = {B1:.4g}, {B2:.4g}  \n"
+            f"twisting GJ = {material.twisting_stiffness:.4g}")
+
+
+class Session:
+    """State and actions of the design tool.
+
+    Parameters
+    ----------
+    project : Project
+    out_dir : str
+        Folder that exports are written into.
+    """
+
+    def __init__(self, project: Project, out_dir: str = "xshells_app_out"):
+        self.out_dir = out_dir
+        self.uploads = UploadStore()
+        self.listeners: list = []
+        self.worker = Worker(on_progress=lambda f, t: self._emit("progress", (f, t)))
+        self._lock = threading.RLock()
+        self.field_name = "bending energy"
+        self.sim: Simulation | None = None
+        self._sim_key = None
+        self.last_deployed: View | None = None
+        self.angle_deg: float | None = None
+        self.load(project)
+
+    # ------------------------------------------------------------------ events
+    def _emit(self, event: str, payload=None) -> None:
+        for fn in list(self.listeners):
+            try:
+                fn(event, payload)
+            except Exception as exc:  # a drawing error must not break the session
+                if event != "status":
+                    self._emit("status", f"display error: {exc}")
+
+    def status(self, text: str) -> None:
+        self._emit("status", text)
+
+    # ------------------------------------------------------------------ project
+    def load(self, project: Project) -> None:
+        """Make ``project`` current (resets undo history and the simulation)."""
+        self.worker.cancel_all()
+        with self._lock:
+            self.project = project
+            self.name = project.name
+            self.history = core.History(project.layout)
+            self.subdivision = project.subdivision
+            self.rest_lengths = project.rest_lengths
+            self.target_angle_deg = project.target_angle_deg
+            self.material_spec = dict(project.material)
+            self.material = self._build_material(self.material_spec)
+            self.sim, self._sim_key, self.last_deployed, self.angle_deg = None, None, None, None
+        self._emit("material", material_summary(self.material))
+        self._layout_changed()
+        self.status(f"opened {project.name}: {project.layout.num_segments} segments")
+
+    def open_path(self, path: str) -> None:
+        self.load(open_path(path))
+
+    def open_upload(self, name: str, content: bytes) -> bool:
+        """Open an uploaded file; a bad upload only produces a status message. Returns success."""
+        try:
+            self.load(self.uploads.open_upload(name, content))
+            return True
+        except InputError as exc:
+            self.status(f"upload refused: {exc}")
+        except Exception as exc:  # noqa: BLE001  (malformed input must never crash the app)
+            self.status(f"upload refused: {os.path.basename(str(name))}: cannot read it ({type(exc).__name__})")
+        return False
+
+    def new_grid(self, nx: int, ny: int, angle_deg: float) -> None:
+        self.load(grid_project(int(nx), int(ny), float(angle_deg)))
+
+    @property
+    def layout(self) -> core.Layout:
+        return self.history.current
+
+    # ------------------------------------------------------------------ edits
+    def edit(self, fn, *args) -> bool:
+        """Apply ``fn(layout, *args)`` and record it for undo; an invalid edit shows a message. Returns success."""
+        try:
+            new = fn(self.layout, *args)
+        except InputError as exc:
+            self.status(str(exc))
+            return False
+        with self._lock:
+            before = self.history.current
+            self.history.push(new)
+            if new.num_segments != before.num_segments:
+                self.rest_lengths = None  # per-segment data no longer matches
+        self._layout_changed()
+        return True
+
+    def undo(self) -> None:
+        self.history.undo()
+        self._layout_changed()
+
+    def redo(self) -> None:
+        self.history.redo()
+        self._layout_changed()
+
+    def problems(self) -> list[str]:
+        return core.topology_problems(self.layout)
+
+    def _layout_changed(self) -> None:
+        self._emit("layout", self.layout)
+        problems = self.problems()
+        self._emit("problems", problems)
+
+    # ------------------------------------------------------------------ material
+    @staticmethod
+    def _build_material(spec: dict):
+        from ..deploy.case import material_from_spec
+
+        return material_from_spec(spec)
+
+    def set_material(self, kind: str, params, E: float, nu: float) -> bool:
+        """Change the cross-section and elastic constants; a bad value only shows a message."""
+        spec = {"type": kind, "params": [float(v) for v in params], "E": float(E), "nu": float(nu)}
+        try:
+            material = self._build_material(spec)
+        except (InputError, ValueError) as exc:
+            self.status(f"material: {exc}")
+            return False
+        with self._lock:
+            self.material_spec, self.material = spec, material
+        self._emit("material", material_summary(material))
+        return True
+
+    def set_subdivision(self, k: int) -> None:
+        self.subdivision = max(3, int(k))
+
+    # ------------------------------------------------------------------ simulation
+    def _key(self):
+        return (id(self.layout), id(self.material), self.subdivision,
+                None if self.rest_lengths is None else id(self.rest_lengths))
+
+    def _ensure_sim(self, cancel) -> Simulation:
+        """The simulation of the current layout and material, building it (assembly solve) if stale."""
+        with self._lock:
+            key, layout, material, k, p = self._key(), self.layout, self.material, self.subdivision, self.rest_lengths
+            if self.sim is not None and self._sim_key == key:
+                return self.sim
+        problems = core.topology_problems(layout)
+        if problems:
+            raise InputError("cannot simulate: " + problems[0])
+        self._emit("progress", (0.0, "assembly state…"))
+        sim = Simulation(layout, material, k, rest_lengths=p, cancel=cancel)
+        with self._lock:
+            self.sim, self._sim_key = sim, key
+        self._emit("flat", self._view(sim, time.perf_counter()))
+        return sim
+
+    def _view(self, sim: Simulation, t0: float, info: StateInfo | None = None) -> View:
+        from ..linkage.export import scalar_fields, swept_mesh
+
+        fields = scalar_fields(sim.linkage)
+        mesh = swept_mesh(sim.linkage, fields)
+        name = FIELDS.get(self.field_name, "bending_energy_density")
+        f = mesh.fields.get(name, np.zeros(len(mesh.vertices)))
+        return View(mesh.vertices, mesh.triangles, np.sqrt(np.maximum(f, 0)) if "energy" in name else f, self.field_name,
+                    sim.linkage.joint_positions(), info or sim.flat_info, time.perf_counter() - t0)
+
+    def prepare(self) -> None:
+        """Build the simulation in the background (assembly state and flat view)."""
+        self.worker.submit(lambda cancel, progress: self._ensure_sim(cancel), key="solve", on_error=self._job_error)
+
+    def request_angle(self, angle_deg: float) -> None:
+        """Re-solve the deployed equilibrium at ``angle_deg`` in the background (latest request wins)."""
+        self.angle_deg = float(angle_deg)
+
+        def job(cancel, progress):
+            t0 = time.perf_counter()
+            sim = self._ensure_sim(cancel)
+            t0 = time.perf_counter()
+            info = sim.solve_to(angle_deg, cancel=cancel, progress=progress)
+            view = self._view(sim, t0, info)
+            return view
+
+        self.worker.submit(job, key="solve", on_done=self._deployed, on_error=self._job_error)
+
+    def _deployed(self, view: View) -> None:
+        self.last_deployed = view
+        self._emit("deployed", view)
+        msg = view.info.message or f"deployed to {view.info.angle_deg:.1f}° in {view.solve_time_s:.2f} s"
+        self._emit("progress", (1.0, "done"))
+        self.status(msg)
+        self.worker.submit(self._stability_job, key="stability", on_error=lambda e: None)
+
+    def _stability_job(self, cancel, progress):
+        sim = self.sim
+        if sim is None or cancel.is_set():
+            return
+        self._emit("stability", sim.stability())
+
+    def _job_error(self, exc: BaseException) -> None:
+        if isinstance(exc, Cancelled):
+            self.status("solve cancelled")
+        elif isinstance(exc, InputError):
+            self.status(str(exc))
+        else:
+            self.status(f"solve failed: {type(exc).__name__}: {exc}")
+        self._emit("progress", (0.0, "stopped"))
+
+    def cancel(self) -> None:
+        self.worker.cancel_all()
+
+    def animation_frames(self) -> list[float]:
+        """Angles (radians) of the stored deployed states, for the deployment animation."""
+        return [] if self.sim is None else [a for a, _, _ in self.sim.states]
+
+    def show_frame(self, angle_rad: float) -> None:
+        """Show the stored state nearest ``angle_rad`` (runs on the worker)."""
+        def job(cancel, progress):
+            sim = self.sim
+            t0 = time.perf_counter()
+            info = sim.show_state(angle_rad)
+            return self._view(sim, t0, info)
+
+        if self.sim is not None:
+            self.worker.submit(job, key="solve", on_done=lambda v: self._emit("deployed", v), on_error=self._job_error)
+
+    def set_field(self, name: str) -> None:
+        self.field_name = name
+        if self.angle_deg is not None:
+            self.request_angle(self.angle_deg)
+
+    # ------------------------------------------------------------------ exports
+    def _path(self, suffix: str) -> str:
+        os.makedirs(self.out_dir, exist_ok=True)
+        safe = "".join(c if c.isalnum() or c in "._-" else "_" for c in self.name) or "xshell"
+        return os.path.join(self.out_dir, safe + suffix)
+
+    def _rest_lengths(self):
+        with self._lock:
+            if self.sim is not None and self._sim_key == self._key():
+                return self.sim.linkage.rest_lengths.copy()
+            return self.rest_lengths
+
+    def export(self, kind: str) -> list[str]:
+        """Write one export into ``out_dir``: ``svg``, ``dxf``, ``obj``, ``ply``, ``gltf``, ``glb``, ``case`` or ``png``.
+
+        Mesh and PNG exports need a solved state (the last shown deployed
+        state, else the flat assembly state). Returns the paths written.
+        """
+        layout, p = self.layout, self._rest_lengths()
+        if kind in ("svg", "dxf"):
+            path = self._path(f"_flat.{kind}")
+            (exports.write_svg if kind == "svg" else exports.write_dxf)(path, layout, p)
+            return [path]
+        if kind == "case":
+            return exports.write_case(self._path(".json"), self.name, layout, self.material_spec, self.subdivision,
+                                      self.angle_deg if self.angle_deg is not None else self.target_angle_deg, p)
+        if kind in ("obj", "ply", "gltf", "glb", "png"):
+            sim = self.sim
+            if sim is None:
+                raise InputError("nothing solved yet: move the angle slider first")
+            path = self._path(f"_deployed.{kind}")
+            done = threading.Event()
+            err: list = []
+
+            def job(cancel, progress):  # the linkage belongs to the worker thread
+                try:
+                    if kind == "png":
+                        exports.write_png(path, sim.linkage, title=f"{self.name}: {np.degrees(sim.linkage.average_angle()):.1f}°")
+                    else:
+                        from ..linkage.export import swept_mesh
+                        exports.write_mesh(path, swept_mesh(sim.linkage), field="bending_energy_density")
+                except BaseException as exc:  # noqa: BLE001
+                    err.append(exc)
+                finally:
+                    done.set()
+
+            self.worker.submit(job, key="export")
+            done.wait(120)
+            if err:
+                raise err[0]
+            return [path]
+        raise InputError(f"unknown export {kind!r}")
+
+    def close(self) -> None:
+        self.worker.close()

@@ -1,0 +1,455 @@
+"""The thin viser layer of ``xshells app``: GUI panels and the 3D scene, drawing what a :class:`Session` reports.
+
+The scene shows the flat layout (left: editable lines and joints over the
+swept flat assembly state) and the deployed state (right: swept beams with
+the true cross-section, coloured by the chosen field) side by side, in scene
+units where the layout's span is 2. All solving runs on the session's
+worker; callbacks here only forward actions, so the page never freezes.
+"""
+from __future__ import annotations
+
+import glob
+import io
+import os
+import threading
+import time
+
+import numpy as np
+
+from ..errors import InputError
+from . import adapters, core
+from .session import FIELDS, Session, View
+
+EXAMPLES_DIR = os.path.join(os.path.dirname(__file__), "..", "data", "examples")
+MODES = ("view / orbit", "move joint", "add joint", "add segment", "delete joint", "delete segment")
+SECTION_TYPES = ("rectangle", "ellipse", "I", "L", "+")
+GAP = 1.25  # scene units between the centre of each half and the origin
+
+
+def bundled_examples() -> dict[str, str]:
+    """Bundled designs and cases by display name (package data only)."""
+    out = {}
+    for pattern in ("*.obj", "*/case.json", "*/flat_opt.msh"):
+        for path in sorted(glob.glob(os.path.join(EXAMPLES_DIR, pattern))):
+            name = os.path.relpath(path, EXAMPLES_DIR)
+            if not name.startswith("cross_sections"):
+                out[name] = os.path.abspath(path)
+    return out
+
+
+def _plot_image(xs, ys, title: str) -> np.ndarray:
+    """A small RGB line plot (for the optimization progress panel)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(3.2, 1.8), dpi=80)
+    ax = fig.add_subplot(111)
+    if len(xs):
+        ax.plot(xs, ys, "-o", ms=2)
+    ax.set_title(title, fontsize=8)
+    ax.tick_params(labelsize=6)
+    fig.tight_layout()
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
+
+
+class App:
+    """The viser server and its panels, bound to one :class:`Session`.
+
+    Parameters
+    ----------
+    session : Session
+    host, port : str, int
+    """
+
+    def __init__(self, session: Session, host: str = "127.0.0.1", port: int = 8080):
+        import viser
+
+        self.session = session
+        self.server = viser.ViserServer(host=host, port=port, label="xshells app", verbose=False)
+        self.server.scene.set_up_direction("+z")
+        self._selected: int | None = None
+        self._pending_segment: int | None = None
+        self._gizmo = None
+        self._frame = (np.zeros(2), 1.0)  # layout centre, scene scale
+        self._playing = threading.Event()
+        self._opt_history: list[tuple[int, float]] = []
+        self._opt_cancel = threading.Event()
+        self._build_gui()
+        session.listeners.append(self._on_event)
+        # draw the current state (the session was loaded before we listened)
+        self._on_event("layout", session.layout)
+        self._on_event("problems", session.problems())
+        from .session import material_summary
+        self._on_event("material", material_summary(session.material))
+        self.server.scene.add_grid("/ground", width=6, height=3, cell_size=0.25, position=(0, 0, -0.01))
+        self._solve_initial()
+
+    # ------------------------------------------------------------------ GUI
+    def _build_gui(self) -> None:
+        gui, s = self.server.gui, self.session
+        self.status_md = gui.add_markdown("**xshells** — loading…")
+        self.progress = gui.add_progress_bar(0.0, animated=False)
+        tabs = gui.add_tab_group()
+
+        with tabs.add_tab("Design"):
+            with gui.add_folder("Open"):
+                examples = bundled_examples()
+                self.example = gui.add_dropdown("example", tuple(examples) or ("-",))
+                b = gui.add_button("Open example")
+                b.on_click(lambda _: self._guard(lambda: (s.open_path(examples[self.example.value]), self._solve_initial())))
+                self.upload = gui.add_upload_button("Upload OBJ / .msh / case JSON (≤ 5 MB)", icon=None)
+                self.upload.on_upload(lambda ev: self._on_upload(ev))
+                self.grid_n = gui.add_vector2("grid segments", (6, 6), step=1)
+                self.grid_angle = gui.add_number("grid angle (°)", 90.0, min=5.0, max=175.0, step=1.0)
+                b = gui.add_button("New grid")
+                b.on_click(lambda _: self._guard(lambda: (s.new_grid(int(self.grid_n.value[0]), int(self.grid_n.value[1]),
+                                                                     float(self.grid_angle.value)), self._solve_initial())))
+            with gui.add_folder("Edit"):
+                self.mode = gui.add_dropdown("click mode", MODES, initial_value=MODES[0])
+                self.mode.on_update(lambda _: self._set_mode())
+                row = gui.add_button_group("history", ("Undo", "Redo"))
+                row.on_click(lambda ev: (s.undo() if ev.target.value == "Undo" else s.redo()))
+                self.warp_amount = gui.add_slider("warp amount", -0.5, 0.5, 0.01, 0.1)
+                warps = gui.add_button_group("warp", ("Scale", "Bend", "Pinch"))
+                warps.on_click(lambda ev: self._warp(ev.target.value))
+                self.problems_md = gui.add_markdown("")
+                b = gui.add_button("Simulate edited layout")
+                b.on_click(lambda _: self._solve_initial())
+
+        with tabs.add_tab("Deploy"):
+            lo, hi = 5.0, 175.0
+            self.angle = gui.add_slider("opening angle (°)", lo, hi, 0.1, 90.0)
+            self.angle.on_update(lambda _: s.request_angle(float(self.angle.value)))
+            self.field = gui.add_dropdown("colour by", tuple(FIELDS), initial_value="bending energy")
+            self.field.on_update(lambda _: s.set_field(self.field.value))
+            row = gui.add_button_group("animation", ("Play", "Stop"))
+            row.on_click(lambda ev: self._play() if ev.target.value == "Play" else self._stop())
+            b = gui.add_button("Cancel solve")
+            b.on_click(lambda _: s.cancel())
+            self.info_md = gui.add_markdown("")
+
+        with tabs.add_tab("Material"):
+            spec = s.material_spec
+            self.sec_type = gui.add_dropdown("cross-section", SECTION_TYPES,
+                                             initial_value=spec.get("type", "rectangle") if spec.get("type") in SECTION_TYPES else "rectangle")
+            self.sec_params = gui.add_text("dimensions", ", ".join(f"{v:g}" for v in spec.get("params", [10, 7])))
+            self.young = gui.add_number("E", float(spec.get("E", 20000.0)), min=1e-9)
+            self.poisson = gui.add_number("ν", float(spec.get("nu", 0.3)), min=-0.99, max=0.49, step=0.01)
+            self.subdiv = gui.add_number("edges per segment", int(s.subdivision), min=3, max=30, step=1)
+            b = gui.add_button("Apply material")
+            b.on_click(lambda _: self._apply_material())
+            self.material_md = gui.add_markdown("")
+
+        with tabs.add_tab("Optimize"):
+            self.opt_md = gui.add_markdown(self._availability())
+            row = gui.add_button_group("design optimization", ("Optimize", "Stop", "Resume"))
+            row.on_click(lambda ev: self._optimize(ev.target.value))
+            b = gui.add_button("Actuate (sparse torques)")
+            b.on_click(lambda _: self._actuate())
+            self.opt_plot = gui.add_image(_plot_image([], [], "objective"), label="progress")
+
+        with tabs.add_tab("Export"):
+            row = gui.add_button_group("fabrication (flat, 1:1 mm)", ("SVG", "DXF"))
+            row.on_click(lambda ev: self._export(ev.target.value.lower(), ev.client))
+            row = gui.add_button_group("deployed mesh", ("OBJ", "PLY", "glTF"))
+            row.on_click(lambda ev: self._export(ev.target.value.lower(), ev.client))
+            row = gui.add_button_group("other", ("case JSON", "PNG"))
+            row.on_click(lambda ev: self._export("case" if ev.target.value == "case JSON" else "png", ev.client))
+            self.export_md = gui.add_markdown(f"files go to `{os.path.abspath(s.out_dir)}` and are downloaded")
+
+    def _availability(self) -> str:
+        o = "available" if adapters.optimize_available() else adapters.NOT_AVAILABLE
+        a = "available" if adapters.actuate_available() else adapters.NOT_AVAILABLE
+        return f"design optimization: {o}  \nsparse actuation: {a}"
+
+    def _guard(self, fn) -> None:
+        """Run a UI action; user errors become a status line, never a crash."""
+        try:
+            fn()
+        except InputError as exc:
+            self.session.status(str(exc))
+        except Exception as exc:  # noqa: BLE001
+            self.session.status(f"error: {type(exc).__name__}: {exc}")
+
+    def _on_upload(self, ev) -> None:
+        f = ev.target.value
+        if self.session.open_upload(f.name, f.content):
+            self._solve_initial()
+
+    def _solve_initial(self) -> None:
+        """Assemble the current layout and deploy it to the project's angle (or flat + 30°)."""
+        s = self.session
+        if s.problems():
+            return
+        angle = s.target_angle_deg
+        if angle is None:
+            angle = self._flat_angle_guess() + 30.0
+        angle = float(np.clip(angle, 5.0, 175.0))
+        self.angle.value = angle
+        s.request_angle(angle)  # a repeated request from the slider's own callback just replaces this one
+
+    def _flat_angle_guess(self) -> float:
+        """Average opening angle of the layout's joints (what the assembly state keeps)."""
+        try:
+            from ..linkage.graph import analyze
+
+            return float(np.degrees(np.mean(analyze(core.layout_to_design(self.session.layout)).joint_opening_angles)))
+        except Exception:
+            return 60.0
+
+    def _apply_material(self) -> None:
+        try:
+            params = [float(v) for v in self.sec_params.value.replace(";", ",").split(",") if v.strip()]
+        except ValueError:
+            self.session.status("material: dimensions must be numbers separated by commas")
+            return
+        self.session.set_subdivision(int(self.subdiv.value))
+        if self.session.set_material(self.sec_type.value, params, float(self.young.value), float(self.poisson.value)):
+            self.session.request_angle(float(self.angle.value))
+
+    def _warp(self, which: str) -> None:
+        a = float(self.warp_amount.value)
+        if which == "Scale":
+            self.session.edit(core.warp_scale, 1.0 + a)
+        elif which == "Bend":
+            self.session.edit(core.warp_bend, a)
+        else:
+            self.session.edit(core.warp_pinch, a)
+
+    # ------------------------------------------------------------------ editing by clicks
+    def _set_mode(self) -> None:
+        scene = self.server.scene
+        scene.remove_click_callback("all")
+        self._pending_segment = None
+        self._drop_gizmo()
+        if self.mode.value != MODES[0]:
+            scene.on_click()(self._on_click)
+
+    def _to_layout(self, ray_o, ray_d) -> np.ndarray | None:
+        """Where a click ray meets the flat layout's plane, in layout coordinates."""
+        o, d = np.asarray(ray_o, float), np.asarray(ray_d, float)
+        if abs(d[2]) < 1e-12:
+            return None
+        p = o - o[2] / d[2] * d
+        c, k = self._frame
+        return (p[:2] - [-GAP, 0.0]) / k + c
+
+    def _to_scene(self, xy: np.ndarray) -> np.ndarray:
+        c, k = self._frame
+        xy = (np.asarray(xy, float) - c) * k + [-GAP, 0.0]
+        return np.c_[xy, np.zeros(len(xy))] if xy.ndim == 2 else np.r_[xy, 0.0]
+
+    def _on_click(self, ev) -> None:
+        s, mode = self.session, self.mode.value
+        xy = self._to_layout(ev.ray_origin, ev.ray_direction)
+        if xy is None:
+            return
+        radius = 0.05 / self._frame[1]  # 5 % of the half-span
+        v = core.nearest_vertex(s.layout, xy, radius)
+        if mode == "move joint":
+            if v is not None:
+                self._attach_gizmo(v)
+        elif mode == "add joint":
+            if s.edit(core.add_joint, xy, self._selected):
+                self._selected = s.layout.num_vertices - 1
+        elif mode == "add segment":
+            if v is None:
+                return
+            if self._pending_segment is None or self._pending_segment == v:
+                self._pending_segment = v
+                s.status(f"segment from joint {v}: click its other end")
+            else:
+                s.edit(core.add_segment, self._pending_segment, v)
+                self._pending_segment = None
+        elif mode == "delete joint" and v is not None:
+            s.edit(core.delete_joint, v)
+        elif mode == "delete segment":
+            seg = core.nearest_segment(s.layout, xy, radius)
+            if seg is not None:
+                s.edit(core.delete_segment, seg)
+
+    def _attach_gizmo(self, v: int) -> None:
+        self._drop_gizmo()
+        self._selected = v
+        pos = self._to_scene(self.session.layout.vertices[v])
+        g = self.server.scene.add_transform_controls("/flat/gizmo", scale=0.25, disable_rotations=True,
+                                                     active_axes=(True, True, False), position=pos)
+        self._gizmo = g
+
+        @g.on_drag_end
+        def _(_ev) -> None:
+            c, k = self._frame
+            xy = (np.asarray(g.position[:2]) - [-GAP, 0.0]) / k + c
+            self.session.edit(core.move_joint, v, xy)
+
+    def _drop_gizmo(self) -> None:
+        if self._gizmo is not None:
+            self._gizmo.remove()
+            self._gizmo = None
+
+    # ------------------------------------------------------------------ session events → view
+    def _on_event(self, event: str, payload) -> None:
+        if event == "layout":
+            self._draw_layout(payload)
+        elif event == "problems":
+            self.problems_md.content = ("**topology:** ok" if not payload else
+                                        "**topology problems:**\n\n" + "\n".join(f"- {p}" for p in payload))
+        elif event == "status":
+            self.status_md.content = f"**xshells** — {payload}"
+        elif event == "progress":
+            self.progress.value = float(np.clip(100 * payload[0], 0, 100))
+        elif event == "material":
+            self.material_md.content = payload
+        elif event == "flat":
+            self._draw_mesh("/flat/mesh", payload, -GAP, flat=True)
+        elif event == "deployed":
+            self._draw_mesh("/deployed/mesh", payload, GAP)
+            i = payload.info
+            self.info_md.content = (f"angle **{i.angle_deg:.2f}°**  \nenergy {i.energy:.5g} "
+                                    f"(bend {i.energy_bend:.3g}, twist {i.energy_twist:.3g}, stretch {i.energy_stretch:.3g})  \n"
+                                    f"torque {i.torque:.4g}  \nmax |z| {i.max_abs_z:.4g}  \n"
+                                    f"solve + mesh {payload.solve_time_s:.2f} s")
+        elif event == "stability":
+            lam, gap = payload
+            self.info_md.content = self.info_md.content.split("  \nstability")[0] + \
+                f"  \nstability: λmin {lam:.3g}, gap λ2/λ1 {gap:.3g}"
+
+    def _draw_layout(self, layout: core.Layout) -> None:
+        scene = self.server.scene
+        V = layout.vertices
+        if len(V):
+            c = 0.5 * (V.min(axis=0) + V.max(axis=0))
+            self._frame = (c, 2.0 / layout.span())
+        P = self._to_scene(V) if len(V) else np.zeros((0, 3))
+        if layout.num_segments:
+            seg = P[layout.edges] + [0, 0, 0.02]
+            scene.add_line_segments("/flat/lines", seg.astype(np.float32), colors=(40, 40, 40), line_width=1.5)
+        if len(P):
+            scene.add_point_cloud("/flat/joints", (P + [0, 0, 0.025]).astype(np.float32),
+                                  colors=(220, 40, 40), point_size=0.025, point_shape="circle")
+
+    def _draw_mesh(self, name: str, view: View, offset: float, flat: bool = False) -> None:
+        import trimesh
+
+        from .exports import field_colors
+
+        c, k = self._frame
+        V = view.vertices.copy()
+        V[:, :2] = (V[:, :2] - c) * k
+        V[:, 2] = (V[:, 2] - (view.joints[:, 2].mean() if not flat else 0.0)) * k
+        V[:, 0] += offset
+        if flat:
+            colors = np.tile([180, 180, 200], (len(V), 1)).astype(np.uint8)
+        else:
+            colors = field_colors(view.field)
+        tm = trimesh.Trimesh(V, view.triangles, vertex_colors=np.c_[colors, np.full(len(V), 255, np.uint8)], process=False)
+        self.server.scene.add_mesh_trimesh(name, tm)
+
+    # ------------------------------------------------------------------ animation
+    def _play(self) -> None:
+        frames = self.session.animation_frames()
+        if len(frames) < 2:
+            self.session.status("nothing to play yet: move the angle slider first")
+            return
+        self._playing.set()
+
+        def run():
+            for a in frames[1:]:
+                if not self._playing.is_set():
+                    break
+                self.session.show_frame(a)
+                self.session.worker.wait_idle(10)
+                time.sleep(0.04)
+            self._playing.clear()
+
+        threading.Thread(target=run, daemon=True, name="xshells-app-animation").start()
+
+    def _stop(self) -> None:
+        self._playing.clear()
+
+    # ------------------------------------------------------------------ optimize / actuate
+    def _optimize(self, action: str) -> None:
+        s = self.session
+        if action == "Stop":
+            self._opt_cancel.set()
+            return
+        if not adapters.optimize_available():
+            self.opt_md.content = f"design optimization: {adapters.NOT_AVAILABLE}"
+            return
+        if action == "Optimize":
+            self._opt_history = []
+        self._opt_cancel = cancel = threading.Event()
+        target = np.radians(float(self.angle.value))
+
+        def progress(it, value, text):
+            self._opt_history.append((len(self._opt_history), value))
+            xs, ys = zip(*self._opt_history)
+            self.opt_plot.image = _plot_image(xs, ys, f"objective — {text}")
+
+        def job(_cancel, _progress):
+            sim = s._ensure_sim(_cancel)
+            sim.show_state(sim.flat_angle)
+            out = adapters.run_optimize(sim.linkage, target, progress=progress, cancel=cancel)
+            s.rest_lengths = out.rest_lengths
+            return out
+
+        def done(out):
+            self.opt_md.content = f"optimization: {out.message}"
+            s.request_angle(float(self.angle.value))
+
+        s.worker.submit(job, key="optimize", on_done=done, on_error=lambda e: s.status(f"optimization: {e}"))
+
+    def _actuate(self) -> None:
+        s = self.session
+        if not adapters.actuate_available():
+            self.opt_md.content = f"sparse actuation: {adapters.NOT_AVAILABLE}"
+            return
+        view = s.last_deployed
+        if view is None or s.sim is None:
+            s.status("deploy first (move the angle slider), then actuate")
+            return
+        cancel = self._opt_cancel = threading.Event()
+        self._opt_history = []
+
+        def progress(it, value, text):
+            self._opt_history.append((it, value))
+            xs, ys = zip(*self._opt_history)
+            self.opt_plot.image = _plot_image(xs, ys, f"actuation — {text}")
+
+        def job(_cancel, _progress):
+            return adapters.run_actuate(s.sim.linkage, view.info.torque, progress=progress, cancel=cancel)
+
+        def done(out):
+            self.opt_md.content = f"actuation: {int(np.count_nonzero(out.actuated))} actuated joints; {out.message}"
+
+        s.worker.submit(job, key="optimize", on_done=done, on_error=lambda e: s.status(f"actuation: {e}"))
+
+    # ------------------------------------------------------------------ export
+    def _export(self, kind: str, client) -> None:
+        def job():
+            try:
+                paths = self.session.export(kind)
+            except InputError as exc:
+                self.session.status(str(exc))
+                return
+            except Exception as exc:  # noqa: BLE001
+                self.session.status(f"export failed: {type(exc).__name__}: {exc}")
+                return
+            self.export_md.content = "written:\n\n" + "\n".join(f"- `{p}`" for p in paths)
+            self.session.status(f"exported {os.path.basename(paths[0])}")
+            if client is not None:
+                with open(paths[0], "rb") as fh:
+                    client.send_file_download(os.path.basename(paths[0]), fh.read())
+
+        # off the UI callback thread: mesh exports wait for the solver
+        threading.Thread(target=job, daemon=True, name="xshells-app-export").start()
+
+    def stop(self) -> None:
+        self._playing.clear()
+        self.session.close()
+        self.server.stop()
