@@ -19,7 +19,9 @@ SUBCOMMANDS = [
     "xshells.deploy.cli",
     "xshells.section.cli",
     "xshells.actuation.cli",
+    "xshells.sweeps.cli",
     "xshells.app.cli",
+    "xshells.design.cli",
 ]
 
 

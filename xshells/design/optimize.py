@@ -114,9 +114,22 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
         return LinearOperator((S, S), matvec=lambda d: v[0] * hv(q, np.ravel(d)), dtype=float)
 
     use_hessp = options.method == "newton-cg"
-    c_plan = NonlinearConstraint(problem.planarity, -np.inf, options.planarity_tolerance, jac=problem.planarity_gradient,
+    failures = []
+
+    def safe(fn, bad):
+        # A trial design whose equilibria cannot be found counts as a very bad
+        # point: the trust region shrinks instead of the run stopping.
+        def wrapped(q):
+            try:
+                return fn(q)
+            except ArithmeticError as exc:
+                failures.append(str(exc))
+                return bad
+        return wrapped
+
+    c_plan = NonlinearConstraint(safe(problem.planarity, 1e6), -np.inf, options.planarity_tolerance, jac=problem.planarity_gradient,
                                  hess=(lambda q, v: lin_op(problem.planarity_hessp, q, v)) if use_hessp else BFGS())
-    c_angle = NonlinearConstraint(problem.min_angle, eps, np.inf, jac=problem.min_angle_gradient,
+    c_angle = NonlinearConstraint(safe(problem.min_angle, -1e6), eps, np.inf, jac=problem.min_angle_gradient,
                                   hess=(lambda q, v: lin_op(problem.min_angle_hessp, q, v)) if use_hessp else BFGS())
     history: list[OptimizeRecord] = []
     best = {"J": np.inf, "q": q0.copy(), "states": None}
@@ -144,7 +157,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
     kw = dict(hessp=problem.hessp) if use_hessp else dict(hess=BFGS())
     message, success = "", False
     try:
-        res = minimize(problem.objective, q0, jac=problem.gradient, method="trust-constr", bounds=bounds,
+        res = minimize(safe(problem.objective, 1e6), q0, jac=problem.gradient, method="trust-constr", bounds=bounds,
                        constraints=[c_plan, c_angle], callback=cb,
                        options=dict(maxiter=options.max_iterations, initial_tr_radius=options.initial_radius,
                                     gtol=options.gradient_tolerance, xtol=1e-10, verbose=0), **kw)
@@ -157,6 +170,8 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
         message = f"stopped: an equilibrium solve failed ({exc})"
     if best["states"] is not None:
         _move_to(problem, best["q"], best["states"])
+    if failures:
+        message += f" ({len(failures)} trial designs rejected: no equilibrium)"
     return OptimizeResult(q=best["q"], rest_lengths=best["q"] * problem.p0, history=history, iterations=len(history) - 1,
                           message=message, time_s=time.perf_counter() - start, success=success)
 

@@ -133,3 +133,20 @@ def plot_actuation_tradeoff(path, rows, title: str = "") -> None:
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
+
+
+def plot_convergence(path, curves: dict, title: str = "") -> None:
+    """Objective against iteration, one curve per method (paper Fig. 7)."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, J in curves.items():
+        ax.plot(np.arange(len(J)), J, "o-", ms=3, label=label)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("J")
+    ax.set_yscale("log")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title(title)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)

@@ -1,0 +1,50 @@
+"""``xshells optimize``: outputs, resume, bad input."""
+import json
+
+import numpy as np
+import pytest
+
+from xshells.cli import main
+from xshells.io.export import write_design_obj
+
+from test_deploy import warped_grid
+
+
+@pytest.fixture(scope="module")
+def small_case(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("case")
+    write_design_obj(folder / "grid.obj", warped_grid(4))
+    spec = {"file": "grid.obj", "material": {"type": "rectangle", "params": [4.0, 1.5], "E": 2000, "nu": 0.3},
+            "angle_deg": 60, "steps": 6, "subdivision": 4}
+    (folder / "case.json").write_text(json.dumps(spec))
+    return folder / "case.json"
+
+
+def test_optimize_writes_its_outputs_and_resumes(small_case, tmp_path):
+    out = tmp_path / "out"
+    args = ["optimize", str(small_case), "--out", str(out), "--max-iters", "2", "--no-progress"]
+    assert main(args) == 0
+    r = json.loads((out / "result.json").read_text())
+    for key in ("J", "terms", "energy_flat", "energy_deployed", "initial", "constraints", "iterations", "time_s", "rest_lengths"):
+        assert key in r
+    assert set(r["initial"]) == {"J", "energy_flat", "energy_deployed"}
+    assert r["J"] <= r["initial"]["J"] + 1e-12  # the best feasible iterate is kept
+    p = np.loadtxt(out / "design_parameters.txt")
+    assert np.allclose(p, r["rest_lengths"])
+    for name in ("flat_before.png", "deployed_before.png", "flat.png", "deployed.png", "convergence.png", "deployed.obj", "flat.ply"):
+        assert (out / name).stat().st_size > 0, name
+    assert r["bfgs_history"] and len(r["history"]) >= 1
+    # resume from the written rest lengths, at another angle
+    assert main(args + ["--resume", "--angle", "55", "--no-baseline"]) == 0
+    r2 = json.loads((out / "result.json").read_text())
+    assert r2["target_angle_deg"] == pytest.approx(55.0)
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["--gamma", "1.5"], "gamma must lie in"), (["--beta", "-2"], "beta must be"),
+    (["--target-surface", "missing.obj"], "missing.obj"), (["--resume"], "does not exist"),
+])
+def test_bad_input_is_one_line(small_case, tmp_path, capsys, argv, match):
+    assert main(["optimize", str(small_case), "--out", str(tmp_path / "o"), "--no-progress", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and len(err.splitlines()) == 1, err

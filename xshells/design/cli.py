@@ -1,0 +1,46 @@
+"""``xshells optimize``: low-stress rest lengths that keep the deployed shape (paper §5)."""
+from __future__ import annotations
+
+from ..errors import InputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "optimize", help="optimize a case's rest lengths for low flat and deployed energy near the target shape",
+        description="Design optimization (paper §5): minimizes γ/E₀·E_flat + (1−γ)/E₀·E_deployed + β/(2l₀²)·T over the "
+                    "per-segment rest lengths, keeping the flat state planar and its joint angles open. Units follow the input.")
+    p.add_argument("case", help="a case file (.json)")
+    p.add_argument("--gamma", type=float, default=0.5, help="share of the flat energy, in [0, 1] (default 0.5)")
+    p.add_argument("--beta", type=float, default=5000.0, help="weight of the fitting term (default 5000)")
+    p.add_argument("--target-surface", help="a triangle mesh (OBJ, PLY, STL) to fit (default: the deployed design's quads, Loop-subdivided twice)")
+    p.add_argument("--angle", type=float, help="target average opening angle, degrees (default: the case's)")
+    p.add_argument("--max-iters", type=int, default=20)
+    p.add_argument("--min-angle", type=float, help="smallest flat joint angle ε, degrees (default: the initial KS minimum less 0.5°)")
+    p.add_argument("--resume", action="store_true", help="start from OUT/design_parameters.txt of an earlier run")
+    p.add_argument("--no-baseline", action="store_true", help="skip the BFGS comparison run")
+    p.add_argument("--out", default="optimize_out", help="output folder")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_optimize)
+
+
+def _optimize(args) -> int:
+    import numpy as np
+
+    from .objective import DesignWeights
+    from .optimize import OptimizeOptions
+    from .run import run_optimize
+
+    if not args.case.endswith(".json"):
+        raise InputError(f"{args.case}: optimize takes a case file (.json) naming the design, material and angle")
+    weights = DesignWeights(gamma=args.gamma, beta=args.beta)
+    opts = OptimizeOptions(max_iterations=args.max_iters,
+                           min_angle=np.radians(args.min_angle) if args.min_angle is not None else None)
+    r = run_optimize(args.case, args.out, weights=weights, options=opts, angle_deg=args.angle,
+                     target_surface=args.target_surface, resume=args.resume, baseline=not args.no_baseline,
+                     progress=not args.no_progress)
+    i = r["initial"]
+    print(f"{r['name']}: J {i['J']:.5g} -> {r['J']:.5g} in {r['iterations']} iterations ({r['time_s']:.1f} s)")
+    print(f"  flat energy {i['energy_flat']:.5g} -> {r['energy_flat']:.5g}; deployed energy {i['energy_deployed']:.5g} -> {r['energy_deployed']:.5g}")
+    print(f"  planarity {r['constraints']['planarity']:.3g}, min flat angle {r['constraints']['min_angle_deg']:.3g}°; {r['message']}")
+    print(f"  outputs in {args.out}/")
+    return 0

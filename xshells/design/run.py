@@ -1,0 +1,152 @@
+"""The design-optimization job behind ``xshells optimize``: optimize, then write every output."""
+from __future__ import annotations
+
+import copy
+import json
+import os
+import time
+from dataclasses import asdict
+
+import numpy as np
+
+from ..deploy.case import load_case, material_from_spec
+from ..deploy.run import _write_outputs
+from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
+from ..errors import InputError
+from ..io import read_design, read_rest_lengths
+from ..io.export import atomic_write_text
+from ..linkage.linkage import Linkage
+from .objective import DesignProblem, DesignWeights
+from .optimize import OptimizeOptions, optimize
+
+
+def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_surface=None, rest_lengths_path=None,
+                  deploy_steps=None, progress=False):
+    """The design problem of a case: flat state at the design's average angle, deployed state at the target."""
+    case = load_case(case_path)
+    design = read_design(case.design_path)
+    rl_path = rest_lengths_path or case.rest_lengths_path
+    p = read_rest_lengths(rl_path, design.num_segments) if rl_path else None
+    L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
+    if p is None:
+        rest_length_solve(L)
+    if angle_deg is not None:
+        target = np.radians(angle_deg)
+    elif case.angle_rad is not None:
+        target = case.angle_rad
+    else:
+        target = L.average_angle() + (case.open_by_rad if case.open_by_rad is not None else np.radians(60.0))
+    if not (0 < target < np.pi):
+        raise InputError(f"target angle {np.degrees(target):.4g}° is out of reach: it must lie strictly between 0° and 180°")
+    D = copy.deepcopy(L)
+    steps = deploy_steps or case.steps
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=steps, desc=f"deploying {case.name}", unit="step")
+    try:
+        res = deploy(D, target, DeployOptions(steps=steps), callback=(lambda rec: bar.update(1) and False) if bar else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not res.converged:
+        raise InputError(f"{case_path}: the initial design does not deploy to {np.degrees(target):.2f}° ({res.message})")
+    from .fitting import FittingTerm, read_surface
+
+    surface = read_surface(target_surface) if target_surface else None
+    fitting = FittingTerm.paper_defaults(D, surface=surface)
+    return DesignProblem(L, target, weights, fitting=fitting, deployed=D), case.name
+
+
+def _summary(problem, q) -> dict:
+    t = problem.terms(q)
+    flat, dep = problem.flat.L, problem.deployed.L
+    return {"J": t["J"], "J_flat_energy_term": t["flat_energy"], "J_deployed_energy_term": t["deployed_energy"],
+            "J_fit_term": t["fit"], "energy_flat": flat.energy(), "energy_deployed": dep.energy(),
+            "planarity": problem.planarity(q), "min_angle_deg": float(np.degrees(problem.min_angle(q)))}
+
+
+def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights(), options: OptimizeOptions = OptimizeOptions(),
+                 angle_deg=None, target_surface=None, resume=False, baseline=True, progress=True) -> dict:
+    """Optimize a case's rest lengths and write ``result.json``, ``design_parameters.txt``, meshes and figures.
+
+    ``resume=True`` starts from ``out_dir/design_parameters.txt`` of an earlier
+    run (a different ``angle_deg`` may be given). Ctrl-C keeps and writes the
+    best design found so far.
+    """
+    os.makedirs(out_dir, exist_ok=True)
+    t0 = time.perf_counter()
+    rl = None
+    if resume:
+        rl = os.path.join(out_dir, "design_parameters.txt")
+        if not os.path.exists(rl):
+            raise InputError(f"--resume: {rl} does not exist (no earlier run in {out_dir})")
+    problem, name = build_problem(case_path, weights=weights, angle_deg=angle_deg, target_surface=target_surface,
+                                  rest_lengths_path=rl, progress=progress)
+    q0 = np.ones(len(problem.p0))
+    initial = _summary(problem, q0)
+    _write_outputs(out_dir, "flat_before", problem.flat.L)
+    _write_outputs(out_dir, "deployed_before", problem.deployed.L)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=options.max_iterations, desc="optimizing (Newton-CG)", unit="it")
+
+    def on_iter(rec):
+        if bar is not None:
+            bar.set_postfix(J=f"{rec.J:.5g}", E3=f"{rec.deployed_energy:.4g}")
+            if rec.iteration:
+                bar.update(1)
+        return False
+
+    interrupted = False
+    try:
+        res = optimize(problem, options, callback=on_iter)
+    finally:
+        if bar is not None:
+            bar.close()
+    interrupted = res.message == "interrupted by the user"
+    final = _summary(problem, res.q)
+    p = res.rest_lengths
+    atomic_write_text(os.path.join(out_dir, "design_parameters.txt"), "".join(f"{v:.17g}\n" for v in p))
+    _write_outputs(out_dir, "flat", problem.flat.L)
+    _write_outputs(out_dir, "deployed", problem.deployed.L)
+    bfgs = None
+    if baseline and not interrupted:
+        base_problem, _ = build_problem(case_path, weights=weights, angle_deg=angle_deg, target_surface=target_surface,
+                                        rest_lengths_path=rl, progress=False)
+        b = optimize(base_problem, OptimizeOptions(**{**options.__dict__, "method": "bfgs"}))
+        bfgs = [asdict(r) for r in b.history]
+    from ..viz.render import plot_convergence
+
+    plot_convergence(os.path.join(out_dir, "convergence.png"), {"Newton-CG": [r.J for r in res.history],
+                                                                 **({"BFGS": [r["J"] for r in bfgs]} if bfgs else {})},
+                     title=name)
+    iters = max(res.iterations, 1)
+    result = {
+        "name": name,
+        "J": final["J"],
+        "terms": {k: final[k] for k in ("J_flat_energy_term", "J_deployed_energy_term", "J_fit_term")},
+        "energy_flat": final["energy_flat"],
+        "energy_deployed": final["energy_deployed"],
+        "initial": {"J": initial["J"], "energy_flat": initial["energy_flat"], "energy_deployed": initial["energy_deployed"]},
+        "constraints": {"planarity": final["planarity"], "min_angle_deg": final["min_angle_deg"],
+                        "planarity_tolerance": options.planarity_tolerance},
+        "weights": asdict(weights),
+        "target_angle_deg": float(np.degrees(problem.deployed.angle)),
+        "flat_angle_deg": float(np.degrees(problem.flat.angle)),
+        "iterations": res.iterations,
+        "time_s": res.time_s,
+        "time_per_iteration_s": res.time_s / iters,
+        "total_time_s": time.perf_counter() - t0,
+        "message": res.message,
+        "history": [asdict(r) for r in res.history],
+        "bfgs_history": bfgs,
+        "rest_lengths": p.tolist(),
+    }
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    if interrupted:
+        raise KeyboardInterrupt
+    return result
