@@ -72,6 +72,9 @@ class App:
         self.session = session
         self.server = viser.ViserServer(host=host, port=port, label="xshells app", verbose=False)
         self.server.scene.set_up_direction("+z")
+        # look down on both halves (flat left, deployed right)
+        self.server.initial_camera.position = (0.0, -3.2, 3.0)
+        self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
         self._selected: int | None = None
         self._pending_segment: int | None = None
         self._gizmo = None
@@ -99,7 +102,9 @@ class App:
         with tabs.add_tab("Design"):
             with gui.add_folder("Open"):
                 examples = bundled_examples()
-                self.example = gui.add_dropdown("example", tuple(examples) or ("-",))
+                names = tuple(examples) or ("-",)
+                opened = [n for n, p in examples.items() if s.project.name == os.path.splitext(os.path.basename(p))[0]]
+                self.example = gui.add_dropdown("example", names, initial_value=opened[0] if opened else names[0])
                 b = gui.add_button("Open example")
                 b.on_click(lambda _: self._guard(lambda: (s.open_path(examples[self.example.value]), self._solve_initial())))
                 self.upload = gui.add_upload_button("Upload OBJ / .msh / case JSON (≤ 5 MB)", icon=None)
@@ -328,10 +333,12 @@ class App:
         P = self._to_scene(V) if len(V) else np.zeros((0, 3))
         if layout.num_segments:
             seg = P[layout.edges] + [0, 0, 0.02]
-            scene.add_line_segments("/flat/lines", seg.astype(np.float32), colors=(40, 40, 40), line_width=1.5)
+            scene.add_line_segments("/flat/lines", seg.astype(np.float32), colors=(40, 40, 40), thickness=1.5, thickness_units="screen")
         if len(P):
+            # joints a quarter of a typical segment across, so dense layouts stay readable
+            size = float(np.clip(0.25 * np.median(layout.segment_lengths()) * self._frame[1], 0.004, 0.03)) if layout.num_segments else 0.02
             scene.add_point_cloud("/flat/joints", (P + [0, 0, 0.025]).astype(np.float32),
-                                  colors=(220, 40, 40), point_size=0.025, point_shape="circle")
+                                  colors=(220, 40, 40), point_size=size, point_shape="circle")
 
     def _draw_mesh(self, name: str, view: View, offset: float, flat: bool = False) -> None:
         import trimesh
@@ -444,7 +451,7 @@ class App:
             self.session.status(f"exported {os.path.basename(paths[0])}")
             if client is not None:
                 with open(paths[0], "rb") as fh:
-                    client.send_file_download(os.path.basename(paths[0]), fh.read())
+                    client.send_file_download(os.path.basename(paths[0]), fh.read(), save_immediately=True)
 
         # off the UI callback thread: mesh exports wait for the solver
         threading.Thread(target=job, daemon=True, name="xshells-app-export").start()

@@ -1,0 +1,100 @@
+"""Browser test of ``xshells app``: the real page in headless Debian Chromium, driven by Playwright.
+
+Skipped when Chromium or Playwright is missing (the README's test command
+installs both on a fresh Debian machine). Screenshots go to
+``test-artifacts/app/``.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import time
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+pytestmark = pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium")
+playwright_api = pytest.importorskip("playwright.sync_api")
+pytest.importorskip("viser")
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EXAMPLE = os.path.join(ROOT, "xshells", "data", "examples", "nonuniform_linkage.obj")
+ARTIFACTS = os.path.join(ROOT, "test-artifacts", "app")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait(cond, timeout: float, what: str) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def test_app_in_chromium(tmp_path):
+    from xshells.app.cli import start
+
+    os.makedirs(ARTIFACTS, exist_ok=True)
+    t0 = time.perf_counter()
+    app = start(EXAMPLE, host="127.0.0.1", port=_free_port(), out_dir=str(tmp_path / "out"))
+    try:
+        assert app.server.get_host() == "127.0.0.1"
+        url = f"http://127.0.0.1:{app.server.get_port()}"
+        with playwright_api.sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1400, "height": 800}, accept_downloads=True)
+                page.goto(url)
+                page.get_by_text("xshells").first.wait_for(timeout=30000)
+                _wait(lambda: len(app.server.get_clients()) == 1, 30, "the page to connect")
+                t_ready = time.perf_counter() - t0
+                assert app.session.worker.wait_idle(120)
+                first = app.session.last_deployed
+                assert first is not None, app.status_md.content
+                page.wait_for_timeout(1500)
+                page.screenshot(path=os.path.join(ARTIFACTS, "01_loaded.png"))
+
+                # move the opening-angle slider (through its server-side handle: dragging in WebGL is impractical)
+                app.angle.value = round(first.info.angle_deg + 15.0, 1)
+                _wait(lambda: app.session.worker.busy or app.session.last_deployed is not first, 5, "the solve to start")
+                assert app.session.worker.wait_idle(120)
+                second = app.session.last_deployed
+                assert second is not first
+                assert abs(second.info.angle_deg - (first.info.angle_deg + 15.0)) < 0.2
+                assert np.abs(second.joints - first.joints).max() > 1e-3 * np.ptp(first.joints[:, :2])
+                page.wait_for_timeout(1500)
+                page.screenshot(path=os.path.join(ARTIFACTS, "02_deployed.png"))
+
+                # export the SVG by clicking in the page
+                page.get_by_role("tab", name="Export").click()
+                with page.expect_download(timeout=30000) as dl:
+                    page.get_by_role("button", name="SVG").click()
+                svg = dl.value.path()
+                root = ET.parse(svg).getroot()
+                beams = [e for e in root.iter("{http://www.w3.org/2000/svg}line") if e.get("class") == "beam"]
+                assert len(beams) == app.session.layout.num_segments
+                assert os.path.exists(tmp_path / "out" / "nonuniform_linkage_flat.svg")
+                page.screenshot(path=os.path.join(ARTIFACTS, "03_export.png"))
+
+                # a malformed upload shows a message and the app keeps serving
+                assert not app.session.open_upload("bad.obj", b"v 0 0 0\nl 1 9\n")
+                assert "upload refused" in app.status_md.content
+                page.get_by_text("upload refused").first.wait_for(timeout=10000)
+                page.screenshot(path=os.path.join(ARTIFACTS, "04_bad_upload.png"))
+            finally:
+                browser.close()
+        print(f"page interactive {t_ready:.2f} s after start")
+    finally:
+        app.stop()
