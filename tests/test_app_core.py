@@ -1,0 +1,248 @@
+"""Core of ``xshells app`` without a browser: edits, undo/redo, topology checks, loading, solves, exports."""
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from xshells.app import core
+from xshells.app.exports import dxf_bytes, svg_text, write_case, write_dxf, write_svg
+from xshells.app.loading import MAX_UPLOAD_BYTES, UploadStore, grid_project, open_path
+from xshells.app.worker import Worker
+from xshells.errors import InputError
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EXAMPLES = os.path.join(ROOT, "xshells", "data", "examples")
+SVG = "{http://www.w3.org/2000/svg}"
+
+
+@pytest.fixture
+def grid():
+    return grid_project(3, 2).layout
+
+
+# ------------------------------------------------------------------ edits and history
+def test_edits_and_undo_redo(grid):
+    h = core.History(grid)
+    moved = h.push(core.move_joint(grid, 0, (1.0, 2.0)))
+    assert np.allclose(moved.vertices[0], [1.0, 2.0]) and not np.allclose(grid.vertices[0], [1.0, 2.0])
+    added = h.push(core.add_joint(moved, (500.0, 0.0), connect_to=3))
+    assert added.num_vertices == grid.num_vertices + 1 and added.num_segments == grid.num_segments + 1
+    removed = h.push(core.delete_segment(added, added.num_segments - 1))
+    assert removed.num_segments == grid.num_segments
+    assert h.undo().same_as(added) and h.undo().same_as(moved) and h.undo().same_as(grid)
+    assert h.undo().same_as(grid) and not h.can_undo
+    assert h.redo().same_as(moved) and h.redo().same_as(added)
+    h.push(core.warp_scale(added, 2.0))
+    assert not h.can_redo  # a new edit clears the redo stack
+    assert h.push(h.current) is h.current and h.undo().same_as(added)  # a no-op edit is not recorded
+
+
+def test_delete_joint_renumbers(grid):
+    out = core.delete_joint(grid, 0)
+    assert out.num_vertices == grid.num_vertices - 1
+    assert out.edges.max() < out.num_vertices
+    assert out.num_segments == grid.num_segments - int(np.count_nonzero(np.any(grid.edges == 0, axis=1)))
+
+
+def test_warps_are_smooth_and_keep_topology(grid):
+    for warped in (core.warp_scale(grid, 1.5), core.warp_bend(grid, 0.3), core.warp_pinch(grid, 0.3)):
+        assert np.array_equal(warped.edges, grid.edges)
+        assert core.topology_problems(warped) == []
+    c = 0.5 * (grid.vertices.min(0) + grid.vertices.max(0))
+    assert np.allclose(core.warp_scale(grid, 2.0).vertices - c, 2.0 * (grid.vertices - c))
+    with pytest.raises(InputError):
+        core.warp_scale(grid, -1.0)
+    with pytest.raises(InputError):
+        core.warp_pinch(grid, 1.5)
+
+
+def test_topology_messages(grid):
+    assert core.topology_problems(grid) == []
+    dup = core.add_segment(grid, *grid.edges[0])
+    assert any("duplicate edge" in p for p in core.topology_problems(dup))
+    zero = core.move_joint(grid, grid.edges[0, 1], grid.vertices[grid.edges[0, 0]])
+    assert any("zero-length" in p for p in core.topology_problems(zero))
+    far = core.add_segment(core.add_joint(core.add_joint(grid, (1e4, 0)), (1e4, 100)), grid.num_vertices, grid.num_vertices + 1)
+    assert any("disconnected" in p for p in core.topology_problems(far))
+    v = 4  # an interior joint of valence 4: one more segment makes 5
+    assert np.count_nonzero(grid.edges == v) == 4
+    high = core.add_joint(grid, (0.0, 1e3), connect_to=v)
+    assert any("valence > 4" in p for p in core.topology_problems(high))
+    with pytest.raises(InputError):
+        core.add_segment(grid, 1, 1)
+    assert core.topology_problems(core.Layout(np.zeros((2, 2)), np.zeros((0, 2)))) == ["the layout has no segments"]
+
+
+def test_picking(grid):
+    v = 4
+    assert core.nearest_vertex(grid, grid.vertices[v] + 1.0) == v
+    assert core.nearest_vertex(grid, grid.vertices[v] + 50.0, radius=1.0) is None
+    a, b = grid.edges[2]
+    assert core.nearest_segment(grid, 0.5 * (grid.vertices[a] + grid.vertices[b])) == 2
+
+
+# ------------------------------------------------------------------ loading and uploads
+def test_open_example_and_case():
+    p = open_path(os.path.join(EXAMPLES, "nonuniform_linkage.obj"))
+    assert p.layout.num_segments == 170
+    assert p.material["params"][0] < 1  # the default section is scaled to this small design
+    case = open_path(os.path.join(EXAMPLES, "asymm_wings_pointy", "case.json"))
+    assert case.layout.num_segments == 288 and case.material["params"] == [12, 8]
+    with pytest.raises(InputError):
+        open_path(os.path.join(EXAMPLES, "LICENSE"))
+
+
+def test_uploads_are_parsed_and_limited():
+    store = UploadStore()
+    with open(os.path.join(EXAMPLES, "quad.obj"), "rb") as fh:
+        content = fh.read()
+    p = store.open_upload("../../etc/quad.obj", content)  # the name is reduced to a base name
+    assert p.layout.num_segments == 4 and p.name == "quad"
+    case = store.open_upload("case.json", json.dumps({"file": "quad.obj", "angle_deg": 70, "subdivision": 5}).encode())
+    assert case.target_angle_deg == 70 and case.subdivision == 5 and case.layout.num_segments == 4
+    bad = [("big.obj", b"v 0 0 0\n" * (MAX_UPLOAD_BYTES // 8 + 1), "upload limit"),
+           ("x.obj", b"v 0 0 0\nl 1 9\n", "out of range"),
+           ("x.msh", b"\x00garbage\xff", "x.msh"),
+           ("x.json", b"{not json", "not valid JSON"),
+           ("y.json", json.dumps({"file": "/etc/passwd"}).encode(), "upload its design file"),
+           ("z.json", json.dumps({"file": "quad.obj", "rest_lengths": "/etc/passwd"}).encode(), "rest-length files"),
+           ("x.exe", b"MZ", "upload a design")]
+    for name, data, msg in bad:
+        with pytest.raises(InputError, match=msg):
+            store.open_upload(name, data)
+
+
+def test_grid_project_bounds():
+    assert grid_project(2, 3, 60).layout.num_segments == 2 * 4 + 3 * 3
+    for args in ((0, 3), (3, 100), (3, 3, 1.0)):
+        with pytest.raises(InputError):
+            grid_project(*args)
+
+
+# ------------------------------------------------------------------ exports round trip
+def test_svg_dxf_case_round_trip(tmp_path, grid):
+    p = grid.segment_lengths() * 1.01
+    write_svg(tmp_path / "a.svg", grid, p)
+    root = ET.parse(tmp_path / "a.svg").getroot()
+    beams = [e for e in root.iter(SVG + "line") if e.get("class") == "beam"]
+    assert len(beams) == grid.num_segments
+    assert np.allclose([float(b.get("data-rest-length")) for b in beams], p, atol=1e-3)
+    labels = [e.text for e in root.iter(SVG + "text") if e.get("class") == "joint-label"]
+    assert sorted(map(int, labels)) == list(range(grid.num_vertices))
+    assert root.get("width").endswith("mm")
+    # 1:1 in mm: a beam's drawn length equals its design length
+    b = beams[0]
+    drawn = np.hypot(float(b.get("x2")) - float(b.get("x1")), float(b.get("y2")) - float(b.get("y1")))
+    assert drawn == pytest.approx(grid.segment_lengths()[0], rel=1e-6)
+
+    import ezdxf
+
+    write_dxf(tmp_path / "a.dxf", grid, p)
+    doc = ezdxf.readfile(tmp_path / "a.dxf")
+    msp = doc.modelspace()
+    assert len(msp.query('LINE[layer=="BEAMS"]')) == grid.num_segments
+    assert len(msp.query("CIRCLE")) == grid.num_vertices
+    assert doc.units == ezdxf.units.MM
+    assert b"$INSUNITS" in dxf_bytes(grid)
+
+    paths = write_case(tmp_path / "c.json", "grid", grid, {"type": "rectangle", "params": [10, 7], "E": 20000, "nu": 0.3},
+                       6, 75.0, p)
+    assert all(os.path.exists(x) for x in paths)
+    back = open_path(str(tmp_path / "c.json"))
+    assert back.layout.same_as(grid) and back.subdivision == 6 and back.target_angle_deg == pytest.approx(75.0)
+    assert np.allclose(back.rest_lengths, p)
+    assert not [f for f in os.listdir(tmp_path) if f.startswith(".tmp-")]  # atomic writes leave no temporaries
+    assert svg_text(grid).count('class="beam"') == grid.num_segments
+
+
+# ------------------------------------------------------------------ worker
+def test_worker_latest_request_wins_and_cancels():
+    w = Worker()
+    started, done = threading.Event(), []
+
+    def slow(cancel, progress):
+        started.set()
+        while not cancel.is_set():
+            time.sleep(0.01)
+        return "cancelled"
+
+    w.submit(slow, key="solve", on_done=done.append)
+    started.wait(5)
+    w.submit(lambda c, p: 1, key="solve", on_done=done.append)
+    w.submit(lambda c, p: 2, key="solve", on_done=done.append)
+    assert w.wait_idle(5)
+    assert done == [2]  # the running one was cancelled, the queued one replaced
+    errors = []
+    w.submit(lambda c, p: 1 / 0, on_error=errors.append)
+    assert w.wait_idle(5) and isinstance(errors[0], ZeroDivisionError) and "ZeroDivisionError" in w.last_error
+    w.close()
+
+
+# ------------------------------------------------------------------ session: solve, warm start, exports
+def test_session_solve_and_exports(tmp_path):
+    from xshells.app.session import Session
+
+    s = Session(open_path(os.path.join(EXAMPLES, "nonuniform_linkage.obj")), out_dir=str(tmp_path))
+    events = []
+    s.listeners.append(lambda e, p: events.append((e, p)))
+    try:
+        s.set_subdivision(4)
+        s.request_angle(30.0)
+        assert s.worker.wait_idle(120)
+        first = s.last_deployed
+        assert first is not None and abs(first.info.angle_deg - 30.0) < 1e-6, events[-3:]
+        t = time.perf_counter()
+        s.request_angle(32.0)
+        assert s.worker.wait_idle(60)
+        warm = time.perf_counter() - t
+        second = s.last_deployed
+        assert abs(second.info.angle_deg - 32.0) < 1e-6 and second.info.converged
+        assert np.abs(second.joints - first.joints).max() > 0
+        assert warm < 10
+        assert any(e == "stability" for e, _ in events)
+        assert len(s.animation_frames()) >= 3
+        for kind in ("svg", "dxf", "case", "obj", "ply", "gltf", "png"):
+            for path in s.export(kind):
+                assert os.path.getsize(path) > 0
+        import trimesh
+
+        mesh = trimesh.load(tmp_path / "nonuniform_linkage_deployed.gltf", force="mesh")
+        assert len(mesh.faces) == len(second.triangles)
+        # an edit that breaks the topology blocks the solve with a message
+        s.edit(core.add_segment, *s.layout.edges[0])
+        assert s.problems()
+        s.request_angle(33.0)
+        assert s.worker.wait_idle(30)
+        assert any(e == "status" and "cannot simulate" in p for e, p in events)
+        s.undo()
+        assert not s.problems()
+        assert not s.set_material("rectangle", [-1, 2], 20000, 0.3)
+        assert s.set_material("ellipse", [0.05, 0.03], 20000, 0.3)
+        assert any(e == "material" and "bending EI" in p for e, p in events)
+        assert not s.open_upload("bad.msh", b"nonsense")
+    finally:
+        s.close()
+
+
+def test_adapters_report_availability(monkeypatch):
+    from xshells.app import adapters
+
+    monkeypatch.setattr(adapters, "_lookup", lambda module, name: None)
+    assert not adapters.optimize_available() and not adapters.actuate_available()
+    with pytest.raises(NotImplementedError, match="not available yet"):
+        adapters.run_optimize(None, 1.0, progress=print, cancel=threading.Event())
+    with pytest.raises(NotImplementedError, match="not available yet"):
+        adapters.run_actuate(None, 1.0, progress=print, cancel=threading.Event())
+
+
+def test_cli_registers_app():
+    from xshells.cli import build_parser
+
+    args = build_parser().parse_args(["app", "design.obj", "--port", "9000"])
+    assert args.host == "127.0.0.1" and args.port == 9000 and args.input == "design.obj"
