@@ -85,3 +85,80 @@ class VectorAssembler:
         """Global vector (size,) from per-stencil values (each (k_i, N_i))."""
         flat = np.concatenate([np.ascontiguousarray(v).ravel() for v in values])
         return np.bincount(self._index, weights=flat[self._take], minlength=self.size)
+
+
+def _canonical(A: sp.spmatrix) -> sp.csr_matrix:
+    A = A.tocsr() if A.format != "csr" else A
+    if not A.has_canonical_format:
+        A = A.copy()
+        A.sum_duplicates()
+    return A
+
+
+def _same_pattern(A: sp.csr_matrix, indptr: np.ndarray, indices: np.ndarray) -> bool:
+    if A.shape[0] + 1 != len(indptr) or len(A.indices) != len(indices):
+        return False
+    return (A.indptr is indptr or np.array_equal(A.indptr, indptr)) and (A.indices is indices or np.array_equal(A.indices, indices))
+
+
+class PrincipalSubmatrix:
+    """``A[idx][:, idx]`` for CSR matrices of one sparsity pattern, by a gather map computed once.
+
+    Call :meth:`matches` to check that a matrix has the pattern the map was
+    built for (cheap: identity of the index arrays, else one comparison).
+    """
+
+    def __init__(self, A: sp.spmatrix, idx: np.ndarray):
+        A = _canonical(A)
+        self.src_indptr, self.src_indices, self.src_shape = A.indptr, A.indices, A.shape
+        marker = sp.csr_matrix((np.arange(1, A.nnz + 1, dtype=float), A.indices, A.indptr), shape=A.shape)
+        sub = marker[idx][:, idx].tocsr()
+        sub.sort_indices()
+        self.take = sub.data.astype(np.int64) - 1
+        self.indices, self.indptr, self.shape = sub.indices, sub.indptr, sub.shape
+
+    def matches(self, A: sp.spmatrix) -> bool:
+        return A.format == "csr" and A.shape == self.src_shape and A.has_canonical_format and _same_pattern(A, self.src_indptr, self.src_indices)
+
+    def __call__(self, A: sp.csr_matrix) -> sp.csr_matrix:
+        S = sp.csr_matrix((A.data[self.take], self.indices, self.indptr), shape=self.shape)
+        S.has_canonical_format = True
+        return S
+
+
+class PatternSum:
+    """``A + Σ c_i B_i`` for matrices of fixed patterns, into the union pattern computed once."""
+
+    def __init__(self, A: sp.spmatrix, *others: sp.spmatrix):
+        mats = [_canonical(A)] + [_canonical(B) for B in others]
+        self.patterns = [(M.indptr, M.indices, M.shape) for M in mats]
+        ones = [sp.csr_matrix((np.ones(M.nnz), M.indices, M.indptr), shape=M.shape) for M in mats]
+        U = ones[0]
+        for O in ones[1:]:
+            U = U + O
+        U = _canonical(U.tocsr())
+        U.sort_indices()
+        n = U.shape[1]
+        rows_u = np.repeat(np.arange(U.shape[0]), np.diff(U.indptr))
+        key_u = rows_u.astype(np.int64) * n + U.indices
+        self.positions = []
+        for M in mats:
+            rows = np.repeat(np.arange(M.shape[0]), np.diff(M.indptr))
+            self.positions.append(np.searchsorted(key_u, rows.astype(np.int64) * n + M.indices))
+        self.indices, self.indptr, self.shape, self.nnz = U.indices, U.indptr, U.shape, U.nnz
+
+    def matches(self, *mats) -> bool:
+        return len(mats) == len(self.patterns) and all(
+            M.format == "csr" and M.shape == shp and M.has_canonical_format and _same_pattern(M, ip, ix)
+            for M, (ip, ix, shp) in zip(mats, self.patterns))
+
+    def __call__(self, mats, coefficients) -> sp.csr_matrix:
+        data = np.zeros(self.nnz)
+        for M, pos, c in zip(mats, self.positions, coefficients):
+            if c == 1.0:
+                data[pos] += M.data
+            elif c != 0.0:
+                data[pos] += c * M.data
+        S = sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+        S.has_canonical_format = True
+        return S

@@ -38,6 +38,8 @@ from ..errors import InputError
 from ..io.design import Design
 from ..rod import ElasticRods
 from ..rod import frames
+from ..rod import rods as _rods_module
+from ..sparse import BlockAssembler, VectorAssembler
 from . import joint_kernels as jk
 from . import joints as jmap
 from .graph import BEAM_A, INCOMING, OUTGOING, LinkageGraph, analyze
@@ -322,28 +324,85 @@ class Linkage:
     def update_source_frame(self) -> None:
         """Fold the joint rotations into the source frames (ω ← 0) and update the rods' frames."""
         xj = self._x[: self.num_joint_vars].reshape(-1, 9)
-        w = tuple(xj[:, 3:6].T)
-        self.joint_b0 = np.stack(jmap.rotate(w, tuple(self.joint_b0.T)), 1)
-        self.joint_n0 = np.stack(jmap.rotate(w, tuple(self.joint_n0.T)), 1)
+        w = xj[:, 3:6]
+        self.joint_b0 = _rotate(w, self.joint_b0)
+        self.joint_n0 = _rotate(w, self.joint_n0)
         # re-orthonormalize against drift
         self.joint_b0 /= np.linalg.norm(self.joint_b0, axis=1)[:, None]
         self.joint_n0 -= np.sum(self.joint_n0 * self.joint_b0, 1)[:, None] * self.joint_b0
         self.joint_n0 /= np.linalg.norm(self.joint_n0, axis=1)[:, None]
         theta = self.rods.thetas[self._inst_edge].copy()
         xj[:, 3:6] = 0.0
-        self.rods.update_source_frame()
+        _update_rod_source_frame(self.rods)
         self._refresh_instance_sources(theta_prev=theta)
 
     # ---------------------------------------------------------------- energy
+    # Energy, gradient and Hessian share one evaluation of the rod stencils per
+    # state: a Newton iteration asks for the energy (line search), then the
+    # gradient and the Hessian at the accepted point. The cache is keyed on the
+    # content of everything they depend on (variables, rest lengths, frames), so
+    # direct edits of the rods or the frames (e.g. a snapshot restore) are seen.
+    def _state_key(self):
+        r = self.rods
+        return (self._x, r.points, r.thetas, r.rest_lengths, r.t_src, r.d1_src, r.ref_twist_src, r.kappa_bar, r.twist_bar,
+                self._inst_prm)
+
+    def _cached(self) -> dict:
+        key = self._state_key()
+        c = getattr(self, "_cache", None)
+        if c is not None and all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(c["key"], key)):
+            return c
+        self._cache = {"key": tuple(np.array(a, copy=True) for a in key)}
+        return self._cache
+
+    def _rod_terms(self) -> dict:
+        """Per-stencil rod energies and gradients at the current state (cached)."""
+        c = self._cached()
+        if "rod" not in c:
+            r = self.rods
+            es, ge, _ = _rods_module.stretch_kernel(r._edge_q(), r.ks, hessian=False)
+            out = {"stretch": float(np.sum(es)) if r.num_edges else 0.0, "ge": ge}
+            an = _rods_module._analytic
+            if r.num_stencils and an is not None:
+                bend, twist, gv = an.vertex_energy_and_gradient(r._vertex_q(), r._vertex_params(), r.bending_energy)
+                out.update(bend=float(np.sum(bend)), twist=float(np.sum(twist)), gv=gv)
+            elif r.num_stencils:
+                eb = r._vertex_energies()
+                out.update(bend=float(np.sum(eb[0])), twist=float(np.sum(eb[1])), gv=None)
+            else:
+                out.update(bend=0.0, twist=0.0, gv=np.zeros((13, 0)))
+            c["rod"] = out
+        return c["rod"]
+
+    def _rod_gradient(self, with_rest_lengths: bool = False) -> np.ndarray:
+        c = self._cached()
+        key = ("rod_grad", with_rest_lengths)
+        if key not in c:
+            t = self._rod_terms()
+            if t["gv"] is None:
+                c[key] = self.rods.gradient(with_rest_lengths)
+            else:
+                size = self.rods.num_vars + (self.rods.num_edges if with_rest_lengths else 0)
+                asm = self._vector_assemblers.get(size) if hasattr(self, "_vector_assemblers") else None
+                if asm is None:
+                    self._vector_assemblers = getattr(self, "_vector_assemblers", {})
+                    asm = self._vector_assemblers[size] = VectorAssembler([self.rods.vertex_index, self.rods.edge_index], size)
+                c[key] = asm.assemble([t["gv"], t["ge"]])
+        return c[key]
+
     def energy_parts(self):
-        return self.rods.energy_parts()
+        t = self._rod_terms()
+        return _rods_module.EnergyParts(t["stretch"], t["bend"], t["twist"])
 
     def energy(self) -> float:
-        return self.rods.energy()
+        return self.energy_parts().total
 
     def _instance_jacobian(self):
         """Joint-map outputs (7, N) and Jacobian (7, 9, N) of every instance at the current state."""
-        return jk.outputs_and_jacobian(self._instance_q(self._x), self._inst_prm)
+        c = self._cached()
+        if "jac" not in c:
+            c["jac"] = jk.outputs_and_jacobian(self._instance_q(self._x), self._inst_prm)
+        return c["jac"]
 
     def _jacobian(self):
         """Rod variables' Jacobian with respect to ``x``: sparse (num rod vars, num_vars)."""
@@ -358,7 +417,11 @@ class Linkage:
 
     def gradient(self, with_rest_lengths: bool = False) -> np.ndarray:
         """``∂E/∂x`` (num_vars,), or ``[∂E/∂x, ∂E/∂p]`` with the rest lengths appended."""
-        g = self.rods.gradient(with_rest_lengths)
+        c = self._cached()
+        key = ("grad", with_rest_lengths)
+        if key in c:
+            return c[key].copy()
+        g = self._rod_gradient(with_rest_lengths)
         nv = self.rods.num_vars
         gx = np.zeros(self.num_vars)
         gx[self._free_reduced] = g[self._free_rod]
@@ -367,26 +430,54 @@ class Linkage:
         gx[: self.num_joint_vars] += np.bincount(
             ((9 * self._inst_joint)[None, :] + np.arange(9)[:, None]).ravel(), weights=contrib.ravel(), minlength=self.num_joint_vars
         )
-        if not with_rest_lengths:
-            return gx
-        return np.concatenate([gx, self.rest_length_map.T @ g[nv:]])
+        if with_rest_lengths:
+            gx = np.concatenate([gx, self.rest_length_map.T @ g[nv:]])
+        c[key] = gx
+        return gx.copy()
+
+    def _joint_hessian_blocks(self):
+        """``∇²(g·joint_map)`` per instance, (9, 9, N), with ``g`` the rods' gradient."""
+        w = self._rod_gradient()[self._inst_rows]
+        return jk.weighted_hessian(self._instance_q(self._x), self._inst_prm, w)
+
+    def _vertex_hessian_blocks(self) -> np.ndarray:
+        return self.rods._vertex_hessian() if self.rods.num_stencils else np.zeros((13, 13, 0))
 
     def hessian(self, with_rest_lengths: bool = False) -> sp.csr_matrix:
-        """Sparse symmetric Hessian in ``x`` (and ``p`` appended, if asked)."""
+        """Sparse symmetric Hessian in ``x`` (and ``p`` appended, if asked).
+
+        Without the rest lengths it is assembled straight into the reduced
+        variables (:class:`_ReducedHessianAssembler`, a fixed pattern); the
+        returned matrix is a new object each time but shares its ``indices``
+        and ``indptr`` arrays with every other call, and must not be modified
+        in place.
+        """
+        c = self._cached()
+        key = ("hess", with_rest_lengths)
+        if key in c:
+            return c[key]
+        if not with_rest_lengths:
+            asm = getattr(self, "_hess_asm", None)
+            if asm is None:
+                asm = self._hess_asm = _ReducedHessianAssembler(self)
+            _, _, he = _rods_module.stretch_kernel(self.rods._edge_q(), self.rods.ks)
+            _, jac = self._instance_jacobian()
+            H = asm.assemble(self._vertex_hessian_blocks(), he, jac, self._joint_hessian_blocks())
+            c[key] = H
+            return H
         H = self.rods.hessian(with_rest_lengths)
-        g = self.rods.gradient()
         J = self._jacobian()
-        if with_rest_lengths:
-            J = sp.block_diag([J, self.rest_length_map], format="csr")
+        J = sp.block_diag([J, self.rest_length_map], format="csr")
         Hx = J.T.tocsr() @ (H @ J)
-        w = g[self._inst_rows]
-        Hj = jk.weighted_hessian(self._instance_q(self._x), self._inst_prm, w)
+        Hj = self._joint_hessian_blocks()
         n_inst = Hj.shape[2]
         base = (9 * self._inst_joint)[None, None, :]
         rows = np.broadcast_to(base + np.arange(9)[:, None, None], (9, 9, n_inst)).ravel()
         cols = np.broadcast_to(base + np.arange(9)[None, :, None], (9, 9, n_inst)).ravel()
         size = Hx.shape[0]
-        return (Hx + sp.csr_matrix((Hj.ravel(), (rows, cols)), shape=(size, size))).tocsr()
+        H = (Hx + sp.csr_matrix((Hj.ravel(), (rows, cols)), shape=(size, size))).tocsr()
+        c[key] = H
+        return H
 
     def mass_matrix(self) -> sp.csr_matrix:
         """``Jᵀ M J`` with ``M`` the rods' lumped mass: symmetric positive definite, not lumped."""
@@ -452,3 +543,142 @@ class Linkage:
 
     def summary(self) -> dict:
         return {"segments": self.num_segments, "joints": self.num_joints, "dof": self.num_vars, "subdivision": self.subdivision}
+
+
+def _rotate(w: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``exp([ω]×) v`` row by row (Rodrigues; series near ``ω = 0``), NumPy twin of :func:`.joints.rotate`."""
+    th2 = np.sum(w * w, axis=1)
+    small = th2 < 1e-8
+    safe = np.where(small, 1.0, th2)
+    th = np.sqrt(safe)
+    a = np.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, np.sin(th) / th)
+    b = np.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - np.cos(th)) / safe)
+    wv = np.cross(w, v)
+    return v + a[:, None] * wv + b[:, None] * np.cross(w, wv)
+
+
+def _update_rod_source_frame(rods: ElasticRods) -> None:
+    """:meth:`ElasticRods.update_source_frame` in NumPy (the rods' version calls the JAX reference twist)."""
+    t, _ = frames.unit_tangents(rods.points, rods.edges)
+    d1 = frames.transport(rods.t_src, t, rods.d1_src)
+    if rods.num_stencils:
+        e0, e1 = rods.stencil_edges[:, 0], rods.stencil_edges[:, 1]
+        t0, t1, r0, r1 = t[e0], t[e1], d1[e0], d1[e1]
+        u = frames.transport(t0, t1, r0)
+        raw = np.arctan2(np.sum(np.cross(u, r1) * t1, axis=1), np.sum(u * r1, axis=1))
+        rods.ref_twist_src = raw + 2.0 * np.pi * np.round((rods.ref_twist_src - raw) / (2.0 * np.pi))
+    rods.t_src, rods.d1_src = t, frames.orthonormalize(d1, t)
+
+
+class _ReducedHessianAssembler:
+    """Assemble ``Jᵀ H_rods J + Σ ∇²(g·joint_map)`` straight into the reduced variables.
+
+    ``J`` is the identity on the rods' free variables; only the variables of
+    the joint-controlled terminal edges map nonlinearly (7 outputs of 9 joint
+    variables per instance). Every rod stencil (vertex: 11 variables, edge: 6)
+    is classified once by which of its variables are controlled and by which
+    instance; a stencil with none goes to the reduced pattern as it is, one
+    with some is transformed as ``Pᵀ B P`` with ``P`` its local Jacobian (the
+    free variables, then the 9 variables of each joint involved). The pattern
+    and, for each source array (vertex blocks, edge blocks, transformed and
+    joint blocks), a sparse 0/1 matrix that sums its entries into the CSR data
+    are built once; a call is three sparse matrix-vector products.
+    """
+
+    def __init__(self, L: "Linkage"):
+        rods = L.rods
+        nv = rods.num_vars
+        n_inst = L._inst_rows.shape[1]
+        rod2red = np.full(nv, -1, np.int64)
+        rod2red[L._free_rod] = L._free_reduced
+        ctrl_inst = np.full(nv, -1, np.int64)
+        ctrl_out = np.full(nv, -1, np.int64)
+        ctrl_inst[L._inst_rows] = np.broadcast_to(np.arange(n_inst)[None, :], L._inst_rows.shape)
+        ctrl_out[L._inst_rows] = np.broadcast_to(np.arange(7)[:, None], L._inst_rows.shape)
+        inst_joint = L._inst_joint
+        size = L.num_vars
+        self.shape = (size, size)
+        # every contribution: (source 0 = vertex blocks, 1 = edge blocks, 2 = transformed buffer), flat position, row, col
+        entries = {0: [], 1: [], 2: []}
+        self.groups = []  # (kind, stencil ids, k, free locals, [(local, slot, output)], slot instances, P, offset)
+        toff = 0
+        src_shape = {"v": (13, 13, rods.num_stencils), "e": (7, 7, rods.num_edges)}
+        for kind, idx_all in (("v", rods.vertex_index[:11]), ("e", rods.edge_index[:6])):
+            k, N = idx_all.shape
+            if N == 0:
+                continue
+            src = 0 if kind == "v" else 1
+            K0, _, Ns = src_shape[kind]
+            inst = ctrl_inst[idx_all]
+            first = np.where(inst >= 0, inst, np.iinfo(np.int64).max).min(axis=0)
+            second = inst.max(axis=0)
+            slot = np.where(inst < 0, -1, np.where(inst == first[None, :], 0, 1))
+            code = np.where(inst < 0, -1, slot * 7 + ctrl_out[idx_all])
+            sigs, which = np.unique(code.T, axis=0, return_inverse=True)
+            which = np.asarray(which).ravel()
+            for gi, sig in enumerate(sigs):
+                ids = np.flatnonzero(which == gi)
+                free_l = np.flatnonzero(sig < 0)
+                ctrl_l = [(int(l), int(sig[l]) // 7, int(sig[l]) % 7) for l in np.flatnonzero(sig >= 0)]
+                if not ctrl_l:
+                    red = rod2red[idx_all[:, ids]]  # (k, n)
+                    aa, bb = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+                    pos = (aa[:, :, None] * K0 + bb[:, :, None]) * Ns + ids[None, None, :]
+                    entries[src].append((pos.ravel(), np.broadcast_to(red[:, None, :], pos.shape).ravel(),
+                                         np.broadcast_to(red[None, :, :], pos.shape).ravel()))
+                    continue
+                nslots = 1 + max(t for _, t, _ in ctrl_l)
+                slot_inst = [first[ids]] + ([second[ids]] if nslots == 2 else [])
+                m = len(free_l) + 9 * nslots
+                P = np.zeros((len(ids), k, m))
+                P[:, free_l, np.arange(len(free_l))] = 1.0
+                rows = [rod2red[idx_all[free_l][:, ids]]]
+                for si in slot_inst:
+                    rows.append((9 * inst_joint[si])[None, :] + np.arange(9)[:, None])
+                red = np.concatenate(rows).astype(np.int64)  # (m, n)
+                n = len(ids)
+                pos = toff + np.arange(n * m * m).reshape(n, m, m)  # buffer layout (n, m, m)
+                entries[2].append((pos.ravel(), np.broadcast_to(red.T[:, :, None], (n, m, m)).ravel(),
+                                   np.broadcast_to(red.T[:, None, :], (n, m, m)).ravel()))
+                self.groups.append((kind, ids, k, free_l, ctrl_l, slot_inst, P, toff))
+                toff += n * m * m
+        red = (9 * inst_joint)[None, :] + np.arange(9)[:, None]  # (9, n_inst)
+        pos = toff + np.arange(n_inst * 81).reshape(n_inst, 9, 9)
+        entries[2].append((pos.ravel(), np.broadcast_to(red.T[:, :, None], pos.shape).ravel(),
+                           np.broadcast_to(red.T[:, None, :], pos.shape).ravel()))
+        self.joint_offset = toff
+        self.buffer = np.zeros(toff + 81 * n_inst)
+        all_r = np.concatenate([e[1] for es in entries.values() for e in es])
+        all_c = np.concatenate([e[2] for es in entries.values() for e in es])
+        keys = np.unique(all_r * size + all_c)
+        self.indices = (keys % size).astype(np.int32)
+        self.indptr = np.searchsorted(keys // size, np.arange(size + 1)).astype(np.int32)
+        self.nnz = len(keys)
+        sizes = {0: 169 * rods.num_stencils, 1: 49 * rods.num_edges, 2: len(self.buffer)}
+        self.gather = {}
+        for src, es in entries.items():
+            if not es:
+                continue
+            posv = np.concatenate([e[0] for e in es])
+            slots = np.searchsorted(keys, np.concatenate([e[1] for e in es]) * size + np.concatenate([e[2] for e in es]))
+            self.gather[src] = sp.csr_matrix((np.ones(len(posv)), (slots, posv)), shape=(self.nnz, sizes[src]))
+
+    def assemble(self, hv, he, jac, hj) -> sp.csr_matrix:
+        buf = self.buffer
+        for kind, ids, k, free_l, ctrl_l, slot_inst, P, off in self.groups:
+            B = hv if kind == "v" else he
+            nf = len(free_l)
+            for l, t, o in ctrl_l:
+                P[:, l, nf + 9 * t : nf + 9 * t + 9] = jac[o][:, slot_inst[t]].T
+            Bg = np.ascontiguousarray(B[:k, :k][:, :, ids].transpose(2, 0, 1))
+            n, _, m = P.shape
+            np.matmul(P.transpose(0, 2, 1), np.matmul(Bg, P), out=buf[off : off + n * m * m].reshape(n, m, m))
+        buf[self.joint_offset :].reshape(-1, 9, 9)[:] = hj.transpose(2, 0, 1)
+        data = self.gather[2] @ buf
+        if 0 in self.gather:
+            data += self.gather[0] @ hv.ravel()
+        if 1 in self.gather:
+            data += self.gather[1] @ he.ravel()
+        H = sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+        H.has_canonical_format = True
+        return H

@@ -15,12 +15,14 @@ most negative generalized eigenvector of ``H d = λ M d``.
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..sparse import PatternSum, PrincipalSubmatrix
 from .cholesky import NotPositiveDefinite, SparseCholesky
 
 
@@ -75,6 +77,79 @@ class NewtonReport:
     multiplier: float = 0.0
 
 
+class _ReusableCholesky:
+    """A :class:`SparseCholesky` that skips the numeric factorization when asked
+    for the very matrix it factored last (consecutive deployment steps start
+    where the previous one's positive-definiteness check ended)."""
+
+    def __init__(self):
+        self.chol = SparseCholesky()
+        self._last = None
+
+    def factorize(self, A: sp.csr_matrix) -> None:
+        last = self._last
+        if (last is not None and A.shape == last[3] and len(A.data) == len(last[2])
+                and (A.indptr is last[0] or np.array_equal(A.indptr, last[0]))
+                and (A.indices is last[1] or np.array_equal(A.indices, last[1])) and np.array_equal(A.data, last[2])):
+            return
+        self._last = None
+        self.chol.factorize(A)
+        self._last = (A.indptr, A.indices, A.data.copy(), A.shape)
+
+    def solve(self, b):
+        return self.chol.solve(b)
+
+
+class _Workspace:
+    """What one problem's successive :func:`minimize` calls can share: the
+    free-variable gather map, the union pattern of the augmented Hessian, the
+    Cholesky factor (symbolic analysis and, for an unchanged matrix, the numeric
+    one) and the augmentation weight of a repeated constraint."""
+
+    def __init__(self):
+        self.chol = _ReusableCholesky()
+        self.sub = None  # (free index key, PrincipalSubmatrix)
+        self.sums = {}
+        self.aug = None  # (a copy, ρ)
+
+    def free_part(self, H, free_idx, n):
+        if H.format != "csr":
+            H = H.tocsr()
+        if len(free_idx) == n:
+            return H
+        sub = self.sub
+        if sub is None or not np.array_equal(sub[0], free_idx) or not sub[1].matches(H):
+            if not H.has_canonical_format:
+                H = H.copy()
+                H.sum_duplicates()
+            sub = self.sub = (free_idx.copy(), PrincipalSubmatrix(H, free_idx))
+        return sub[1](H)
+
+    def combine(self, name, mats, coefficients):
+        """``Σ c_i mats_i`` on a cached union pattern."""
+        mats = [M if (M.format == "csr" and M.has_canonical_format) else sp.csr_matrix(M, copy=True) for M in mats]
+        for M in mats:
+            if not M.has_canonical_format:
+                M.sum_duplicates()
+        ps = self.sums.get(name)
+        if ps is None or not ps.matches(*mats):
+            ps = self.sums[name] = PatternSum(*mats)
+        return ps(mats, coefficients)
+
+
+_workspaces: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _workspace(problem) -> _Workspace:
+    try:
+        ws = _workspaces.get(problem)
+        if ws is None:
+            ws = _workspaces[problem] = _Workspace()
+        return ws
+    except TypeError:  # not weak-referenceable or not hashable: nothing shared
+        return _Workspace()
+
+
 def _largest_eigenvalue(A: sp.spmatrix) -> float:
     try:
         return float(spla.eigsh(A, k=1, which="LA", tol=1e-2, return_eigenvectors=False, maxiter=200, v0=np.ones(A.shape[0]))[0])
@@ -120,11 +195,17 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         free[np.asarray(fixed, dtype=int)] = False
     free_idx = np.flatnonzero(free)
     f = np.zeros(n) if force is None else np.asarray(force, float)
-    chol = SparseCholesky()
+    ws = _workspace(problem)
+    chol = ws.chol
     sigma, sigma0 = 0.0, None
-    M_full = sp.csr_matrix(problem.mass_matrix())
-    M = M_full[free_idx][:, free_idx]
     lam_M = None
+    _mass = []
+
+    def mass():
+        """The free-variable mass matrix (only needed for indefinite Hessians)."""
+        if not _mass:
+            _mass.append(sp.csr_matrix(sp.csr_matrix(problem.mass_matrix())[free_idx][:, free_idx]))
+        return _mass[0]
 
     def objective() -> float:
         return problem.energy() - f @ problem.get_vars()
@@ -134,8 +215,13 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         target = float(constraint[1])
         a = a_full[free_idx]
         aa = float(a @ a)
-        a_sparse = sp.csr_matrix(a[None, :])
+        nz = np.flatnonzero(a)
+        # a aᵀ as a sparse matrix on the support of a (a dense block there)
+        a_outer = sp.csr_matrix((np.outer(a[nz], a[nz]).ravel(), np.tile(nz, len(nz)), len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))),
+                                shape=(len(a), len(a)))
         aug = None  # ρ of the augmented Hessian H + ρ a aᵀ, set from the first Hessian
+        if ws.aug is not None and ws.aug[0].shape == a.shape and np.array_equal(ws.aug[0], a):
+            aug = ws.aug[1]  # the same constraint as the previous call: the same ρ (and a reusable factor)
 
     def hessian():
         """The free-variable Hessian; with a constraint, augmented by ρ a aᵀ.
@@ -146,12 +232,16 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         actuated direction is not mistaken for a saddle.
         """
         nonlocal aug
-        H = sp.csr_matrix(problem.hessian())[free_idx][:, free_idx]
+        H = ws.free_part(problem.hessian(), free_idx, n)
         if constraint is None:
             return H
         if aug is None:
             aug = float(np.abs(H.diagonal()).max()) / aa
-        return (H + aug * (a_sparse.T @ a_sparse)).tocsr()
+            ws.aug = (a.copy(), aug)
+        return ws.combine("aug", [H, a_outer], [1.0, aug])
+
+    def shifted(H, sigma):
+        return ws.combine("shift", [H, mass()], [1.0, sigma])
 
     for it in range(options.max_iterations + 1):
         g = (problem.gradient() - f)[free_idx]
@@ -185,16 +275,16 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             H = hessian()
         indefinite = False
         try:
-            chol.factorize(H if sigma == 0 else H + sigma * M)
+            chol.factorize(H if sigma == 0 else shifted(H, sigma))
         except NotPositiveDefinite:
             indefinite = True
             if sigma0 is None:
-                lam_M = lam_M or _largest_eigenvalue(M)
+                lam_M = lam_M or _largest_eigenvalue(mass())
                 sigma0 = options.sigma_factor * _largest_eigenvalue(H) / lam_M
             sigma = sigma0 if sigma == 0 else 4 * sigma
             while True:
                 try:
-                    chol.factorize(H + sigma * M)
+                    chol.factorize(shifted(H, sigma))
                     break
                 except NotPositiveDefinite:
                     sigma *= 4
@@ -210,7 +300,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             # Is H itself indefinite? (the shift may just be decaying)
             report.indefinite_events += int(indefinite)
             if indefinite and gnorm < options.saddle_gradient_factor * options.gradient_tolerance:
-                v = _most_negative_direction(H, M, chol, sigma)
+                v = _most_negative_direction(H, mass(), chol, sigma)
                 if v is not None:
                     step = options.saddle_step or 1e-3
                     if hasattr(problem, "min_arc_length") and options.saddle_step is None:
