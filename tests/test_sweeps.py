@@ -1,0 +1,187 @@
+"""Design-space sweeps: Dask cluster vs serial, failures recorded, resume, spec errors."""
+import csv
+import json
+import os
+
+import numpy as np
+import pytest
+
+from xshells.cli import main
+from xshells.errors import InputError
+from xshells.io.export import write_design_obj
+from xshells.linkage.grids import rhombic_grid
+from xshells.sweeps import SweepSettings, load_spec, run_sweep, spec_from_dict
+from xshells.sweeps.summary import write_summary
+from xshells.sweeps.tasks import REGISTRY, register_task
+
+from data_paths import EXAMPLES
+
+ANGLES = [60, 65, 70, 75, 80, 85, 90, 185]  # 185°: out of reach, fails inside the task at run time
+RESULTS = ("energy", "average_angle_deg", "max_abs_z", "torque", "flat_energy")
+
+
+def small_grid(path):
+    """A 3×3 grid whose joint spacing shrinks towards the rim: it buckles, in about a second."""
+    def warp(p):
+        r = np.linalg.norm(p, axis=1, keepdims=True)
+        return p * (1.0 - 0.25 * (r / r.max()) ** 2)
+
+    write_design_obj(path, rhombic_grid(3, 3, spacing=100.0, angle=np.radians(30), warp=warp))
+
+
+@pytest.fixture(scope="module")
+def sweep_file(tmp_path_factory):
+    d = tmp_path_factory.mktemp("spec")
+    small_grid(d / "grid.obj")
+    spec = {"name": "grid", "task": "deploy",
+            "base": {"file": "grid.obj", "subdivision": 4, "steps": 4,
+                     "material": {"type": "rectangle", "E": 2000, "nu": 0.3, "params": [4.0, 1.5]}},
+            "axes": {"angle_deg": ANGLES}}
+    path = d / "sweep.json"
+    path.write_text(json.dumps(spec))
+    return path
+
+
+@pytest.fixture(scope="module")
+def cluster_run(sweep_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("cluster")
+    spec = load_spec(sweep_file)
+    seen = []
+    report = run_sweep(spec, str(out), SweepSettings(workers=2), progress=lambda p: seen.append(p) and False)
+    return spec, out, report, seen
+
+
+def test_two_worker_cluster_finishes_and_records_the_failure(cluster_run):
+    spec, out, report, seen = cluster_run
+    assert len(spec.tasks) == 8 and report.ran == 8 and not report.stopped
+    by_angle = {r["params"]["angle_deg"]: r for r in report.records}
+    assert by_angle[185.0]["status"] == "failed"
+    assert "out of reach" in by_angle[185.0]["error"] and "\n" not in by_angle[185.0]["error"]
+    for a in ANGLES[:-1]:
+        assert by_angle[float(a)]["status"] == "ok", by_angle[float(a)]["error"]
+        assert abs(by_angle[float(a)]["result"]["average_angle_deg"] - a) < 1e-6
+    assert len({r["pid"] for r in report.records}) == 2  # really ran on both workers
+    # streamed: a folder per task, its marker, the table in sweep order
+    with open(out / "results.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["id"] for r in rows] == [t.id for t in spec.tasks]
+    assert [r["status"] for r in rows].count("failed") == 1
+    for t in spec.tasks:
+        assert (out / "tasks" / t.id / "task.json").is_file()
+    assert (out / "tasks" / spec.tasks[0].id / "deployed.png").is_file()
+    # progress reached the end with an ETA going to zero
+    assert [p.done for p in seen] == list(range(1, 9)) and seen[-1].eta_s == 0.0 and seen[-1].failed == 1
+    plots = write_summary(str(out), spec, {r["id"]: r for r in report.records})
+    assert {os.path.basename(p) for p in plots} == {"contact_sheet.png", "energy_vs_angle.png"}
+
+
+def test_serial_gives_the_same_numbers(cluster_run, tmp_path):
+    spec, _, report, _ = cluster_run
+    serial = run_sweep(spec, str(tmp_path), SweepSettings(workers=0, max_tasks=2))
+    assert serial.ran == 2 and {r["pid"] for r in serial.records} == {os.getpid()}
+    cluster = {r["id"]: r for r in report.records}
+    for rec in serial.records:
+        for k in RESULTS:
+            assert rec["result"][k] == pytest.approx(cluster[rec["id"]]["result"][k], rel=1e-9, abs=1e-12), k
+
+
+def test_shipped_files_give_the_same_numbers_and_outputs(cluster_run, tmp_path):
+    spec, _, report, _ = cluster_run
+    shipped = run_sweep(spec, str(tmp_path), SweepSettings(scheduler="serial", ship_files=True, max_tasks=1))
+    rec = shipped.records[0]
+    assert rec["params"] == spec.tasks[0].params  # recorded as given, not the scratch copy
+    ref = next(r for r in report.records if r["id"] == rec["id"])
+    assert rec["result"]["energy"] == pytest.approx(ref["result"]["energy"], rel=1e-9)
+    assert (tmp_path / "tasks" / rec["id"] / "deployed.png").is_file()
+
+
+def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
+    spec = spec_from_dict({"task": "noop", "axes": {"sleep_s": [0.0, 0.001, 0.002, 0.003, 0.004]}}, str(tmp_path))
+    first = run_sweep(spec, str(tmp_path), SweepSettings(workers=0), progress=lambda p: p.done == 2)
+    assert first.stopped and first.ran == 2
+    marks = {t.id: os.stat(tmp_path / "tasks" / t.id / "task.json").st_mtime_ns
+             for t in spec.tasks if (tmp_path / "tasks" / t.id / "task.json").exists()}
+    assert len(marks) == 2
+    again = run_sweep(spec, str(tmp_path), SweepSettings(workers=0))
+    assert (again.ran, again.skipped, len(again.records)) == (3, 2, 5)
+    for tid, mtime in marks.items():
+        assert os.stat(tmp_path / "tasks" / tid / "task.json").st_mtime_ns == mtime
+    assert run_sweep(spec, str(tmp_path), SweepSettings(workers=0)).ran == 0
+
+
+def test_failed_tasks_are_kept_unless_retried(tmp_path):
+    spec = spec_from_dict({"task": "noop", "axes": {"fail": [False, "boom"]}}, str(tmp_path))
+    rep = run_sweep(spec, str(tmp_path), SweepSettings(workers=0))
+    assert [r["status"] for r in rep.records] == ["ok", "failed"] and rep.records[1]["error"] == "RuntimeError: boom"
+    assert run_sweep(spec, str(tmp_path), SweepSettings(workers=0)).ran == 0
+    assert run_sweep(spec, str(tmp_path), SweepSettings(workers=0, retry_failed=True)).ran == 1
+
+
+def test_task_ids_are_stable_and_follow_file_contents(tmp_path):
+    small_grid(tmp_path / "grid.obj")
+    d = {"base": {"file": "grid.obj", "angle_deg": 80}, "axes": {"E": [1000, 2000.0]}}
+    a, b = spec_from_dict(d, str(tmp_path)), spec_from_dict(d, str(tmp_path))
+    assert [t.id for t in a.tasks] == [t.id for t in b.tasks] and len({t.id for t in a.tasks}) == 2
+    assert spec_from_dict({**d, "axes": {"E": [1000.0, 2000]}}, str(tmp_path)).tasks[0].id == a.tasks[0].id
+    with open(tmp_path / "grid.obj", "a") as fh:
+        fh.write("# edited\n")
+    assert spec_from_dict(d, str(tmp_path)).tasks[0].id != a.tasks[0].id
+
+
+def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
+    for n in ("a", "b"):
+        small_grid(tmp_path / f"{n}.obj")
+    spec = spec_from_dict({"base": {"angle_deg": 70}, "axes": {"file": ["*.obj"], "material.params": [[4, 1.5], [5, 2]]},
+                           "cases": [{}, {"E": 1000, "angle_deg": 60}]}, str(tmp_path))
+    assert len(spec.tasks) == 8 and spec.varying_keys[:2] == ("file", "material.params")  # axes first
+    assert set(spec.varying_keys[2:]) == {"material.E", "angle_deg"}
+    assert spec.tasks[0].varying["file"] == "a.obj" and spec.tasks[2].varying["file"] == "b.obj"
+    assert spec.tasks[0].params["material"]["type"] == "rectangle"  # the case-file default material
+
+
+@pytest.mark.parametrize("data, key", [
+    ({"base": {"file": "grid.obj"}, "axis": {}}, "axis: unknown key"),
+    ({"base": {"file": "grid.obj", "angel_deg": 70}}, "base.angel_deg: unknown key"),
+    ({"base": {"file": "grid.obj"}, "axes": {"angle_deg": []}}, "axes.angle_deg: empty axis"),
+    ({"base": {"file": "missing.obj"}}, "base.file: no such file 'missing.obj'"),
+    ({"base": {"file": "grid.obj"}, "axes": {"file": ["*.msh"]}}, "axes.file[0]: no file matches"),
+    ({"base": {"file": "grid.obj", "steps": "ten"}}, "base.steps: must be a whole number"),
+    ({"base": {"file": "grid.obj"}, "axes": {"E": [2000, -1]}}, "axes.E[1]: must be > 0"),
+    ({"base": {"file": "grid.obj", "material": {"type": "rectangle", "parms": [1, 2]}}}, "base.material.parms: unknown key"),
+    ({"base": {"file": "grid.obj"}, "axes": {"eta": [0.1]}}, "axes.eta: unknown key"),
+    ({"task": "sparsify", "base": {"file": "grid.obj"}, "axes": {"p": [0.5, 2]}}, "axes.p[1]: must be ≤ 1"),
+    ({"task": "explode", "base": {"file": "grid.obj"}}, "task: unknown task 'explode'"),
+    ({"axes": {"angle_deg": [70]}}, "base.file: missing"),
+])
+def test_spec_errors_name_the_key(tmp_path, data, key):
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict(data, str(tmp_path))
+    assert key in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_a_task_whose_module_is_missing_is_refused_before_anything_runs(tmp_path, capsys):
+    register_task("later", "xshells.not_written_yet:sweep_task")
+    try:
+        (tmp_path / "s.yaml").write_text("task: later\nbase: {file: grid.obj}\n")
+        small_grid(tmp_path / "grid.obj")
+        assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err == "xshells sweep: error: task 'later' is not available yet"
+        assert not (tmp_path / "out").exists()
+    finally:
+        del REGISTRY["later"]
+
+
+def test_cli_serial_sweep_and_bad_yaml(tmp_path, capsys):
+    (tmp_path / "s.yaml").write_text("task: noop\naxes:\n  sleep_s: [0, 0.001]\n")
+    assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--workers", "0", "--no-progress"]) == 0
+    assert "2 tasks, 2 run now" in capsys.readouterr().out
+    (tmp_path / "bad.yaml").write_text("task: [noop\n")
+    assert main(["sweep", str(tmp_path / "bad.yaml"), "--out", str(tmp_path / "o2")]) == 2
+    assert "not valid YAML" in capsys.readouterr().err
+
+
+def test_bundled_example_spec_is_valid():
+    spec = load_spec(EXAMPLES / "sweep_example.yaml")
+    assert spec.task == "deploy" and len(spec.tasks) == 8

@@ -1,0 +1,337 @@
+"""Running a sweep: serially in-process, on a local Dask cluster, or on an existing scheduler.
+
+Layout of the output folder::
+
+    DIR/sweep.json          the expanded tasks (id -> parameters)
+    DIR/results.csv         one row per finished task, rewritten atomically after each
+    DIR/tasks/<id>/         the task's own files (deployed.png, result.json, ...)
+    DIR/tasks/<id>/task.json  written last: its presence marks the task finished
+
+Only the client writes ``task.json`` and ``results.csv``; workers write their
+task folder (``ship_files=False``, the folder must be on a shared file
+system) or send the folder back as bytes (``ship_files=True``, design files
+are then shipped to the workers too, so nothing needs to be shared).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import sys
+import tempfile
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Callable
+
+from ..io.export import atomic_write_text
+from .spec import PATH_KEYS, SweepSpec, Task
+from .tasks import get_task
+
+FINISHED = ("ok", "diverged", "failed")
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """How a sweep runs.
+
+    Attributes
+    ----------
+    workers : int or None
+        Worker processes of the local cluster (None: one per core; 0: run
+        serially in this process). Ignored with ``scheduler``.
+    scheduler : str or None
+        Address of a running Dask scheduler (``tcp://host:8786``), or
+        ``"serial"`` for in-process execution.
+    ship_files : bool
+        Send input files to workers and outputs back as bytes (no shared file system needed).
+    retry_failed : bool
+        Re-run tasks recorded as failed or diverged (finished ``ok`` tasks are always kept).
+    max_tasks : int or None
+        Run at most this many tasks now (the rest on a later run).
+    """
+
+    workers: int | None = None
+    scheduler: str | None = None
+    ship_files: bool = False
+    retry_failed: bool = False
+    max_tasks: int | None = None
+
+    @property
+    def serial(self) -> bool:
+        return self.scheduler == "serial" or (self.scheduler is None and self.workers == 0)
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What a progress callback receives after each finished task."""
+
+    done: int          # finished in this run
+    total: int         # to run in this run
+    skipped: int       # already finished before this run
+    failed: int        # failed or diverged in this run
+    elapsed_s: float
+    eta_s: float       # remaining time, extrapolated from the tasks finished so far
+    record: dict       # the task.json content of the task just finished
+
+
+@dataclass(frozen=True)
+class SweepReport:
+    records: tuple     # task.json contents in sweep order (finished tasks only)
+    ran: int
+    skipped: int
+    failed: int
+    wall_s: float
+    stopped: bool
+
+
+def task_dir(out_dir: str, task: Task) -> str:
+    return os.path.join(out_dir, "tasks", task.id)
+
+
+def read_record(out_dir: str, task: Task) -> dict | None:
+    """The finished record of ``task`` in ``out_dir``, or None."""
+    try:
+        with open(os.path.join(task_dir(out_dir, task), "task.json"), encoding="utf-8") as fh:
+            rec = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return None
+    return rec if rec.get("status") in FINISHED and rec.get("id") == task.id else None
+
+
+def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSettings(), *,
+              progress: Callable[[Progress], bool | None] | None = None) -> SweepReport:
+    """Run the unfinished tasks of ``spec``, streaming results into ``out_dir``.
+
+    Parameters
+    ----------
+    progress : callable, optional
+        Called with a :class:`Progress` after each task; returning True stops
+        the sweep (tasks not finished are cancelled; a re-run resumes).
+
+    Returns
+    -------
+    SweepReport
+    """
+    from .summary import write_results_csv
+
+    taskdef = get_task(spec.task)  # raises "not available yet" before anything runs
+    os.makedirs(os.path.join(out_dir, "tasks"), exist_ok=True)
+    _write_manifest(spec, out_dir)
+    records = {t.id: read_record(out_dir, t) for t in spec.tasks}
+    todo = [t for t in spec.tasks if records[t.id] is None
+            or (settings.retry_failed and records[t.id]["status"] != "ok")]
+    skipped = len(spec.tasks) - len(todo)
+    if settings.max_tasks is not None:
+        todo = todo[: max(settings.max_tasks, 0)]
+    write_results_csv(out_dir, spec, records)
+    t0 = time.perf_counter()
+    done = failed = 0
+    stopped = False
+
+    def finish(task: Task, rec: dict) -> bool:
+        nonlocal done, failed
+        outputs = rec.pop("_outputs", None)
+        folder = task_dir(out_dir, task)
+        os.makedirs(folder, exist_ok=True)
+        if outputs:
+            _unpack(outputs, folder)
+        atomic_write_text(os.path.join(folder, "task.json"), json.dumps(rec, indent=1, default=_json_default))
+        records[task.id] = rec
+        write_results_csv(out_dir, spec, records)
+        done += 1
+        failed += rec["status"] != "ok"
+        if progress is None:
+            return False
+        elapsed = time.perf_counter() - t0
+        eta = elapsed / done * (len(todo) - done)
+        return bool(progress(Progress(done, len(todo), skipped, failed, elapsed, eta, rec)))
+
+    if todo:
+        fn = taskdef.fn  # ship the function (or its "module:attr"), not the checks
+        if settings.serial:
+            for task in todo:
+                files = {p: _read_bytes(p) for p in _paths(task.params)} if settings.ship_files else None
+                if finish(task, execute_task(spec.task, fn, task.id, task.params, task_dir(out_dir, task), files)):
+                    stopped = True
+                    break
+        else:
+            stopped = _run_dask(spec, out_dir, settings, fn, todo, finish)
+    ordered = tuple(records[t.id] for t in spec.tasks if records[t.id] is not None)
+    return SweepReport(ordered, done, skipped, failed, time.perf_counter() - t0, stopped)
+
+
+def _run_dask(spec, out_dir, settings, fn, todo, finish) -> bool:
+    """Submit every task to Dask, record them as they complete; True when stopped early."""
+    import logging
+    import warnings
+
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if settings.scheduler:
+        client = Client(settings.scheduler)
+    else:
+        n = settings.workers or os.cpu_count() or 1
+        # processes, one thread each: the solvers hold the GIL and JAX/BLAS threads would oversubscribe
+        with warnings.catch_warnings():  # "port 8787 in use" when another cluster runs here: harmless
+            warnings.simplefilter("ignore", UserWarning)
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+        client = Client(cluster)
+    stopped = False
+    try:
+        ship = {}
+        if settings.ship_files:
+            paths = sorted({p for t in todo for p in _paths(t.params)})
+            # scattered once, each worker fetches a file once however many tasks use it
+            ship = {p: client.scatter(_read_bytes(p), hash=True) for p in paths}
+        run_id = uuid.uuid4().hex[:8]  # keys unique per run: several sweeps may share one scheduler
+        futures = {}
+        for task in todo:
+            files = {p: ship[p] for p in _paths(task.params)} if ship else None
+            f = client.submit(execute_task, spec.task, fn, task.id, task.params, task_dir(out_dir, task), files,
+                              key=f"xshells-sweep-{task.id}-{run_id}", pure=False)
+            futures[f.key] = (f, task)
+        pending = as_completed([f for f, _ in futures.values()])
+        for f in pending:
+            task = futures[f.key][1]
+            try:
+                rec = f.result()
+            except Exception as exc:  # the worker died (KilledWorker, out of memory, ...)
+                rec = _record(spec.task, task.id, task.params, "failed", _one_line(exc), {}, 0.0, time.time())
+            if finish(task, rec):
+                stopped = True
+                client.cancel([g for g, _ in futures.values() if not g.done()])
+                break
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return stopped
+
+
+def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, files: dict | None) -> dict:
+    """Run one task where it lands (a worker or this process); never raises for a task's own failure.
+
+    With ``files`` (path -> bytes) the inputs are written to a scratch folder,
+    the task runs there and its outputs come back under ``_outputs``.
+    """
+    from .tasks import TaskDef
+
+    started = time.time()
+    t0 = time.perf_counter()
+    scratch = None
+    given = params  # recorded as given, not as relocated into the scratch folder
+    try:
+        if files is not None:
+            scratch = tempfile.mkdtemp(prefix="xshells-sweep-")
+            params = _relocate(params, files, scratch)
+            out_dir = os.path.join(scratch, "out")
+        os.makedirs(out_dir, exist_ok=True)
+        try:
+            result = TaskDef(task_name, fn)(params, out_dir)
+            status = "ok" if result.get("converged", True) else "diverged"
+            error = "" if status == "ok" else str(result.get("message", "did not converge"))
+        except Exception as exc:  # a task's failure is data, the sweep goes on
+            result, status, error = {}, "failed", _one_line(exc)
+        rec = _record(task_name, task_id, given, status, error, result, time.perf_counter() - t0, started)
+        if scratch is not None:
+            rec["_outputs"] = _pack(out_dir)
+        return rec
+    finally:
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _record(task_name, task_id, params, status, error, result, elapsed, started) -> dict:
+    import resource
+
+    scalars = {k: v for k, v in result.items() if isinstance(v, (bool, int, float, str)) or v is None}
+    return {
+        "id": task_id,
+        "task": task_name,
+        "status": status,
+        "error": error,
+        "result": scalars,
+        "params": params,
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(started)),
+        "elapsed_s": elapsed,
+        # peak resident memory of the process that ran it (KiB on Linux): what a worker needs per task
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1024 if sys.platform != "darwin" else 1024**2),
+        "host": socket.gethostname(),
+        "pid": os.getpid(),
+    }
+
+
+def _one_line(exc: BaseException) -> str:
+    msg = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+
+
+def _json_default(v):
+    if hasattr(v, "item"):  # numpy scalars
+        return v.item()
+    if hasattr(v, "tolist"):
+        return v.tolist()
+    return str(v)
+
+
+def _paths(params: dict) -> list:
+    out = []
+    for key in PATH_KEYS:
+        head, _, tail = key.partition(".")
+        v = params.get(head, {}).get(tail) if tail else params.get(head)
+        if v:
+            out.append(v)
+    return out
+
+
+def _relocate(params: dict, files: dict, scratch: str) -> dict:
+    """Write shipped inputs under ``scratch`` and point ``params`` at them."""
+    import copy
+
+    params = copy.deepcopy(params)
+    local = {}
+    for i, (path, data) in enumerate(sorted(files.items())):
+        local[path] = os.path.join(scratch, "in", f"{i}_{os.path.basename(path)}")
+        os.makedirs(os.path.dirname(local[path]), exist_ok=True)
+        with open(local[path], "wb") as fh:
+            fh.write(data)
+    for key in PATH_KEYS:
+        head, _, tail = key.partition(".")
+        holder, k = (params.get(head), tail) if tail else (params, head)
+        if isinstance(holder, dict) and holder.get(k) in local:
+            holder[k] = local[holder[k]]
+    return params
+
+
+def _read_bytes(path: str) -> bytes:
+    with open(path, "rb") as fh:
+        return fh.read()
+
+
+def _pack(folder: str) -> dict:
+    out = {}
+    for root, _, names in os.walk(folder):
+        for n in names:
+            p = os.path.join(root, n)
+            out[os.path.relpath(p, folder)] = _read_bytes(p)
+    return out
+
+
+def _unpack(files: dict, folder: str) -> None:
+    for rel, data in files.items():
+        path = os.path.join(folder, rel)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        tmp = path + ".tmp"
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+
+
+def _write_manifest(spec: SweepSpec, out_dir: str) -> None:
+    manifest = {"name": spec.name, "task": spec.task, "base_dir": spec.base_dir, "varying": list(spec.varying_keys),
+                "tasks": [{"id": t.id, "index": t.index, "varying": t.varying, "params": t.params} for t in spec.tasks]}
+    atomic_write_text(os.path.join(out_dir, "sweep.json"), json.dumps(manifest, indent=1, default=_json_default))

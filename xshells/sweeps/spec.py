@@ -1,0 +1,297 @@
+"""Sweep files: a base case, axes to vary, a task; checked before anything runs.
+
+A sweep file (YAML or JSON) holds::
+
+    name: quads            # optional; default: the file's name
+    task: deploy           # a registered task (xshells.sweeps.tasks)
+    base:                  # a case: the keys of a case JSON, paths relative to this file
+      file: quad.obj
+      subdivision: 5
+      material: {type: rectangle, E: 20000, nu: 0.3, params: [0.01, 0.005]}
+      angle_deg: 80
+      steps: 5
+    axes:                  # Cartesian product, in this order
+      file: ["*.obj"]      # files or globs
+      material.params: [[0.01, 0.005], [0.012, 0.006]]
+      angle_deg: [70, 80]
+    cases:                 # optional: explicit overrides, each crossed with the axes
+      - {}
+      - {material.E: 2000}
+
+Axis and case keys are dotted paths into the case (``material.E``; ``E``,
+``nu`` and ``params`` are short for ``material.*``) or task parameters
+(``eta``, ``p`` for sparsify; ``gamma``, ``beta`` for optimize). Every error
+is one line naming the key, e.g. ``axes.angle_deg: empty axis``.
+"""
+from __future__ import annotations
+
+import copy
+import glob
+import hashlib
+import itertools
+import json
+import os
+from dataclasses import dataclass
+
+from ..errors import InputError
+from . import tasks as T
+
+TOP_KEYS = ("name", "task", "base", "axes", "cases")
+ALIASES = {"E": "material.E", "young": "material.E", "nu": "material.nu", "params": "material.params",
+           "stiff_axis": "material.stiff_axis", "design": "file", "flat_file": "file"}
+PATH_KEYS = ("file", "rest_lengths", "material.contour_file")
+ANGLE_KEYS = ("angle_deg", "angle_rad", "open_by_deg")
+
+CASE_CHECKS = {
+    "name": T.text,
+    "file": T.text,
+    "rest_lengths": T.optional(T.text),
+    "subdivision": T.number(1, integer=True),
+    "steps": T.number(1, integer=True),
+    "angle_deg": T.number(),
+    "angle_rad": T.number(),
+    "open_by_deg": T.number(),
+    "direction": T.choice("up", "down"),
+    "material.type": T.text,
+    "material.E": T.number(0, open_min=True),
+    "material.nu": T.number(-1, 0.5, open_min=True),
+    "material.params": T.number_list,
+    "material.stiff_axis": T.optional(T.choice("D1", "D2")),
+    "material.contour_file": T.text,
+}
+
+
+@dataclass(frozen=True)
+class Task:
+    """One sweep point.
+
+    Attributes
+    ----------
+    id : str
+        Folder name: a readable stem and a hash of the task and its
+        parameters (file *contents*, not paths), so it survives moving the
+        sweep and changes when a design file changes.
+    index : int
+        Position in the sweep (the order of ``results.csv``).
+    params : dict
+        The case and task parameters handed to the task function (absolute paths).
+    varying : dict
+        The dotted keys that differ between tasks -> this task's value (paths relative to the spec).
+    """
+
+    id: str
+    index: int
+    params: dict
+    varying: dict
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    name: str
+    task: str
+    base_dir: str
+    tasks: tuple
+    varying_keys: tuple
+
+
+def load_spec(path) -> SweepSpec:
+    """Read and check a sweep file (``.yaml``, ``.yml`` or ``.json``); one-line InputError on any problem."""
+    path = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            raw = fh.read()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read sweep file ({exc.strerror})") from None
+    if path.endswith((".yaml", ".yml")):
+        import yaml
+
+        try:
+            data = yaml.safe_load(raw)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f":{mark.line + 1}" if mark is not None else ""
+            raise InputError(f"{path}{where}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
+    else:
+        try:
+            data = json.loads(raw)
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
+    name = os.path.splitext(os.path.basename(path))[0]
+    return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name)
+
+
+def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> SweepSpec:
+    """Check a parsed sweep and expand it into tasks (paths relative to ``base_dir``)."""
+    if not isinstance(data, dict):
+        raise InputError("sweep: must be a mapping with keys task, base, axes (and optionally name, cases)")
+    _unknown(data, TOP_KEYS, "")
+    task = T.get_task(data.get("task", "deploy"))
+    allowed = dict(CASE_CHECKS) if task.case else {}
+    allowed.update(task.params)
+    base = _overrides(data.get("base") or {}, "base", allowed, base_dir)
+    if task.case and not any(k.startswith("material.") for k in base):
+        from ..deploy.case import DEFAULT_MATERIAL  # as a case file without a material
+
+        base.update({f"material.{k}": v for k, v in DEFAULT_MATERIAL.items()})
+    axes = data.get("axes") or {}
+    if not isinstance(axes, dict):
+        raise InputError("axes: must be a mapping key -> list of values")
+    axis_values = []
+    for raw_key, values in axes.items():
+        key = _key(raw_key, allowed, f"axes.{raw_key}")
+        where = f"axes.{raw_key}"
+        if isinstance(values, (str, int, float)) and key != "file":
+            raise InputError(f"{where}: must be a list of values, got {values!r}")
+        values = [values] if isinstance(values, str) else values
+        if not isinstance(values, list):
+            raise InputError(f"{where}: must be a list of values, got {values!r}")
+        if key == "file":
+            values = _expand_globs(values, base_dir, where)
+        checked = [_check(key, v, f"{where}[{i}]", allowed, base_dir) for i, v in enumerate(values)]
+        if not checked:
+            raise InputError(f"{where}: empty axis")
+        axis_values.append((key, checked))
+    cases = data.get("cases")
+    if cases is None:
+        cases = [{}]
+    if not isinstance(cases, list) or not cases:
+        raise InputError("cases: must be a non-empty list of mappings")
+    cases = [_overrides(c, f"cases[{i}]", allowed, base_dir) for i, c in enumerate(cases)]
+    if len({k for k, _ in axis_values}) != len(axis_values):
+        raise InputError("axes: a key appears twice (aliases such as E and material.E name the same key)")
+
+    points = []
+    for case in cases:
+        for combo in itertools.product(*[v for _, v in axis_values]):
+            flat = dict(base)
+            for key, value in list(case.items()) + [(k, v) for (k, _), v in zip(axis_values, combo)]:
+                if key in ANGLE_KEYS:  # a later angle of another kind replaces the earlier one
+                    for other in ANGLE_KEYS:
+                        flat.pop(other, None)
+                flat[key] = value
+            points.append(flat)
+    if task.case:
+        for p in points:
+            if "file" not in p:
+                raise InputError("base.file: missing (give a design file in base, an axis or every case)")
+    order = _ordered_keys([{k: None for k, _ in axis_values}] + points)  # axes first, in the spec's order
+    varying = tuple(k for k in order if len({_canon(p.get(k)) for p in points}) > 1)
+    tasks = []
+    seen = {}
+    for i, flat in enumerate(points):
+        tid = _task_id(task.name, flat)
+        if tid in seen:
+            raise InputError(f"cases: tasks {seen[tid]} and {i} have identical parameters")
+        seen[tid] = i
+        params = _nest(flat)
+        shown = {k: (os.path.relpath(flat[k], base_dir) if k in PATH_KEYS and flat.get(k) else flat.get(k)) for k in varying}
+        tasks.append(Task(tid, i, params, shown))
+    name = data.get("name", default_name)
+    if not isinstance(name, str) or not name:
+        raise InputError(f"name: must be a non-empty string, got {name!r}")
+    return SweepSpec(name, task.name, base_dir, tuple(tasks), varying)
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def _unknown(d: dict, known, prefix: str) -> None:
+    for k in d:
+        if k not in known:
+            raise InputError(f"{prefix}{k}: unknown key (known: {', '.join(known)})")
+
+
+def _key(raw, allowed: dict, where: str) -> str:
+    key = ALIASES.get(raw, raw) if isinstance(raw, str) else raw
+    if key not in allowed:
+        raise InputError(f"{where}: unknown key (known: {', '.join(sorted(allowed))})")
+    return key
+
+
+def _overrides(d, where: str, allowed: dict, base_dir: str) -> dict:
+    """A mapping of case keys -> checked values, ``material: {...}`` flattened into ``material.*``."""
+    if not isinstance(d, dict):
+        raise InputError(f"{where}: must be a mapping, got {d!r}")
+    out = {}
+    for raw, value in d.items():
+        if raw == "material" and "material.type" in allowed:
+            if not isinstance(value, dict):
+                raise InputError(f"{where}.material: must be a mapping {{type, E, nu, params, stiff_axis}}")
+            for sub, v in value.items():
+                key = _key("material." + str(sub) if sub != "young" else "material.E", allowed, f"{where}.material.{sub}")
+                out[key] = _check(key, v, f"{where}.material.{sub}", allowed, base_dir)
+            continue
+        key = _key(raw, allowed, f"{where}.{raw}")
+        out[key] = _check(key, value, f"{where}.{raw}", allowed, base_dir)
+    return out
+
+
+def _check(key: str, value, where: str, allowed: dict, base_dir: str):
+    try:
+        value = allowed[key](value)
+    except ValueError as exc:
+        raise InputError(f"{where}: {exc}") from None
+    if key in PATH_KEYS and value is not None:
+        path = value if os.path.isabs(value) else os.path.normpath(os.path.join(base_dir, value))
+        if not os.path.isfile(path):
+            raise InputError(f"{where}: no such file {value!r}")
+        value = path
+    return value
+
+
+def _expand_globs(values, base_dir: str, where: str) -> list:
+    out = []
+    for i, v in enumerate(values):
+        if isinstance(v, str) and any(c in v for c in "*?["):
+            pattern = v if os.path.isabs(v) else os.path.join(base_dir, v)
+            hits = sorted(glob.glob(pattern))  # sorted: the same spec gives the same task order everywhere
+            if not hits:
+                raise InputError(f"{where}[{i}]: no file matches {v!r}")
+            out.extend(hits)
+        else:
+            out.append(v)
+    return out
+
+
+def _ordered_keys(points) -> list:
+    keys = []
+    for p in points:
+        keys.extend(k for k in p if k not in keys)
+    return keys
+
+
+def _canon(v) -> str:
+    return json.dumps(v, sort_keys=True)
+
+
+_DIGESTS: dict = {}
+
+
+def _file_digest(path: str) -> str:
+    st = os.stat(path)
+    key = (path, st.st_mtime_ns, st.st_size)
+    if key not in _DIGESTS:
+        with open(path, "rb") as fh:
+            _DIGESTS[key] = hashlib.sha256(fh.read()).hexdigest()
+    return _DIGESTS[key]
+
+
+def _task_id(task: str, flat: dict) -> str:
+    ident = {k: ({"name": os.path.basename(v), "sha256": _file_digest(v)} if k in PATH_KEYS and v else v)
+             for k, v in flat.items()}
+    h = hashlib.sha256(_canon({"task": task, "params": ident}).encode()).hexdigest()[:12]
+    stem = os.path.splitext(os.path.basename(flat["file"]))[0] if flat.get("file") else task
+    stem = "".join(c if c.isalnum() or c in "-_." else "_" for c in stem)[:40]
+    return f"{stem}-{h}"
+
+
+def _nest(flat: dict) -> dict:
+    """``{"material.E": 1}`` -> ``{"material": {"E": 1}}``."""
+    out: dict = {}
+    for k, v in flat.items():
+        head, _, tail = k.partition(".")
+        if tail:
+            out.setdefault(head, {})[tail] = copy.deepcopy(v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out

@@ -1,0 +1,243 @@
+"""The task registry: what one sweep point runs.
+
+A task is a function ``fn(params: dict, out_dir: str) -> dict`` of scalar
+results. ``params`` is a case (the keys of a case JSON, paths absolute) plus
+the task's own keys; the function writes whatever files it likes into
+``out_dir``. A result with ``"converged": False`` is recorded as
+*diverged*; an exception as *failed*, with its message.
+
+Tasks whose code lives in modules still being written (``optimize``) are
+registered by name ("module:function") and imported only when used, so a
+missing module makes :func:`get_task` report "task 'optimize' is not
+available yet" before a sweep starts. To add a task::
+
+    from xshells.sweeps.tasks import register_task, number
+    register_task("mytask", "mypackage.mymodule:run_point", params={"alpha": number(minimum=0)})
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+from ..errors import InputError
+
+# ---------------------------------------------------------------- value checks
+# A check takes a value from the spec and returns it normalised (so that 80
+# and 80.0 hash to the same task), or raises ValueError with a short reason.
+
+
+def number(minimum=None, maximum=None, *, open_min=False, integer=False) -> Callable:
+    """A check for a finite number (``integer``: a whole number) within bounds."""
+    def check(v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"must be a {'whole ' if integer else ''}number, got {v!r}")
+        if integer and float(v) != int(v):
+            raise ValueError(f"must be a whole number, got {v!r}")
+        v = int(v) if integer else float(v)
+        if minimum is not None and (v <= minimum if open_min else v < minimum):
+            raise ValueError(f"must be {'>' if open_min else '≥'} {minimum:g}, got {v:g}")
+        if maximum is not None and v > maximum:
+            raise ValueError(f"must be ≤ {maximum:g}, got {v:g}")
+        return v
+    return check
+
+
+def choice(*options) -> Callable:
+    def check(v):
+        if v not in options:
+            raise ValueError(f"must be one of {', '.join(map(repr, options))}, got {v!r}")
+        return v
+    return check
+
+
+def text(v):
+    if not isinstance(v, str) or not v:
+        raise ValueError(f"must be a non-empty string, got {v!r}")
+    return v
+
+
+def optional(check: Callable) -> Callable:
+    return lambda v: None if v is None else check(v)
+
+
+def number_list(v):
+    if not isinstance(v, (list, tuple)) or not v:
+        raise ValueError(f"must be a non-empty list of numbers, got {v!r}")
+    return [number(0, open_min=True)(x) for x in v]
+
+
+def flag(v):
+    if not isinstance(v, (bool, str)):
+        raise ValueError(f"must be true/false or a message, got {v!r}")
+    return v
+
+
+# ---------------------------------------------------------------- registry
+
+
+@dataclass(frozen=True)
+class TaskDef:
+    """One registered task.
+
+    Attributes
+    ----------
+    name : str
+    fn : callable or str
+        The function, or ``"module:function"`` imported on first use.
+    params : dict
+        The task's own parameter keys -> value check.
+    case : bool
+        Whether the task takes a case (a design ``file``, material, ...).
+    requires : tuple of str
+        Further ``"module:attribute"`` that must import for the task to run.
+    """
+
+    name: str
+    fn: Callable | str
+    params: dict = field(default_factory=dict)
+    case: bool = True
+    requires: tuple = ()
+
+    def resolve(self) -> Callable:
+        """The task function; raises InputError when its module does not exist yet."""
+        for ref in self.requires:
+            _import(ref, self.name)
+        return self.fn if callable(self.fn) else _import(self.fn, self.name)
+
+    def __call__(self, params: dict, out_dir: str) -> dict:
+        return self.resolve()(params, out_dir)
+
+
+def _import(ref: str, task: str):
+    module, _, attr = ref.partition(":")
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        # only a missing provider means "not yet"; a broken import elsewhere is a real bug
+        if exc.name and (module == exc.name or module.startswith(exc.name + ".")):
+            raise InputError(f"task '{task}' is not available yet") from None
+        raise
+    if not hasattr(mod, attr):
+        raise InputError(f"task '{task}' is not available yet")
+    return getattr(mod, attr)
+
+
+REGISTRY: dict[str, TaskDef] = {}
+
+
+def register_task(name: str, fn: Callable | str, *, params: dict | None = None, case: bool = True,
+                  requires: tuple = ()) -> TaskDef:
+    """Add (or replace) a task; returns its :class:`TaskDef`."""
+    REGISTRY[name] = TaskDef(name, fn, dict(params or {}), case, tuple(requires))
+    return REGISTRY[name]
+
+
+def get_task(name) -> TaskDef:
+    """The registered task ``name``, checked importable (one-line InputError otherwise)."""
+    if not isinstance(name, str) or name not in REGISTRY:
+        raise InputError(f"task: unknown task {name!r} (known: {', '.join(sorted(REGISTRY))})")
+    task = REGISTRY[name]
+    task.resolve()
+    return task
+
+
+# ---------------------------------------------------------------- tasks
+
+
+def _angle(params):
+    """(target_angle, open_by) in radians from whichever angle key the case has."""
+    import numpy as np
+
+    if params.get("angle_deg") is not None:
+        return float(np.radians(params["angle_deg"])), None
+    if params.get("angle_rad") is not None:
+        return float(params["angle_rad"]), None
+    if params.get("open_by_deg") is not None:
+        return None, float(np.radians(params["open_by_deg"]))
+    return None, None
+
+
+def deploy_task(params: dict, out_dir: str) -> dict:
+    """Rest-length solve and deployment of one case (``xshells deploy``, quietly)."""
+    from ..deploy.case import material_from_spec
+    from ..deploy.run import run_deployment
+
+    target, open_by = _angle(params)
+    r = run_deployment(params["file"], material_from_spec(params.get("material") or {}), out_dir=out_dir,
+                       subdivision=params.get("subdivision", 10), target_angle=target, open_by=open_by,
+                       steps=params.get("steps", 40), rest_lengths_path=params.get("rest_lengths"),
+                       direction=params.get("direction", "up"), progress=False,
+                       name=params.get("name") or os.path.splitext(os.path.basename(params["file"]))[0])
+    d, f = r["deployed"], r["flat"]
+    return {
+        "converged": r["reached"],
+        "message": r["message"],
+        "energy": d["energy"],
+        "energy_stretch": d["energy_stretch"],
+        "energy_bend": d["energy_bend"],
+        "energy_twist": d["energy_twist"],
+        "average_angle_deg": d["average_angle_deg"],
+        "target_angle_deg": r["target_angle_deg"],
+        "max_abs_z": d["max_abs_z"],
+        "torque": d.get("torque", float("nan")),
+        "min_hessian_eigenvalue": d.get("min_hessian_eigenvalue", float("nan")),
+        "flat_energy": f["energy"],
+        "flat_angle_deg": f["average_angle_deg"],
+        "segments": r["segments"],
+        "joints": r["joints"],
+        "dof": r["dof"],
+        "newton_iterations": r["newton_iterations"],
+        "time_rest_length_solve_s": r["timings_s"]["rest_length_solve"],
+        "time_deploy_s": r["timings_s"]["deploy"],
+    }
+
+
+def _write_case(params: dict, path: str) -> str:
+    """A case JSON for the jobs that take one (paths are absolute, so it can live anywhere)."""
+    import json
+
+    from ..io.export import atomic_write_text
+
+    keys = ("name", "file", "subdivision", "material", "angle_deg", "angle_rad", "open_by_deg", "steps", "rest_lengths")
+    atomic_write_text(path, json.dumps({k: params[k] for k in keys if params.get(k) is not None}, indent=1))
+    return path
+
+
+SPARSIFY_KEYS = ("eta", "p", "tau_max", "max_iterations")
+
+
+def sparsify_task(params: dict, out_dir: str) -> dict:
+    """Dense deployment, then sparse actuation for one (η, p) (``xshells sparsify``, quietly)."""
+    from ..actuation.run import run_sparsify
+    from ..actuation.sparsify import SparsifyOptions
+
+    os.makedirs(out_dir, exist_ok=True)
+    case = _write_case(params, os.path.join(out_dir, "case.json"))
+    opts = SparsifyOptions(**{k: params[k] for k in SPARSIFY_KEYS if params.get(k) is not None})
+    r = run_sparsify(case, out_dir, opts, progress=False)
+    keys = ("converged", "message", "num_actuators", "fit_mean", "fit_max", "work", "dense_work", "dense_torque",
+            "objective", "iterations", "time_s", "dense_deployment_time_s")
+    return {k: r[k] for k in keys}
+
+
+def noop_task(params: dict, out_dir: str) -> dict:
+    """Does nothing (optionally sleeps or fails): measures the sweep machinery's own cost."""
+    if params.get("fail"):
+        raise RuntimeError(params["fail"] if isinstance(params["fail"], str) else "failed on request")
+    t0 = time.perf_counter()
+    time.sleep(params.get("sleep_s", 0.0))
+    return {"slept_s": time.perf_counter() - t0}
+
+
+register_task("deploy", deploy_task)
+register_task("sparsify", sparsify_task, requires=("xshells.actuation.run:run_sparsify",),
+              params={"eta": number(0), "p": number(0, 1, open_min=True), "tau_max": optional(number(0, open_min=True)),
+                      "max_iterations": number(1, integer=True)})
+# provided later by the design-optimization module: a ``sweep_task(params, out_dir)`` there
+register_task("optimize", "xshells.design.run:sweep_task",
+              params={"gamma": number(0), "beta": number(0), "max_iterations": number(1, integer=True)})
+register_task("noop", noop_task, case=False, params={"sleep_s": number(0), "fail": flag})
