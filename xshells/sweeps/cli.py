@@ -36,13 +36,15 @@ def _sweep(args) -> int:
     if not args.no_progress:
         from tqdm import tqdm
 
-        bar = tqdm(desc=f"sweep {spec.name}", unit="task")
+        from .run import pending, read_record
+
+        todo = pending(spec, {t.id: read_record(args.out, t) for t in spec.tasks}, settings)
+        bar = tqdm(total=len(todo), desc=f"sweep {spec.name}", unit="task")  # tqdm's rate gives the ETA
 
     def on_progress(info) -> bool:
         if bar is not None:
-            bar.total = info.total
             bar.set_postfix(failed=info.failed, last=info.record["status"])
-            bar.update(1)  # tqdm's own rate gives the ETA
+            bar.update(1)
         return False
 
     try:

@@ -14,6 +14,7 @@ are then shipped to the workers too, so nothing needs to be shared).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -100,6 +101,13 @@ def read_record(out_dir: str, task: Task) -> dict | None:
     return rec if rec.get("status") in FINISHED and rec.get("id") == task.id else None
 
 
+def pending(spec: SweepSpec, records: dict, settings: SweepSettings) -> list:
+    """The tasks a run will execute, given the finished ``records`` (id -> record or None)."""
+    todo = [t for t in spec.tasks if records.get(t.id) is None
+            or (settings.retry_failed and records[t.id]["status"] != "ok")]
+    return todo if settings.max_tasks is None else todo[: max(settings.max_tasks, 0)]
+
+
 def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSettings(), *,
               progress: Callable[[Progress], bool | None] | None = None) -> SweepReport:
     """Run the unfinished tasks of ``spec``, streaming results into ``out_dir``.
@@ -120,11 +128,8 @@ def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSett
     os.makedirs(os.path.join(out_dir, "tasks"), exist_ok=True)
     _write_manifest(spec, out_dir)
     records = {t.id: read_record(out_dir, t) for t in spec.tasks}
-    todo = [t for t in spec.tasks if records[t.id] is None
-            or (settings.retry_failed and records[t.id]["status"] != "ok")]
-    skipped = len(spec.tasks) - len(todo)
-    if settings.max_tasks is not None:
-        todo = todo[: max(settings.max_tasks, 0)]
+    todo = pending(spec, records, settings)
+    skipped = sum(r is not None for r in records.values()) - sum(records[t.id] is not None for t in todo)
     write_results_csv(out_dir, spec, records)
     t0 = time.perf_counter()
     done = failed = 0
@@ -174,9 +179,9 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish) -> bool:
         client = Client(settings.scheduler)
     else:
         n = settings.workers or os.cpu_count() or 1
-        # processes, one thread each: the solvers hold the GIL and JAX/BLAS threads would oversubscribe
-        with warnings.catch_warnings():  # "port 8787 in use" when another cluster runs here: harmless
-            warnings.simplefilter("ignore", UserWarning)
+        with warnings.catch_warnings(), _forkserver_with(["xshells.sweeps.run", _module_of(fn)]):
+            warnings.simplefilter("ignore", UserWarning)  # "port 8787 in use" when another cluster runs here
+            # processes, one thread each: the solvers hold the GIL and JAX/BLAS threads would oversubscribe
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                                    silence_logs=logging.ERROR)
         client = Client(cluster)
@@ -210,6 +215,32 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish) -> bool:
         if cluster is not None:
             cluster.close()
     return stopped
+
+
+def _module_of(fn) -> str:
+    return fn.partition(":")[0] if isinstance(fn, str) else getattr(fn, "__module__", "xshells")
+
+
+@contextlib.contextmanager
+def _forkserver_with(modules: list):
+    """Start local workers from a fork server that has imported ``modules`` once.
+
+    Spawned workers would each import JAX and the solvers (seconds apiece, all
+    at once on a busy machine); forking from a server that imported them
+    (but never ran JAX, so no threads exist yet) shares that cost.
+    """
+    import multiprocessing
+
+    import dask
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        yield
+        return
+    from distributed.utils import get_mp_context
+
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+        get_mp_context().set_forkserver_preload(["distributed"] + [m for m in modules if m])
+        yield
 
 
 def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, files: dict | None) -> dict:

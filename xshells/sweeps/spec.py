@@ -39,7 +39,7 @@ from . import tasks as T
 TOP_KEYS = ("name", "task", "base", "axes", "cases")
 ALIASES = {"E": "material.E", "young": "material.E", "nu": "material.nu", "params": "material.params",
            "stiff_axis": "material.stiff_axis", "design": "file", "flat_file": "file"}
-PATH_KEYS = ("file", "rest_lengths", "material.contour_file")
+PATH_KEYS = ("file", "rest_lengths", "material.contour_file", "target_surface")
 ANGLE_KEYS = ("angle_deg", "angle_rad", "open_by_deg")
 
 CASE_CHECKS = {

@@ -61,7 +61,7 @@ def write_results_csv(out_dir: str, spec: SweepSpec, records: dict) -> str:
 def format_table(spec: SweepSpec, records: dict, *, max_rows: int = 40) -> str:
     """A short text table for the terminal: status, varying keys and a few results."""
     columns, rows = table(spec, records)
-    preferred = ("energy", "average_angle_deg", "num_actuators", "fit_mean", "max_abs_z", "converged")
+    preferred = ("energy", "average_angle_deg", "max_abs_z", "J", "energy_deployed", "num_actuators", "fit_mean")
     shown = ["id", "status"] + list(spec.varying_keys) + [c for c in preferred if c in columns] + ["elapsed_s", "error"]
 
     def fmt(v):

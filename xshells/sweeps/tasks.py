@@ -6,10 +6,11 @@ the task's own keys; the function writes whatever files it likes into
 ``out_dir``. A result with ``"converged": False`` is recorded as
 *diverged*; an exception as *failed*, with its message.
 
-Tasks whose code lives in modules still being written (``optimize``) are
-registered by name ("module:function") and imported only when used, so a
-missing module makes :func:`get_task` report "task 'optimize' is not
-available yet" before a sweep starts. To add a task::
+Tasks whose code lives in other modules (``optimize``: ``xshells.design``,
+``sparsify``: ``xshells.actuation``) import it only when used, and name it in
+``requires`` (or register as "module:function"), so a missing module makes
+:func:`get_task` report "task 'optimize' is not available yet" before a sweep
+starts. To add a task::
 
     from xshells.sweeps.tasks import register_task, number
     register_task("mytask", "mypackage.mymodule:run_point", params={"alpha": number(minimum=0)})
@@ -224,6 +225,34 @@ def sparsify_task(params: dict, out_dir: str) -> dict:
     return {k: r[k] for k in keys}
 
 
+def optimize_task(params: dict, out_dir: str) -> dict:
+    """Rest-length design optimization of one case for one (γ, β) (``xshells optimize``, quietly, no BFGS baseline)."""
+    from ..design.objective import DesignWeights
+    from ..design.optimize import OptimizeOptions
+    from ..design.run import run_optimize
+
+    os.makedirs(out_dir, exist_ok=True)
+    case = _write_case(params, os.path.join(out_dir, "case.json"))
+    weights = DesignWeights(**{k: params[k] for k in ("gamma", "beta") if params.get(k) is not None})
+    options = OptimizeOptions(**{k: params[k] for k in ("max_iterations",) if params.get(k) is not None})
+    r = run_optimize(case, out_dir, weights=weights, options=options, target_surface=params.get("target_surface"),
+                     baseline=False, progress=False)
+    return {
+        "message": r["message"],
+        "J": r["J"],
+        "J_initial": r["initial"]["J"],
+        "energy_flat": r["energy_flat"],
+        "energy_deployed": r["energy_deployed"],
+        "energy_deployed_initial": r["initial"]["energy_deployed"],
+        **{k: v for k, v in r["terms"].items()},
+        "planarity": r["constraints"]["planarity"],
+        "min_angle_deg": r["constraints"]["min_angle_deg"],
+        "target_angle_deg": r["target_angle_deg"],
+        "iterations": r["iterations"],
+        "time_s": r["time_s"],
+    }
+
+
 def noop_task(params: dict, out_dir: str) -> dict:
     """Does nothing (optionally sleeps or fails): measures the sweep machinery's own cost."""
     if params.get("fail"):
@@ -237,7 +266,7 @@ register_task("deploy", deploy_task)
 register_task("sparsify", sparsify_task, requires=("xshells.actuation.run:run_sparsify",),
               params={"eta": number(0), "p": number(0, 1, open_min=True), "tau_max": optional(number(0, open_min=True)),
                       "max_iterations": number(1, integer=True)})
-# provided later by the design-optimization module: a ``sweep_task(params, out_dir)`` there
-register_task("optimize", "xshells.design.run:sweep_task",
-              params={"gamma": number(0), "beta": number(0), "max_iterations": number(1, integer=True)})
+register_task("optimize", optimize_task, requires=("xshells.design.run:run_optimize",),
+              params={"gamma": number(0, 1), "beta": number(0), "max_iterations": number(1, integer=True),
+                      "target_surface": text})
 register_task("noop", noop_task, case=False, params={"sleep_s": number(0), "fail": flag})

@@ -1,0 +1,121 @@
+"""Sweep benchmark: 8-task deployment sweeps, serial vs a 2-worker LocalCluster.
+
+Two sweeps: the tests' (a 3×3 grid, about a second per task, one task
+failing) and the bundled ``sweep_example.yaml`` (regular and irregular
+grids, a few seconds per task), plus 8 no-op tasks for the machinery alone.
+
+Each configuration runs in a fresh process (imports, JAX cache loading and
+cluster start-up included, as a user pays them). Columns:
+
+- ``process s``: wall time of the whole process (Python, JAX and xshells
+  imports included): what a user waits for;
+- ``sweep s``: wall time of ``run_sweep`` (cluster start and shutdown included);
+- ``overhead/task``: ``(workers × time − Σ in-task time) / tasks``, i.e. what
+  each task costs beyond its own computation (start-up, scheduling, idle
+  workers at the tail, writing results); for the no-op sweep the tasks do
+  nothing, so this is the machinery alone;
+- ``speedup``: serial process time / this process time;
+- ``peak MB``: the largest resident set of any process (client or worker).
+
+Targets (issue 9): overhead ≤ 1 s/task, 2 workers ≥ 1.7× serial on 2 cores.
+
+    python benchmarks/sweep.py [--spec SPEC.yaml] [--workers 2]
+"""
+from __future__ import annotations
+
+import time
+
+T_START = time.perf_counter()  # before any heavy import: "process" time includes them
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+
+import numpy as np  # noqa: E402
+
+EXAMPLE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "xshells", "data", "examples", "sweep_example.yaml")
+ANGLES = [60, 65, 70, 75, 80, 85, 90, 185]  # as in tests/test_sweeps.py; 185° fails at run time
+
+
+def grid_spec(folder: str) -> str:
+    """The tests' 8-task sweep: a 3×3 warped grid deployed to 8 angles (one unreachable)."""
+    from xshells.io.export import write_design_obj
+    from xshells.linkage.grids import rhombic_grid
+
+    def warp(p):
+        r = np.linalg.norm(p, axis=1, keepdims=True)
+        return p * (1.0 - 0.25 * (r / r.max()) ** 2)
+
+    write_design_obj(os.path.join(folder, "grid.obj"), rhombic_grid(3, 3, spacing=100.0, angle=np.radians(30), warp=warp))
+    spec = {"name": "grid", "task": "deploy",
+            "base": {"file": "grid.obj", "subdivision": 4, "steps": 4,
+                     "material": {"type": "rectangle", "E": 2000, "nu": 0.3, "params": [4.0, 1.5]}},
+            "axes": {"angle_deg": ANGLES}}
+    path = os.path.join(folder, "sweep.json")
+    with open(path, "w") as fh:
+        json.dump(spec, fh)
+    return path
+
+
+def noop_spec(folder: str, n: int) -> str:
+    path = os.path.join(folder, "noop.json")
+    with open(path, "w") as fh:
+        json.dump({"name": "noop", "task": "noop", "axes": {"sleep_s": [i * 1e-6 for i in range(n)]}}, fh)
+    return path
+
+
+def child(spec_path: str, out: str, workers: int) -> None:
+    """Run one sweep in this (fresh) process and print its figures as JSON."""
+    from xshells.sweeps import SweepSettings, load_spec, run_sweep
+
+    spec = load_spec(spec_path)
+    t = time.perf_counter()
+    rep = run_sweep(spec, out, SweepSettings(workers=workers))
+    wall = time.perf_counter() - t
+    client_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"tasks": len(rep.records), "wall": wall, "process": time.perf_counter() - T_START, "in_task": sum(r["elapsed_s"] for r in rep.records),
+                      "peak_mb": max([client_mb] + [r["peak_rss_mb"] for r in rep.records]),
+                      "failed": rep.failed, "energies": [r["result"].get("energy") for r in rep.records]}))
+
+
+def measure(spec_path: str, workers: int) -> dict:
+    with tempfile.TemporaryDirectory() as out:
+        res = subprocess.run([sys.executable, __file__, "--child", spec_path, out, str(workers)],
+                             capture_output=True, text=True, check=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--spec", help="a sweep file (default: the tests' grid sweep and sweep_example.yaml)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        child(args.child[0], args.child[1], int(args.child[2]))
+        return
+    with tempfile.TemporaryDirectory() as folder:
+        specs = [args.spec] if args.spec else [grid_spec(folder), EXAMPLE]
+        rows = []
+        for name, path in [("deploy", p) for p in specs] + [("noop", noop_spec(folder, 8))]:
+            serial = measure(path, 0)
+            dist = measure(path, args.workers)
+            if name == "deploy" and serial["energies"] != dist["energies"]:
+                print("warning: serial and distributed energies differ", file=sys.stderr)
+            for label, w, m in [("serial", 1, serial), (f"{args.workers} workers", args.workers, dist)]:
+                n = m["tasks"]
+                rows.append((os.path.splitext(os.path.basename(path))[0] if name == "deploy" else "noop", n, label, m["process"], m["wall"],
+                             (w * m["wall"] - m["in_task"]) / n, serial["process"] / m["process"], m["peak_mb"]))
+    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end")
+    print(f"{'case':<15}{'tasks':>6}  {'workers':<10}{'process s':>10}{'sweep s':>9}{'overhead/task s':>17}"
+          f"{'speedup':>9}{'peak MB':>9}")
+    for case, n, label, proc, wall, over, speed, mb in rows:
+        print(f"{case:<15}{n:>6}  {label:<10}{proc:>10.2f}{wall:>9.2f}{over:>17.2f}{speed:>9.2f}{mb:>9.0f}")
+
+
+if __name__ == "__main__":
+    main()
