@@ -77,6 +77,26 @@ def test_app_in_chromium(tmp_path):
                 page.wait_for_timeout(1500)
                 page.screenshot(path=os.path.join(ARTIFACTS, "02_deployed.png"))
 
+                # edit by clicks on the flat layout (synthetic click rays through the scene mapping)
+                from types import SimpleNamespace
+
+                from xshells.app.ui import MODES
+
+                lay = app.session.layout
+                a, b = (int(v) for v in lay.edges[0])
+                click = lambda v: app._on_click(SimpleNamespace(  # noqa: E731
+                    ray_origin=tuple(app._to_scene(lay.vertices[v]) + [0, 0, 5.0]), ray_direction=(0.0, 0.0, -1.0)))
+                app.mode.value = "add segment"
+                click(a)
+                click(b)
+                assert app.session.layout.num_segments == lay.num_segments + 1
+                assert "duplicate edge" in app.problems_md.content
+                page.get_by_text("duplicate edge").first.wait_for(timeout=10000)
+                page.screenshot(path=os.path.join(ARTIFACTS, "03_topology.png"))
+                app.session.undo()
+                assert app.session.layout.same_as(lay) and "ok" in app.problems_md.content
+                app.mode.value = MODES[0]
+
                 # export the SVG by clicking in the page
                 page.get_by_role("tab", name="Export").click()
                 with page.expect_download(timeout=30000) as dl:
@@ -86,13 +106,13 @@ def test_app_in_chromium(tmp_path):
                 beams = [e for e in root.iter("{http://www.w3.org/2000/svg}line") if e.get("class") == "beam"]
                 assert len(beams) == app.session.layout.num_segments
                 assert os.path.exists(tmp_path / "out" / "nonuniform_linkage_flat.svg")
-                page.screenshot(path=os.path.join(ARTIFACTS, "03_export.png"))
+                page.screenshot(path=os.path.join(ARTIFACTS, "04_export.png"))
 
                 # a malformed upload shows a message and the app keeps serving
                 assert not app.session.open_upload("bad.obj", b"v 0 0 0\nl 1 9\n")
                 assert "upload refused" in app.status_md.content
                 page.get_by_text("upload refused").first.wait_for(timeout=10000)
-                page.screenshot(path=os.path.join(ARTIFACTS, "04_bad_upload.png"))
+                page.screenshot(path=os.path.join(ARTIFACTS, "05_bad_upload.png"))
             finally:
                 browser.close()
         print(f"page interactive {t_ready:.2f} s after start")

@@ -246,3 +246,10 @@ def test_cli_registers_app():
 
     args = build_parser().parse_args(["app", "design.obj", "--port", "9000"])
     assert args.host == "127.0.0.1" and args.port == 9000 and args.input == "design.obj"
+
+
+def test_default_material_matches_deploy():
+    from xshells.app.loading import DEFAULT_MATERIAL
+    from xshells.deploy.case import DEFAULT_MATERIAL as DEPLOY_DEFAULT
+
+    assert DEFAULT_MATERIAL == DEPLOY_DEFAULT

@@ -15,11 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..deploy.case import DEFAULT_MATERIAL, load_case
 from ..errors import InputError
 from .core import Layout, layout_from_design
 
 MAX_UPLOAD_BYTES = 5 * 1024 * 1024
+# the paper's section, as xshells deploy uses by default (copied here so that
+# opening the app does not import the solver; test_app_core checks they agree)
+DEFAULT_MATERIAL = {"type": "rectangle", "E": 20000.0, "nu": 0.3, "params": [10.0, 7.0]}
 DESIGN_SUFFIXES = (".obj", ".msh")
 
 
@@ -55,6 +57,8 @@ def open_path(path: str) -> Project:
     if not os.path.isfile(path):
         raise InputError(f"{path}: no such file")
     if ext == ".json":
+        from ..deploy.case import load_case
+
         case = load_case(path)
         design = read_design(case.design_path)
         p = read_rest_lengths(case.rest_lengths_path, design.num_segments) if case.rest_lengths_path else None

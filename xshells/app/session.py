@@ -26,7 +26,6 @@ import numpy as np
 from ..errors import InputError
 from . import core, exports
 from .loading import Project, UploadStore, grid_project, open_path
-from .sim import Cancelled, Simulation, StateInfo
 from .worker import Worker
 
 FIELDS = {
@@ -46,7 +45,7 @@ class View:
     field: np.ndarray
     field_name: str
     joints: np.ndarray
-    info: StateInfo
+    info: object  # .sim.StateInfo
     solve_time_s: float = 0.0
 
 
@@ -76,7 +75,7 @@ class Session:
         self.worker = Worker(on_progress=lambda f, t: self._emit("progress", (f, t)))
         self._lock = threading.RLock()
         self.field_name = "bending energy"
-        self.sim: Simulation | None = None
+        self.sim = None  # a .sim.Simulation, built on the worker (the solver is imported there)
         self._sim_key = None
         self.last_deployed: View | None = None
         self.angle_deg: float | None = None
@@ -168,9 +167,14 @@ class Session:
     # ------------------------------------------------------------------ material
     @staticmethod
     def _build_material(spec: dict):
-        from ..deploy.case import material_from_spec
+        """As :func:`xshells.deploy.case.material_from_spec`, without importing the solver at start-up."""
+        from ..section import Material
 
-        return material_from_spec(spec)
+        kind = spec.get("type", "rectangle")
+        E, nu = float(spec.get("E", 20000.0)), float(spec.get("nu", 0.3))
+        if kind == "contour":
+            return Material.from_file(spec["contour_file"], young=E, poisson=nu, stiff_axis=spec.get("stiff_axis"))
+        return Material.uniform(kind, spec.get("params", []), E=E, nu=nu, stiff_axis=spec.get("stiff_axis"))
 
     def set_material(self, kind: str, params, E: float, nu: float) -> bool:
         """Change the cross-section and elastic constants; a bad value only shows a message."""
@@ -193,7 +197,7 @@ class Session:
         return (id(self.layout), id(self.material), self.subdivision,
                 None if self.rest_lengths is None else id(self.rest_lengths))
 
-    def _ensure_sim(self, cancel) -> Simulation:
+    def _ensure_sim(self, cancel):
         """The simulation of the current layout and material, building it (assembly solve) if stale."""
         with self._lock:
             key, layout, material, k, p = self._key(), self.layout, self.material, self.subdivision, self.rest_lengths
@@ -203,13 +207,15 @@ class Session:
         if problems:
             raise InputError("cannot simulate: " + problems[0])
         self._emit("progress", (0.0, "assembly state…"))
+        from .sim import Simulation
+
         sim = Simulation(layout, material, k, rest_lengths=p, cancel=cancel)
         with self._lock:
             self.sim, self._sim_key = sim, key
         self._emit("flat", self._view(sim, time.perf_counter()))
         return sim
 
-    def _view(self, sim: Simulation, t0: float, info: StateInfo | None = None) -> View:
+    def _view(self, sim, t0: float, info=None) -> View:
         from ..linkage.export import scalar_fields, swept_mesh
 
         fields = scalar_fields(sim.linkage)
@@ -252,6 +258,8 @@ class Session:
         self._emit("stability", sim.stability())
 
     def _job_error(self, exc: BaseException) -> None:
+        from .sim import Cancelled
+
         if isinstance(exc, Cancelled):
             self.status("solve cancelled")
         elif isinstance(exc, InputError):

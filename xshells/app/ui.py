@@ -90,6 +90,15 @@ class App:
         from .session import material_summary
         self._on_event("material", material_summary(session.material))
         self.server.scene.add_grid("/ground", width=6, height=3, cell_size=0.25, position=(0, 0, -0.01))
+        # The first solve waits for the first page (or 5 s): on a small machine the
+        # assembly solve would otherwise compete with serving the page.
+        self._first_client = threading.Event()
+        self.server.on_client_connect(lambda _client: self._first_client.set())
+        threading.Thread(target=self._initial_solve_when_ready, daemon=True, name="xshells-app-start").start()
+
+    def _initial_solve_when_ready(self) -> None:
+        self._first_client.wait(5.0)
+        time.sleep(0.3)  # let the page take the initial scene and GUI
         self._solve_initial()
 
     # ------------------------------------------------------------------ GUI
@@ -156,7 +165,8 @@ class App:
             row.on_click(lambda ev: self._optimize(ev.target.value))
             b = gui.add_button("Actuate (sparse torques)")
             b.on_click(lambda _: self._actuate())
-            self.opt_plot = gui.add_image(_plot_image([], [], "objective"), label="progress")
+            # a blank canvas: matplotlib is imported only when there is something to plot
+            self.opt_plot = gui.add_image(np.full((144, 256, 3), 255, np.uint8), label="progress")
 
         with tabs.add_tab("Export"):
             row = gui.add_button_group("fabrication (flat, 1:1 mm)", ("SVG", "DXF"))
