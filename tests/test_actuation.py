@@ -53,9 +53,9 @@ def test_adjoint_gradient_and_hessian_vector_product_match_finite_differences(de
     assert ge[-1] < 1e-4 and he[-1] < 1e-4, (ge, he)
     # central differences converge at second order onto our derivatives
     assert ge[0] / ge[1] > 3 and he[0] / he[1] > 3, (ge, he)
-    # the Hessian is symmetric
+    # the Hessian is symmetric (up to the equilibrium's and the Hessian derivative's accuracy)
     w = rng.standard_normal(L.num_joints)
-    assert w @ fit.hessp(t, v) == pytest.approx(v @ fit.hessp(t, w), rel=1e-6)
+    assert w @ fit.hessp(t, v) == pytest.approx(v @ fit.hessp(t, w), rel=1e-5)
 
 
 def _tradeoff(L, tau, state, p, etas):
