@@ -180,3 +180,82 @@ def test_deployment_is_reproducible():
         deploy(L, np.radians(70), DeployOptions(steps=5))
         runs.append(L.get_vars())
     assert np.array_equal(runs[0], runs[1])
+
+
+# ---------------------------------------------------------------- bounds and failures
+def _joint_edge_vars(L):
+    return (9 * np.arange(L.num_joints)[:, None] + np.array([7, 8])[None, :]).ravel()
+
+
+def _solved_grid(n=4):
+    L = Linkage(warped_grid(n), FLAT_BEAM, subdivision=4)
+    rest_length_solve(L)
+    return L
+
+
+def test_joint_edge_lengths_stay_above_their_bound_with_an_active_set():
+    L = _solved_grid()
+    ev = _joint_edge_vars(L)
+    eps = float(np.median(L.get_vars()[ev]))  # half of the joint edges start below: they must be held at ε
+    res = deploy(L, np.radians(70), DeployOptions(steps=5, min_joint_edge_length=eps))
+    assert res.converged, res.message
+    x, g = L.get_vars(), L.gradient()
+    assert x[ev].min() >= eps
+    active = np.array(res.active_joint_edges)
+    assert len(active) > 0 and np.all(x[active] == eps)
+    assert np.all(g[active] > 0)  # KKT: each held edge pushes against its bound
+    free_edges = np.setdiff1d(ev, active)
+    assert np.abs(g[free_edges]).max() < 1e-6 * np.abs(g[active]).max()
+    assert res.min_hessian_eigenvalue > 0
+
+
+def test_default_joint_edge_bound_is_inactive_in_a_normal_deployment():
+    L = _solved_grid()
+    res = deploy(L, np.radians(60), DeployOptions(steps=4))
+    assert res.converged and res.active_joint_edges == []
+
+
+def test_stalled_solver_reports_the_angle_reached_and_keeps_the_last_equilibrium():
+    from xshells.solve import NewtonOptions
+
+    L = _solved_grid()
+    x0, a0 = L.get_vars(), np.degrees(L.average_angle())
+    newton = NewtonOptions(gradient_tolerance=1e-6, max_iterations=1, saddle_gradient_factor=float("inf"))
+    res = deploy(L, np.radians(70), DeployOptions(steps=5, newton=newton))
+    assert not res.converged
+    assert res.message.startswith(f"stopped at {a0:.2f}° of 70.00°") and "stalled" in res.message
+    assert "stopped after 1 iterations" in res.message  # the reason
+    assert res.reached_angle_deg == pytest.approx(a0) and res.steps == []
+    assert np.array_equal(L.get_vars(), x0)  # the last equilibrium, not the failed iterate
+
+
+def test_joint_folding_past_180_degrees_stops_the_deployment_with_a_message():
+    L = _solved_grid()
+    res = deploy(L, np.radians(179), DeployOptions(steps=10))
+    assert not res.converged
+    assert "inverts" in res.message and "joint" in res.message and res.message.startswith(f"stopped at {res.reached_angle_deg:.2f}°")
+    assert 60 < res.reached_angle_deg < 179
+    assert len(res.steps) >= 1 and res.steps[-1].average_angle_deg == pytest.approx(res.reached_angle_deg)
+    alpha = L.joint_angles()  # kept at the last equilibrium, which is not inverted
+    assert np.all((alpha > 0) & (alpha < np.pi))
+    assert abs(np.degrees(L.average_angle()) - res.reached_angle_deg) < 1e-9
+
+
+def test_collapsing_edge_stops_the_deployment_with_a_message():
+    L = _solved_grid()
+    # any edge shorter than its rest length counts as collapsed here, so the check must fire
+    res = deploy(L, np.radians(70), DeployOptions(steps=5, collapse_ratio=1.0 - 1e-9))
+    assert not res.converged and "collapses" in res.message and "segment" in res.message
+
+
+def test_cli_writes_the_partial_deployment(tmp_path):
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, warped_grid(4))
+    case = {"name": "grid", "file": "grid.obj", "subdivision": 4, "angle_deg": 179, "steps": 10,
+            "material": {"type": "rectangle", "E": 2000, "nu": 0.3, "params": [4.0, 1.5]}}
+    (tmp_path / "case.json").write_text(json.dumps(case))
+    out = tmp_path / "out"
+    assert main(["deploy", str(tmp_path / "case.json"), "--out", str(out), "--no-progress"]) == 1
+    result = json.loads((out / "result.json").read_text())
+    assert not result["reached"] and "inverts" in result["message"]
+    assert result["steps"] and abs(result["deployed"]["average_angle_deg"] - result["steps"][-1]["average_angle_deg"]) < 1e-9

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from ..errors import InputError
 from ..linkage.linkage import Linkage
 from ..solve import NewtonOptions, minimize, smallest_eigenvalues
+from ..solve.newton import _constrained_tangent
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,15 @@ class DeployOptions:
         Corrector settings (gradient tolerance relative to the first gradient scale).
     final_tolerance_factor : float
         The last solve is tightened by this factor.
+    min_joint_edge_length : float, optional
+        Lower bound ε on the joint edge lengths ``ℓA, ℓB`` (the two length
+        variables of each joint). Default: 1/100 of the shortest one at the
+        start. A length that would go below is held at ε (an active set,
+        released when its gradient pulls it back up).
+    inversion_margin : float
+        Radians: deployment stops when a joint angle comes within this of 0 or π.
+    collapse_ratio : float
+        Deployment stops when a rod edge shrinks below this fraction of its rest length.
     """
 
     steps: int = 40
@@ -44,6 +54,9 @@ class DeployOptions:
     # flat states whose out-of-plane gradient is zero.
     newton: NewtonOptions = NewtonOptions(gradient_tolerance=1e-6, max_iterations=200, saddle_gradient_factor=float("inf"))
     final_tolerance_factor: float = 1e-1
+    min_joint_edge_length: float | None = None
+    inversion_margin: float = 1e-3
+    collapse_ratio: float = 1e-2
 
 
 @dataclass
@@ -72,6 +85,8 @@ class DeploymentResult:
     stiffness_gap: float = float("nan")
     newton_iterations: int = 0
     time_s: float = 0.0
+    active_joint_edges: list = field(default_factory=list)
+    gradient_norm: float = float("nan")
 
 
 class _RestLengthProblem:
@@ -171,6 +186,8 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     if not (0 < target_angle < np.pi):
         raise InputError(f"target angle {np.degrees(target_angle):.4g}° is out of reach: an opening angle must lie strictly between 0° and 180°")
     start = time.perf_counter()
+    from ..linkage.state import restore, snapshot
+
     joints = np.arange(linkage.num_joints) if actuated is None else np.asarray(actuated, int)
     a = np.zeros(linkage.num_vars)
     a[linkage.angle_indices()[joints]] = 1.0 / len(joints)
@@ -187,13 +204,96 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     result = DeploymentResult(target_angle_deg=float(np.degrees(target_angle)))
     Sz = linkage.height_selector()
     z0 = Sz @ linkage.get_vars()
-    for i in range(1, options.steps + 1):
+    target_deg = float(np.degrees(target_angle))
+
+    # joint edge lengths ℓA, ℓB: bounded below by ε, with an active set
+    edge_vars = (9 * np.arange(linkage.num_joints)[:, None] + np.array([7, 8])[None, :]).ravel()
+    x = linkage.get_vars()
+    eps = options.min_joint_edge_length
+    if eps is None:
+        eps = 0.01 * float(x[edge_vars].min())
+    active = np.zeros(len(edge_vars), bool)
+    if (x[edge_vars] < eps).any():
+        active = x[edge_vars] < eps
+        x[edge_vars[active]] = eps
+        linkage.set_vars(x)
+
+    def solve(angle, opts):
+        """One corrector solve at average angle ``angle``, with the joint-edge bounds as an active set."""
+        nonlocal active
+        iterations = 0
+        for _ in range(2 * len(edge_vars) + 2):
+            report = minimize(linkage, fixed=np.concatenate([pins, edge_vars[active]]), constraint=(a, angle), options=opts,
+                              saddle_hint=hint)
+            iterations += report.iterations
+            if not report.converged:
+                break
+            x = linkage.get_vars()
+            low = ~active & (x[edge_vars] < eps)
+            if low.any():
+                x[edge_vars[low]] = eps
+                linkage.set_vars(x)
+                active = active | low
+                continue
+            # release a bound whose length would grow (∂E/∂ℓ < 0 pulls it above ε)
+            g = linkage.gradient()
+            release = active & (g[edge_vars] < -opts.gradient_tolerance)
+            if not release.any():
+                break
+            active = active & ~release
+        report.iterations = iterations
+        return report
+
+    def inversion(x) -> str:
+        """Why the state ``x`` is inverted (a joint folding flat or an edge collapsing), or ''."""
+        alpha = x[linkage.angle_indices()]
+        j = int(np.argmin(np.minimum(alpha, np.pi - alpha)))
+        if min(alpha[j], np.pi - alpha[j]) <= options.inversion_margin:
+            return (f"the linkage inverts: joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) reaches an opening angle of "
+                    f"{np.degrees(alpha[j]):.2f}° (a joint must stay strictly between 0° and 180°)")
+        rods = linkage.rods
+        ratio = np.linalg.norm(rods.points[rods.edges[:, 1]] - rods.points[rods.edges[:, 0]], axis=1) / rods.rest_lengths
+        e = int(np.argmin(ratio))
+        if ratio[e] <= options.collapse_ratio:
+            return (f"the linkage inverts: an edge of segment {e // linkage.subdivision} collapses to "
+                    f"{100 * ratio[e]:.3g}% of its rest length")
+        return ""
+
+    last_good = snapshot(linkage)
+    last_angle = float(np.degrees(alpha0))
+    previous = None  # (x, joint frames) of the equilibrium before the last one, for the predictor
+    smooth = False  # whether the last step was easy (then the path is smooth enough to extrapolate)
+    why = inversion(linkage.get_vars())
+    if why:
+        result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}° before the first step: {why}"
+    for i in range(1, options.steps + 1) if not why else ():
         angle = alpha0 + (target_angle - alpha0) * i / options.steps
         opts = newton
         if i == options.steps:
             opts = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
-        report = minimize(linkage, fixed=pins, constraint=(a, angle), options=opts, saddle_hint=hint)
+        try:
+            if i > 1:
+                previous = _predict(linkage, a, angle, previous if smooth else None, pins, edge_vars[active])
+            report = solve(angle, opts)
+        except InputError as exc:  # a non-finite or degenerate state: keep the last equilibrium
+            restore(linkage, last_good)
+            result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver broke down on the way to "
+                              f"{np.degrees(angle):.2f}° ({exc})")
+            break
         result.newton_iterations += report.iterations
+        # extrapolate only along an easy stretch of the path: no negative curvature and quick convergence last step
+        smooth = report.indefinite_events == 0 and report.iterations <= 3
+        if not report.converged:
+            reached_now = float(np.degrees(a @ linkage.get_vars()))
+            restore(linkage, last_good)
+            result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver stalled on the way to "
+                              f"{np.degrees(angle):.2f}° (at {reached_now:.2f}°: {report.message})")
+            break
+        why = inversion(linkage.get_vars())
+        if why:
+            restore(linkage, last_good)
+            result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: {why} on the way to {np.degrees(angle):.2f}°"
+            break
         parts = linkage.energy_parts()
         z = Sz @ linkage.get_vars() - z0
         g = linkage.gradient()
@@ -202,17 +302,25 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                          torque, float(np.abs(z).max()), report.iterations, report.converged)
         result.steps.append(rec)
         result.reached_angle_deg, result.torque = rec.average_angle_deg, torque
-        if not report.converged:
-            result.message = f"stopped at {rec.average_angle_deg:.2f}° of {np.degrees(target_angle):.2f}°: the solver did not converge ({report.message})"
-            break
+        last_good, last_angle = snapshot(linkage), rec.average_angle_deg
         if callback is not None and callback(rec):
             result.message = f"stopped by request at {rec.average_angle_deg:.2f}°"
             break
     else:
-        result.converged = True
-        result.message = "reached the target angle"
+        if not why:
+            result.converged = True
+            result.message = "reached the target angle"
+    if not result.steps:
+        result.reached_angle_deg = last_angle
+    result.active_joint_edges = [int(v) for v in edge_vars[active]]
+    # the constrained gradient norm of the final state (free variables, constraint force removed)
+    held = np.zeros(linkage.num_vars, bool)
+    held[pins] = True
+    held[edge_vars[active]] = True
+    gf, af = linkage.gradient()[~held], a[~held]
+    result.gradient_norm = float(np.linalg.norm(gf - af * (af @ gf) / (af @ af)))
     try:
-        free = np.setdiff1d(np.arange(linkage.num_vars), pins)
+        free = np.setdiff1d(np.arange(linkage.num_vars), np.concatenate([pins, edge_vars[active]]))
         H = linkage.hessian()[free][:, free]
         M = linkage.mass_matrix()[free][:, free]
         lam = smallest_eigenvalues(H, M, k=2)
@@ -222,6 +330,68 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         result.message += f"; stability check failed: {exc}"
     result.time_s = time.perf_counter() - start
     return result
+
+
+def _rotation_between(b_from, n_from, b_to, n_to) -> np.ndarray:
+    """Rotation vectors ω (per row) with ``R(ω) b_from = b_to`` and ``R(ω) n_from = n_to`` (orthonormal pairs)."""
+    F0 = np.stack([b_from, n_from, np.cross(b_from, n_from)], axis=2)
+    F1 = np.stack([b_to, n_to, np.cross(b_to, n_to)], axis=2)
+    R = F1 @ F0.transpose(0, 2, 1)
+    w = 0.5 * np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    s = np.linalg.norm(w, axis=1)
+    c = 0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0)
+    th = np.arctan2(s, c)
+    f = np.where(s > 1e-12, th / np.maximum(s, 1e-300), 1.0)
+    return w * f[:, None]
+
+
+def _constrained_gradient_norm(linkage: Linkage, x, a, held) -> float:
+    linkage.set_vars(x)
+    free = np.ones(linkage.num_vars, bool)
+    free[held] = False
+    g, af = linkage.gradient()[free], a[free]
+    return float(np.linalg.norm(g - af * (af @ g) / (af @ af)))
+
+
+def _predict(linkage: Linkage, a, angle, previous, pins, held):
+    """Move a converged equilibrium towards the next one on the deployment path.
+
+    With the path tangent ``t`` at the current equilibrium ``x_i`` and the one
+    before, ``x_{i−1}``: ``x_{i+1} ≈ x_{i−1} + 2h t`` (central difference,
+    error O(h³)); for the first step, ``x_i + h t`` (O(h²)). ``x_{i−1}``'s joint
+    rotations are re-expressed in the current source frames. Near a snap or a
+    bifurcation the central difference can be worse than the tangent alone,
+    so the central difference is kept only if its constrained gradient is ten times
+    smaller than the tangent's and the state there is still stable. Both satisfy
+    ``a·x = angle``. Returns what the next call needs (``previous=None``
+    skips the central difference); any trouble leaves the state as it is
+    (Newton then starts there).
+    """
+    x = linkage.get_vars()
+    current = (x, linkage.joint_b0.copy(), linkage.joint_n0.copy())
+    t = _constrained_tangent(linkage, np.concatenate([pins, held]), a)
+    if t is None:
+        return current
+    h = angle - float(a @ x)
+    allheld = np.concatenate([pins, held]).astype(int)
+    guess = x + h * t
+    try:
+        if previous is not None:
+            xp, bp, np_ = previous
+            xq = xp.copy()
+            xq[: linkage.num_joint_vars].reshape(-1, 9)[:, 3:6] = _rotation_between(current[1], current[2], bp, np_)
+            lead = xq + (h + float(a @ (x - xq))) * t  # central difference: x_{i−1} + 2h t for equal steps
+            lead[allheld] = x[allheld]
+            # keep it only where it is clearly better and still stable on the constraint surface (positive
+            # definite augmented Hessian: its factorization is then reused by the first Newton iteration)
+            if (np.isfinite(lead).all() and abs(float(a @ lead) - angle) <= 1e-9 * max(abs(angle), 1.0)
+                    and _constrained_gradient_norm(linkage, lead, a, allheld) < 0.1 * _constrained_gradient_norm(linkage, guess, a, allheld)
+                    and _constrained_tangent(linkage, allheld, a) is not None):
+                guess = lead
+        linkage.set_vars(guess)
+    except InputError:
+        linkage.set_vars(x)
+    return current
 
 
 def solve_equilibrium(linkage: Linkage, *, torques=None, gravity=None, joint_forces=None,

@@ -354,6 +354,36 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     return report
 
 
+def _constrained_tangent(problem, fixed, a_full: np.ndarray):
+    """Equilibrium path tangent ``dx/dτ`` under the constraint ``a·x = τ`` (so ``a·t = 1``).
+
+    ``t = H⁻¹a / (aᵀH⁻¹a)`` on the free variables, with the same augmented
+    Hessian as :func:`minimize` (so at the end of a deployment step its
+    factorization is reused, not redone). Returns None if it does not factor.
+    """
+    ws = _workspace(problem)
+    n = len(a_full)
+    free = np.ones(n, bool)
+    if fixed is not None:
+        free[np.asarray(fixed, dtype=int)] = False
+    free_idx = np.flatnonzero(free)
+    a = np.asarray(a_full, float)[free_idx]
+    H = ws.free_part(problem.hessian(), free_idx, n)
+    if ws.aug is None or ws.aug[0].shape != a.shape or not np.array_equal(ws.aug[0], a):
+        return None
+    nz = np.flatnonzero(a)
+    a_outer = sp.csr_matrix((np.outer(a[nz], a[nz]).ravel(), np.tile(nz, len(nz)), len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))),
+                            shape=(len(a), len(a)))
+    try:
+        ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
+    except NotPositiveDefinite:
+        return None
+    v = ws.chol.solve(a)
+    t = np.zeros(n)
+    t[free_idx] = v / (a @ v)
+    return t
+
+
 def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None) -> np.ndarray:
     """The ``k`` smallest eigenvalues of ``H d = λ M d`` (sorted), by shift-invert.
 
