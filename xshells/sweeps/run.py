@@ -31,6 +31,7 @@ from .spec import PATH_KEYS, SweepSpec, Task
 from .tasks import get_task
 
 FINISHED = ("ok", "diverged", "failed")
+CSV_INTERVAL_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -134,6 +135,7 @@ def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSett
     t0 = time.perf_counter()
     done = failed = 0
     stopped = False
+    last_csv = [t0]
 
     def finish(task: Task, rec: dict) -> bool:
         nonlocal done, failed
@@ -144,8 +146,11 @@ def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSett
             _unpack(outputs, folder)
         atomic_write_text(os.path.join(folder, "task.json"), json.dumps(rec, indent=1, default=_json_default))
         records[task.id] = rec
-        write_results_csv(out_dir, spec, records)
         done += 1
+        # at most once a second (and once at the end): a rewrite is O(tasks), every time would be O(tasks²)
+        if time.perf_counter() - last_csv[0] > CSV_INTERVAL_S:
+            write_results_csv(out_dir, spec, records)
+            last_csv[0] = time.perf_counter()
         failed += rec["status"] != "ok"
         if progress is None:
             return False
@@ -153,16 +158,19 @@ def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSett
         eta = elapsed / done * (len(todo) - done)
         return bool(progress(Progress(done, len(todo), skipped, failed, elapsed, eta, rec)))
 
-    if todo:
-        fn = taskdef.fn  # ship the function (or its "module:attr"), not the checks
-        if settings.serial:
-            for task in todo:
-                files = {p: _read_bytes(p) for p in _paths(task.params)} if settings.ship_files else None
-                if finish(task, execute_task(spec.task, fn, task.id, task.params, task_dir(out_dir, task), files)):
-                    stopped = True
-                    break
-        else:
-            stopped = _run_dask(spec, out_dir, settings, fn, todo, finish)
+    try:
+        if todo:
+            fn = taskdef.fn  # ship the function (or its "module:attr"), not the checks
+            if settings.serial:
+                for task in todo:
+                    files = {p: _read_bytes(p) for p in _paths(task.params)} if settings.ship_files else None
+                    if finish(task, execute_task(spec.task, fn, task.id, task.params, task_dir(out_dir, task), files)):
+                        stopped = True
+                        break
+            else:
+                stopped = _run_dask(spec, out_dir, settings, fn, todo, finish)
+    finally:  # stopped, interrupted or crashed: the table matches the task.json markers
+        write_results_csv(out_dir, spec, records)
     ordered = tuple(records[t.id] for t in spec.tasks if records[t.id] is not None)
     return SweepReport(ordered, done, skipped, failed, time.perf_counter() - t0, stopped)
 
