@@ -67,7 +67,7 @@ def svg_text(layout: Layout, rest_lengths=None, units_to_mm: float = 1.0, margin
     fs = max(2.0, 0.12 * float(np.median(layout.segment_lengths())) * units_to_mm)
     out = [f'<?xml version="1.0" encoding="UTF-8"?>\n'
            f'<svg xmlns="http://www.w3.org/2000/svg" width="{w:.3f}mm" height="{h:.3f}mm" viewBox="0 0 {w:.3f} {h:.3f}">\n'
-           f'<title>X-shell flat layout, 1:1, mm</title>\n<g id="beams" stroke="black" stroke-width="{fs / 6:.3f}" fill="none">\n']
+           f'<title>X-shell flat layout, 1:1, mm</title>\n<g id="beams" stroke="black" stroke-width="0.3" fill="none">\n']
     for s, (a, b) in enumerate(layout.edges.tolist()):
         (x1, y1), (x2, y2) = X(V[a]), X(V[b])
         out.append(f'<line class="beam" data-segment="{s}" data-rest-length="{p[s]:.4f}" '

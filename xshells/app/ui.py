@@ -73,8 +73,8 @@ class App:
         self.server = viser.ViserServer(host=host, port=port, label="xshells app", verbose=False)
         self.server.scene.set_up_direction("+z")
         # look down on both halves (flat left, deployed right)
-        self.server.initial_camera.position = (0.0, -3.2, 3.0)
-        self.server.initial_camera.look_at = (0.0, 0.0, 0.0)
+        self.server.initial_camera.position = (0.35, -2.6, 2.2)
+        self.server.initial_camera.look_at = (0.35, 0.0, 0.15)
         self._selected: int | None = None
         self._pending_segment: int | None = None
         self._gizmo = None
@@ -296,11 +296,17 @@ class App:
                                                      active_axes=(True, True, False), position=pos)
         self._gizmo = g
 
+        def dragged_to() -> np.ndarray:
+            c, k = self._frame
+            return (np.asarray(g.position[:2]) - [-GAP, 0.0]) / k + c
+
+        @g.on_update
+        def _(_ev) -> None:  # live preview of the lines; recorded for undo only on release
+            self._draw_layout(core.move_joint(self.session.layout, v, dragged_to()), keep_frame=True)
+
         @g.on_drag_end
         def _(_ev) -> None:
-            c, k = self._frame
-            xy = (np.asarray(g.position[:2]) - [-GAP, 0.0]) / k + c
-            self.session.edit(core.move_joint, v, xy)
+            self.session.edit(core.move_joint, v, dragged_to())
 
     def _drop_gizmo(self) -> None:
         if self._gizmo is not None:
@@ -310,6 +316,8 @@ class App:
     # ------------------------------------------------------------------ session events → view
     def _on_event(self, event: str, payload) -> None:
         if event == "layout":
+            if self._gizmo is not None and (self._selected is None or self._selected >= payload.num_vertices):
+                self._drop_gizmo()  # its joint is gone (delete, undo, new design)
             self._draw_layout(payload)
         elif event == "problems":
             self.problems_md.content = ("**topology:** ok" if not payload else
@@ -320,6 +328,7 @@ class App:
             self.progress.value = float(np.clip(100 * payload[0], 0, 100))
         elif event == "material":
             self.material_md.content = payload
+            self._show_material_spec(self.session.material_spec)
         elif event == "flat":
             self._draw_mesh("/flat/mesh", payload, -GAP, flat=True)
         elif event == "deployed":
@@ -334,10 +343,21 @@ class App:
             self.info_md.content = self.info_md.content.split("  \nstability")[0] + \
                 f"  \nstability: λmin {lam:.3g}, gap λ2/λ1 {gap:.3g}"
 
-    def _draw_layout(self, layout: core.Layout) -> None:
+    def _show_material_spec(self, spec: dict) -> None:
+        """Put the current material into the Material panel (a newly opened design brings its own)."""
+        if not hasattr(self, "sec_type"):
+            return
+        if spec.get("type") in SECTION_TYPES:
+            self.sec_type.value = spec["type"]
+        self.sec_params.value = ", ".join(f"{float(v):g}" for v in spec.get("params", []))
+        self.young.value = float(spec.get("E", 20000.0))
+        self.poisson.value = float(spec.get("nu", 0.3))
+        self.subdiv.value = int(self.session.subdivision)
+
+    def _draw_layout(self, layout: core.Layout, keep_frame: bool = False) -> None:
         scene = self.server.scene
         V = layout.vertices
-        if len(V):
+        if len(V) and not (keep_frame or self._gizmo is not None):
             c = 0.5 * (V.min(axis=0) + V.max(axis=0))
             self._frame = (c, 2.0 / layout.span())
         P = self._to_scene(V) if len(V) else np.zeros((0, 3))
@@ -346,7 +366,7 @@ class App:
             scene.add_line_segments("/flat/lines", seg.astype(np.float32), colors=(40, 40, 40), thickness=1.5, thickness_units="screen")
         if len(P):
             # joints a quarter of a typical segment across, so dense layouts stay readable
-            size = float(np.clip(0.25 * np.median(layout.segment_lengths()) * self._frame[1], 0.004, 0.03)) if layout.num_segments else 0.02
+            size = float(np.clip(0.15 * np.median(layout.segment_lengths()) * self._frame[1], 0.004, 0.02)) if layout.num_segments else 0.02
             scene.add_point_cloud("/flat/joints", (P + [0, 0, 0.025]).astype(np.float32),
                                   colors=(220, 40, 40), point_size=size, point_shape="circle")
 
@@ -358,7 +378,7 @@ class App:
         c, k = self._frame
         V = view.vertices.copy()
         V[:, :2] = (V[:, :2] - c) * k
-        V[:, 2] = (V[:, 2] - (view.joints[:, 2].mean() if not flat else 0.0)) * k
+        V[:, 2] = (V[:, 2] - V[:, 2].min()) * k  # resting on the ground grid
         V[:, 0] += offset
         if flat:
             colors = np.tile([180, 180, 200], (len(V), 1)).astype(np.uint8)
