@@ -95,6 +95,19 @@ def test_shipped_files_give_the_same_numbers_and_outputs(cluster_run, tmp_path):
     assert (tmp_path / "tasks" / rec["id"] / "deployed.png").is_file()
 
 
+def test_existing_scheduler_with_files_shipped_over_dask(cluster_run, tmp_path):
+    from dask.distributed import LocalCluster
+
+    spec, _, report, _ = cluster_run
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
+        rep = run_sweep(spec, str(tmp_path), SweepSettings(scheduler=lc.scheduler_address, ship_files=True, max_tasks=1))
+    rec = rep.records[0]
+    assert rec["status"] == "ok" and rec["params"] == spec.tasks[0].params
+    ref = next(r for r in report.records if r["id"] == rec["id"])
+    assert rec["result"]["energy"] == pytest.approx(ref["result"]["energy"], rel=1e-9)
+    assert (tmp_path / "tasks" / rec["id"] / "deployed.png").is_file()
+
+
 def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
     spec = spec_from_dict({"task": "noop", "axes": {"sleep_s": [0.0, 0.001, 0.002, 0.003, 0.004]}}, str(tmp_path))
     first = run_sweep(spec, str(tmp_path), SweepSettings(workers=0), progress=lambda p: p.done == 2)

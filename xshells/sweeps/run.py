@@ -26,6 +26,7 @@ import uuid
 from dataclasses import dataclass
 from typing import Callable
 
+from ..errors import InputError
 from ..io.export import atomic_write_text
 from .spec import PATH_KEYS, SweepSpec, Task
 from .tasks import get_task
@@ -126,6 +127,7 @@ def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSett
     from .summary import write_results_csv
 
     taskdef = get_task(spec.task)  # raises "not available yet" before anything runs
+    out_dir = os.path.abspath(out_dir)  # workers elsewhere (or in another folder) get a path that still means it
     os.makedirs(os.path.join(out_dir, "tasks"), exist_ok=True)
     _write_manifest(spec, out_dir)
     records = {t.id: read_record(out_dir, t) for t in spec.tasks}
@@ -184,7 +186,10 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish) -> bool:
 
     cluster = None
     if settings.scheduler:
-        client = Client(settings.scheduler)
+        try:
+            client = Client(settings.scheduler, timeout="20s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise InputError(f"--scheduler {settings.scheduler}: cannot connect ({_one_line(exc)})") from None
     else:
         n = settings.workers or os.cpu_count() or 1
         with warnings.catch_warnings(), _forkserver_with(["xshells.sweeps.run", _module_of(fn)]):
