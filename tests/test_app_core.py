@@ -253,3 +253,27 @@ def test_default_material_matches_deploy():
     from xshells.deploy.case import DEFAULT_MATERIAL as DEPLOY_DEFAULT
 
     assert DEFAULT_MATERIAL == DEPLOY_DEFAULT
+
+
+def test_adapters_drive_optimization_and_actuation_and_stop():
+    """The hooks reach xshells.design / xshells.actuation and stop on request (skipped while either is missing)."""
+    from xshells.app import adapters
+    from xshells.app.session import Session
+    from xshells.app.sim import Simulation
+
+    if not (adapters.optimize_available() and adapters.actuate_available()):
+        pytest.skip("optimization or actuation not available yet")
+    layout = core.warp_bend(grid_project(3, 3, 70).layout, 0.3)
+    material = Session._build_material(grid_project(3, 3).material)
+    for run, angle in ((adapters.run_optimize, None), (adapters.run_actuate, 100.0)):
+        sim = Simulation(layout, material, 4)
+        arg = np.radians(100.0) if angle is None else sim.solve_to(angle).torque
+        cancel, seen = threading.Event(), []
+
+        def progress(it, value, text):
+            seen.append(value)
+            if len(seen) >= 2:
+                cancel.set()
+
+        out = run(sim.linkage, arg, progress=progress, cancel=cancel)
+        assert len(seen) == 2 and np.all(np.isfinite(seen)) and out.message
