@@ -45,6 +45,7 @@ def _wait(cond, timeout: float, what: str) -> None:
 
 def test_app_in_chromium(tmp_path):
     from xshells.app.cli import start
+    from xshells.app.loading import MAX_UPLOAD_BYTES
 
     os.makedirs(ARTIFACTS, exist_ok=True)
     t0 = time.perf_counter()
@@ -65,6 +66,7 @@ def test_app_in_chromium(tmp_path):
                 assert first is not None, app.status_md.content
                 page.wait_for_timeout(1500)
                 page.screenshot(path=os.path.join(ARTIFACTS, "01_loaded.png"))
+                print(f"loaded and deployed {time.perf_counter() - t0:.1f} s")
 
                 # move the opening-angle slider (through its server-side handle: dragging in WebGL is impractical)
                 app.angle.value = round(first.info.angle_deg + 15.0, 1)
@@ -76,6 +78,7 @@ def test_app_in_chromium(tmp_path):
                 assert np.abs(second.joints - first.joints).max() > 1e-3 * np.ptp(first.joints[:, :2])
                 page.wait_for_timeout(1500)
                 page.screenshot(path=os.path.join(ARTIFACTS, "02_deployed.png"))
+                print(f"slider {time.perf_counter() - t0:.1f} s")
 
                 # edit by clicks on the flat layout (synthetic click rays through the scene mapping)
                 from types import SimpleNamespace
@@ -107,12 +110,29 @@ def test_app_in_chromium(tmp_path):
                 assert len(beams) == app.session.layout.num_segments
                 assert os.path.exists(tmp_path / "out" / "nonuniform_linkage_flat.svg")
                 page.screenshot(path=os.path.join(ARTIFACTS, "04_export.png"))
+                print(f"export {time.perf_counter() - t0:.1f} s")
 
-                # a malformed upload shows a message and the app keeps serving
-                assert not app.session.open_upload("bad.obj", b"v 0 0 0\nl 1 9\n")
-                assert "upload refused" in app.status_md.content
-                page.get_by_text("upload refused").first.wait_for(timeout=10000)
+                # uploads through the page: a design, then a malformed and an oversized file
+                page.get_by_role("tab", name="Design").click()
+                upload = page.locator("input[type=file]").first
+                upload.set_input_files(os.path.join(ROOT, "xshells", "data", "examples", "quad.obj"))
+                _wait(lambda: app.session.name == "quad", 20, "the uploaded design to open")
+                upload.set_input_files(files=[{"name": "bad.obj", "mimeType": "text/plain", "buffer": b"v 0 0 0\nl 1 9\n"}])
+                page.get_by_text("upload refused: bad.obj").first.wait_for(timeout=20000)
+                assert app.session.name == "quad" and "line 2" in app.status_md.content
                 page.screenshot(path=os.path.join(ARTIFACTS, "05_bad_upload.png"))
+                print(f"bad upload {time.perf_counter() - t0:.1f} s")
+                big = b"#" * (MAX_UPLOAD_BYTES + 1)
+                upload.set_input_files(files=[{"name": "big.obj", "mimeType": "text/plain", "buffer": big}])
+                page.get_by_text("upload limit").first.wait_for(timeout=20000)
+                print(f"big upload {time.perf_counter() - t0:.1f} s")
+                assert app.session.name == "quad"
+                # the page finishes the refused transfer and takes uploads again
+                _wait(lambda: not page.get_by_role("button", name="Upload OBJ / .msh / case JSON (≤ 5 MB)").is_disabled(),
+                      30, "the upload button to come back")
+                upload.set_input_files(EXAMPLE)
+                _wait(lambda: app.session.name == "nonuniform_linkage", 20, "the second upload to open")
+                page.screenshot(path=os.path.join(ARTIFACTS, "06_big_upload.png"))
             finally:
                 browser.close()
         print(f"page interactive {t_ready:.2f} s after start")

@@ -83,6 +83,7 @@ class App:
         self._opt_history: list[tuple[int, float]] = []
         self._opt_cancel = threading.Event()
         self._build_gui()
+        self._limit_uploads()
         session.listeners.append(self._on_event)
         # draw the current state (the session was loaded before we listened)
         self._on_event("layout", session.layout)
@@ -176,6 +177,30 @@ class App:
             row = gui.add_button_group("other", ("case JSON", "PNG"))
             row.on_click(lambda ev: self._export("case" if ev.target.value == "case JSON" else "png", ev.client))
             self.export_md = gui.add_markdown(f"files go to `{os.path.abspath(s.out_dir)}` and are downloaded")
+
+    def _limit_uploads(self) -> None:
+        """Refuse an oversized upload as soon as its size is announced, before its parts are buffered.
+
+        Relies on viser's upload bookkeeping (private); when that changes, the
+        size check after receipt (:class:`~.loading.UploadStore`) still applies.
+        """
+        from viser import _messages
+
+        gui, limit = self.server.gui, self.session.uploads.limit
+
+        def check(_client_id, message) -> None:
+            state = gui._current_file_upload_states.get(message.transfer_uuid)
+            if message.size_bytes > limit and state is not None:
+                # keep acknowledging parts (so the page finishes and re-enables the
+                # button) but store none: viser then drops the short upload
+                state["parts"] = _DiscardingParts()
+                self.session.status(f"upload refused: {os.path.basename(str(message.filename))}: "
+                                    f"{message.size_bytes / 2**20:.1f} MB is over the {limit / 2**20:.0f} MB upload limit")
+
+        try:
+            gui._websock_interface.register_handler(_messages.FileTransferStartUpload, check)
+        except AttributeError:
+            pass
 
     def _availability(self) -> str:
         o = "available" if adapters.optimize_available() else adapters.NOT_AVAILABLE
@@ -490,3 +515,10 @@ class App:
         self._playing.clear()
         self.session.close()
         self.server.stop()
+
+
+class _DiscardingParts(dict):
+    """Upload parts of a refused upload: the part indices are kept, their bytes are not."""
+
+    def __setitem__(self, key, value) -> None:
+        super().__setitem__(key, b"")
