@@ -42,7 +42,8 @@ class DeployOptions:
         start. A length that would go below is held at ε (an active set,
         released when its gradient pulls it back up).
     inversion_margin : float
-        Radians: deployment stops when a joint angle comes within this of 0 or π.
+        Radians: deployment stops when a joint angle comes within this of 0 or π
+        (default 0: when it reaches 0 or π, i.e. the joint folds through).
     collapse_ratio : float
         Deployment stops when a rod edge shrinks below this fraction of its rest length.
     """
@@ -55,7 +56,7 @@ class DeployOptions:
     newton: NewtonOptions = NewtonOptions(gradient_tolerance=1e-6, max_iterations=200, saddle_gradient_factor=float("inf"))
     final_tolerance_factor: float = 1e-1
     min_joint_edge_length: float | None = None
-    inversion_margin: float = 1e-3
+    inversion_margin: float = 0.0
     collapse_ratio: float = 1e-2
 
 

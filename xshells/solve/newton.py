@@ -111,6 +111,7 @@ class _Workspace:
         self.sub = None  # (free index key, PrincipalSubmatrix)
         self.sums = {}
         self.aug = None  # (a copy, ρ)
+        self.skip_plain = 0  # factorizations left before the plain (unaugmented) Hessian is tried again
 
     def free_part(self, H, free_idx, n):
         if H.format != "csr":
@@ -224,21 +225,42 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             aug = ws.aug[1]  # the same constraint as the previous call: the same ρ (and a reusable factor)
 
     def hessian():
-        """The free-variable Hessian; with a constraint, augmented by ρ a aᵀ.
+        """The free-variable Hessian (without the augmentation)."""
+        nonlocal aug
+        H = ws.free_part(problem.hessian(), free_idx, n)
+        if constraint is not None and aug is None:
+            aug = float(np.abs(H.diagonal()).max()) / aa
+            ws.aug = (a.copy(), aug)
+        return H
+
+    def augmented(H):
+        """With a constraint, ``H + ρ a aᵀ``.
 
         The augmentation leaves the constrained Newton step unchanged (only
         the multiplier shifts) but makes positive definiteness mean
         stability on the constraint surface, so curvature along the
         actuated direction is not mistaken for a saddle.
         """
-        nonlocal aug
-        H = ws.free_part(problem.hessian(), free_idx, n)
         if constraint is None:
             return H
-        if aug is None:
-            aug = float(np.abs(H.diagonal()).max()) / aa
-            ws.aug = (a.copy(), aug)
         return ws.combine("aug", [H, a_outer], [1.0, aug])
+
+    def factor_unshifted(H) -> float:
+        """Factorize ``H`` if it is positive definite, else its augmented form; returns the ρ used.
+
+        The plain Hessian is sparser (``a aᵀ`` is a dense block over the
+        actuated angles) and positive definite in most states; where it is
+        not, the augmented one decides stability. Raises NotPositiveDefinite.
+        """
+        if constraint is not None and ws.skip_plain <= 0:
+            try:
+                chol.factorize(H)
+                return 0.0
+            except NotPositiveDefinite:
+                ws.skip_plain = 4  # go straight to the augmented form for the next few factorizations
+        ws.skip_plain -= 1
+        chol.factorize(augmented(H))
+        return aug if constraint is not None else 0.0
 
     def shifted(H, sigma):
         return ws.combine("shift", [H, mass()], [1.0, sigma])
@@ -257,13 +279,14 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         report.energy.append(objective())
         report.gradient_norm.append(gnorm)
         H = None
+        rho = 0.0
         if gnorm < options.gradient_tolerance and feasible:
             if not options.require_minimum:
                 report.converged, report.message = True, "gradient below tolerance"
                 break
             H = hessian()
             try:
-                chol.factorize(H)
+                factor_unshifted(H)
                 report.converged, report.message = True, "gradient below tolerance at a minimum"
                 break
             except NotPositiveDefinite:
@@ -275,9 +298,16 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             H = hessian()
         indefinite = False
         try:
-            chol.factorize(H if sigma == 0 else shifted(H, sigma))
+            if sigma == 0:
+                rho = factor_unshifted(H)
+            else:
+                H = augmented(H)
+                rho = aug if constraint is not None else 0.0
+                chol.factorize(shifted(H, sigma))
         except NotPositiveDefinite:
             indefinite = True
+            H = augmented(H) if sigma == 0 else H
+            rho = aug if constraint is not None else 0.0
             if sigma0 is None:
                 lam_M = lam_M or _largest_eigenvalue(mass())
                 sigma0 = options.sigma_factor * _largest_eigenvalue(H) / lam_M
@@ -295,7 +325,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             u, v = chol.solve(np.stack([g, a], axis=1)).T
             dlam = -(residual + a @ u) / (a @ v)
             d = -u - dlam * v
-            report.multiplier = float(dlam) + aug * residual
+            report.multiplier = float(dlam) + rho * residual
         if sigma > 0:
             # Is H itself indefinite? (the shift may just be decaying)
             report.indefinite_events += int(indefinite)
@@ -375,7 +405,15 @@ def _constrained_tangent(problem, fixed, a_full: np.ndarray):
     a_outer = sp.csr_matrix((np.outer(a[nz], a[nz]).ravel(), np.tile(nz, len(nz)), len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))),
                             shape=(len(a), len(a)))
     try:
-        ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
+        # as minimize: the plain Hessian if it factors (then the augmented one would too), else the augmented
+        if ws.skip_plain <= 0:
+            try:
+                ws.chol.factorize(H)
+            except NotPositiveDefinite:
+                ws.skip_plain = 4
+                ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
+        else:
+            ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
     except NotPositiveDefinite:
         return None
     v = ws.chol.solve(a)
