@@ -195,6 +195,14 @@ def test_cli_serial_sweep_and_bad_yaml(tmp_path, capsys):
     assert "not valid YAML" in capsys.readouterr().err
 
 
+def test_optimize_and_sparsify_are_registered_and_available():
+    from xshells.sweeps.tasks import get_task
+
+    assert {"deploy", "optimize", "sparsify", "noop"} <= set(REGISTRY)
+    assert get_task("sparsify").params.keys() >= {"eta", "p"}
+    assert get_task("optimize").params.keys() >= {"gamma", "beta"}
+
+
 def test_bundled_example_spec_is_valid():
     spec = load_spec(EXAMPLES / "sweep_example.yaml")
     assert spec.task == "deploy" and len(spec.tasks) == 8

@@ -212,13 +212,13 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish) -> bool:
             f = client.submit(execute_task, spec.task, fn, task.id, task.params, task_dir(out_dir, task), files,
                               key=f"xshells-sweep-{task.id}-{run_id}", pure=False)
             futures[f.key] = (f, task)
-        pending = as_completed([f for f, _ in futures.values()])
-        for f in pending:
-            task = futures[f.key][1]
+        for f in as_completed([f for f, _ in futures.values()]):
+            task = futures.pop(f.key)[1]
             try:
                 rec = f.result()
             except Exception as exc:  # the worker died (KilledWorker, out of memory, ...)
                 rec = _record(spec.task, task.id, task.params, "failed", _one_line(exc), {}, 0.0, time.time())
+            f.release()  # the cluster may drop the result (and shipped outputs) now
             if finish(task, rec):
                 stopped = True
                 client.cancel([g for g, _ in futures.values() if not g.done()])
