@@ -43,6 +43,7 @@ def _wait(cond, timeout: float, what: str) -> None:
     raise AssertionError(f"timed out waiting for {what}")
 
 
+@pytest.mark.filterwarnings("ignore:.*Dropping upload:UserWarning")  # viser's word on the refused upload
 def test_app_in_chromium(tmp_path):
     from xshells.app.cli import start
     from xshells.app.loading import MAX_UPLOAD_BYTES
