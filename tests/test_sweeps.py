@@ -164,6 +164,8 @@ def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
     ({"base": {"file": "grid.obj"}, "axes": {"eta": [0.1]}}, "axes.eta: unknown key"),
     ({"task": "sparsify", "base": {"file": "grid.obj"}, "axes": {"p": [0.5, 2]}}, "axes.p[1]: must be ≤ 1"),
     ({"task": "explode", "base": {"file": "grid.obj"}}, "task: unknown task 'explode'"),
+    ({"base": {"file": "grid.obj"}, "cases": [{"material": {"type": "recangle"}}]}, "material: unknown cross-section type"),
+    ({"base": {"file": "grid.obj"}, "axes": {"params": [[4, 1.5], [4]]}}, "material: rectangle takes 2 parameters"),
     ({"axes": {"angle_deg": [70]}}, "base.file: missing"),
 ])
 def test_spec_errors_name_the_key(tmp_path, data, key):

@@ -174,6 +174,7 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> Sweep
         for p in points:
             if "file" not in p:
                 raise InputError("base.file: missing (give a design file in base, an axis or every case)")
+        _check_profiles(points)
     order = _ordered_keys([{k: None for k, _ in axis_values}] + points)  # axes first, in the spec's order
     varying = tuple(k for k in order if len({_canon(p.get(k)) for p in points}) > 1)
     tasks = []
@@ -237,6 +238,22 @@ def _check(key: str, value, where: str, allowed: dict, base_dir: str):
             raise InputError(f"{where}: no such file {value!r}")
         value = path
     return value
+
+
+def _check_profiles(points) -> None:
+    """Build each distinct parametric cross-section once (microseconds): a bad type or parameter count fails now."""
+    from ..section.profiles import make_profile
+
+    seen = set()
+    for p in points:
+        kind, params = p.get("material.type", "rectangle"), p.get("material.params", [])
+        if p.get("material.contour_file") or _canon([kind, params]) in seen:
+            continue
+        seen.add(_canon([kind, params]))
+        try:
+            make_profile(kind, params)
+        except InputError as exc:
+            raise InputError(f"material: {str(exc).split(': ', 1)[-1]}") from None
 
 
 def _expand_globs(values, base_dir: str, where: str) -> list:
