@@ -233,6 +233,7 @@ def test_session_solve_and_exports(tmp_path):
 def test_adapters_report_availability(monkeypatch):
     from xshells.app import adapters
 
+    assert not adapters._present("xshells.not_a_module") and not adapters._present("not_a_package.module")
     monkeypatch.setattr(adapters, "_lookup", lambda module, name: None)
     assert not adapters.optimize_available() and not adapters.actuate_available()
     with pytest.raises(NotImplementedError, match="not available yet"):

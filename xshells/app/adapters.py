@@ -58,6 +58,21 @@ def _lookup(module: str, name: str):
     return getattr(mod, name, None)
 
 
+def _present(module: str) -> bool:
+    """Whether ``module`` exists, without importing it (cheap enough for start-up)."""
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ImportError:  # a missing parent package
+        return False
+
+
+def modules_present() -> tuple[bool, bool]:
+    """(optimization, actuation) modules exist; the entry points are checked when used."""
+    return _present("xshells.design.optimize"), _present("xshells.actuation.sparsify")
+
+
 def optimize_available() -> bool:
     return _lookup("xshells.design.objective", "DesignProblem") is not None and \
         _lookup("xshells.design.optimize", "optimize") is not None

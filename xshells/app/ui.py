@@ -203,8 +203,9 @@ class App:
             pass
 
     def _availability(self) -> str:
-        o = "available" if adapters.optimize_available() else adapters.NOT_AVAILABLE
-        a = "available" if adapters.actuate_available() else adapters.NOT_AVAILABLE
+        has_opt, has_act = adapters.modules_present()  # no import at start-up: the solver loads on first use
+        o = "available" if has_opt else adapters.NOT_AVAILABLE
+        a = "available" if has_act else adapters.NOT_AVAILABLE
         return f"design optimization: {o}  \nsparse actuation: {a}"
 
     def _guard(self, fn) -> None:
