@@ -174,3 +174,53 @@ def test_every_paper_case_builds_with_the_dof_formula(case):
 def test_paper_table_one_dof():
     L = Linkage(read_design(EXAMPLES / "wiggly_banana_5" / "flat_opt.msh"), PLUS, subdivision=10)
     assert (L.num_segments, L.num_joints, L.num_vars) == (264, 146, 8970)
+
+
+# ---------------------------------------------------------------- fast assembly and the state cache
+def _triple_product_hessian(L):
+    import scipy.sparse as sp
+
+    from xshells.linkage import joint_kernels as jk
+
+    J = L._jacobian()
+    Hx = J.T @ L.rods.hessian() @ J
+    w = L.rods.gradient()[L._inst_rows]
+    Hj = jk.weighted_hessian(L._instance_q(L._x), L._inst_prm, w)
+    n = Hj.shape[2]
+    base = (9 * L._inst_joint)[None, None, :]
+    rows = np.broadcast_to(base + np.arange(9)[:, None, None], (9, 9, n)).ravel()
+    cols = np.broadcast_to(base + np.arange(9)[None, :, None], (9, 9, n)).ravel()
+    return (Hx + sp.csr_matrix((Hj.ravel(), (rows, cols)), shape=Hx.shape)).tocsr()
+
+
+@pytest.mark.parametrize("k", [3, 4])
+def test_reduced_hessian_assembly_matches_the_triple_product(k):
+    # k = 3: a vertex stencil can touch the terminal edges of both of its segment's joints
+    L = perturbed(nonuniform(k), seed=5)
+    x = L.get_vars()
+    L.set_vars(x + 1e-4 * np.random.default_rng(2).standard_normal(len(x)))  # away from the source frame
+    H, ref = L.hessian(), _triple_product_hessian(L)
+    assert abs(H - ref).max() <= 1e-13 * abs(ref).max()
+    assert H.has_canonical_format and abs(H - H.T).max() <= 1e-13 * abs(ref).max()
+    assert np.isclose(L.energy(), L.rods.energy(), rtol=1e-13)
+    assert np.allclose(L._rod_gradient(), L.rods.gradient(), rtol=0, atol=1e-13 * np.abs(L.rods.gradient()).max())
+
+
+def test_state_cache_sees_changes_that_bypass_set_vars():
+    from xshells.linkage.state import restore, snapshot
+
+    L = perturbed(nonuniform(4), seed=6)
+    snap = snapshot(L)
+    e0, g0, H0 = L.energy(), L.gradient(), L.hessian().copy()
+    x = L.get_vars()
+    x[L.num_joint_vars] += 1e-2
+    L.set_vars(x)
+    L.update_source_frame()
+    e1 = L.energy()
+    assert abs(e1 - e0) > 1e-8 * abs(e0)
+    restore(L, snap)  # assigns frames directly, then set_vars (equal to round-off: the terminal angles are recomputed)
+    assert abs(L.energy() - e0) <= 1e-13 * abs(e0)
+    assert np.allclose(L.gradient(), g0, rtol=0, atol=1e-10 * np.abs(g0).max())
+    assert abs(L.hessian() - H0).max() <= 1e-10 * abs(H0).max()
+    L.rods.t_src = L.rods.t_src + 1e-3  # a direct edit of the frames alone
+    assert not np.array_equal(L.gradient(), g0)
