@@ -182,7 +182,7 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> Sweep
     for i, flat in enumerate(points):
         tid = _task_id(task.name, flat)
         if tid in seen:
-            raise InputError(f"cases: tasks {seen[tid]} and {i} have identical parameters")
+            raise InputError(f"axes: tasks {seen[tid]} and {i} have identical parameters (a value repeated in an axis or case?)")
         seen[tid] = i
         params = _nest(flat)
         shown = {k: (os.path.relpath(flat[k], base_dir) if k in PATH_KEYS and flat.get(k) else flat.get(k)) for k in varying}
