@@ -170,14 +170,14 @@ def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSett
                         stopped = True
                         break
             else:
-                stopped = _run_dask(spec, out_dir, settings, fn, todo, finish)
+                stopped = _run_dask(spec, out_dir, settings, fn, todo, finish, taskdef.preload)
     finally:  # stopped, interrupted or crashed: the table matches the task.json markers
         write_results_csv(out_dir, spec, records)
     ordered = tuple(records[t.id] for t in spec.tasks if records[t.id] is not None)
     return SweepReport(ordered, done, skipped, failed, time.perf_counter() - t0, stopped)
 
 
-def _run_dask(spec, out_dir, settings, fn, todo, finish) -> bool:
+def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
     """Submit every task to Dask, record them as they complete; True when stopped early."""
     import logging
     import warnings
@@ -192,7 +192,7 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish) -> bool:
             raise InputError(f"--scheduler {settings.scheduler}: cannot connect ({_one_line(exc)})") from None
     else:
         n = settings.workers or os.cpu_count() or 1
-        with warnings.catch_warnings(), _forkserver_with(["xshells.sweeps.run", _module_of(fn)]):
+        with warnings.catch_warnings(), _forkserver_with(["xshells.sweeps.run", _module_of(fn), *preload]):
             warnings.simplefilter("ignore", UserWarning)  # "port 8787 in use" when another cluster runs here
             # processes, one thread each: the solvers hold the GIL and JAX/BLAS threads would oversubscribe
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,

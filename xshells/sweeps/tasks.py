@@ -95,6 +95,9 @@ class TaskDef:
         Whether the task takes a case (a design ``file``, material, ...).
     requires : tuple of str
         Further ``"module:attribute"`` that must import for the task to run.
+    preload : tuple of str
+        Modules that local workers import once, in the server they are forked
+        from (imports only: nothing that starts threads, such as running JAX).
     """
 
     name: str
@@ -102,6 +105,7 @@ class TaskDef:
     params: dict = field(default_factory=dict)
     case: bool = True
     requires: tuple = ()
+    preload: tuple = ()
 
     def resolve(self) -> Callable:
         """The task function; raises InputError when its module does not exist yet."""
@@ -131,9 +135,9 @@ REGISTRY: dict[str, TaskDef] = {}
 
 
 def register_task(name: str, fn: Callable | str, *, params: dict | None = None, case: bool = True,
-                  requires: tuple = ()) -> TaskDef:
+                  requires: tuple = (), preload: tuple = ()) -> TaskDef:
     """Add (or replace) a task; returns its :class:`TaskDef`."""
-    REGISTRY[name] = TaskDef(name, fn, dict(params or {}), case, tuple(requires))
+    REGISTRY[name] = TaskDef(name, fn, dict(params or {}), case, tuple(requires), tuple(preload))
     return REGISTRY[name]
 
 
@@ -262,11 +266,14 @@ def noop_task(params: dict, out_dir: str) -> dict:
     return {"slept_s": time.perf_counter() - t0}
 
 
-register_task("deploy", deploy_task)
+_PLOTS = ("xshells.viz.render", "matplotlib.pyplot")
+register_task("deploy", deploy_task, preload=("xshells.deploy.run",) + _PLOTS)
 register_task("sparsify", sparsify_task, requires=("xshells.actuation.run:run_sparsify",),
+              preload=("xshells.actuation.run",) + _PLOTS,
               params={"eta": number(0), "p": number(0, 1, open_min=True), "tau_max": optional(number(0, open_min=True)),
                       "max_iterations": number(1, integer=True)})
 register_task("optimize", optimize_task, requires=("xshells.design.run:run_optimize",),
+              preload=("xshells.design.run",) + _PLOTS,
               params={"gamma": number(0, 1), "beta": number(0), "max_iterations": number(1, integer=True),
                       "target_surface": text})
 register_task("noop", noop_task, case=False, params={"sleep_s": number(0), "fail": flag})
