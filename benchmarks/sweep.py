@@ -2,7 +2,9 @@
 
 Two sweeps: the tests' (a 3×3 grid, about a second per task, one task
 failing) and the bundled ``sweep_example.yaml`` (regular and irregular
-grids, a few seconds per task), plus 8 no-op tasks for the machinery alone.
+grids, a few seconds per task), plus 8 and 64 no-op tasks for the machinery
+alone (the difference between the two separates the fixed start-up cost from
+the cost per task).
 
 Each configuration runs in a fresh process (imports, JAX cache loading and
 cluster start-up included, as a user pays them). Columns:
@@ -62,7 +64,7 @@ def grid_spec(folder: str) -> str:
 
 
 def noop_spec(folder: str, n: int) -> str:
-    path = os.path.join(folder, "noop.json")
+    path = os.path.join(folder, f"noop{n}.json")
     with open(path, "w") as fh:
         json.dump({"name": "noop", "task": "noop", "axes": {"sleep_s": [i * 1e-6 for i in range(n)]}}, fh)
     return path
@@ -100,14 +102,16 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory() as folder:
         specs = [args.spec] if args.spec else [grid_spec(folder), EXAMPLE]
-        rows = []
-        for name, path in [("deploy", p) for p in specs] + [("noop", noop_spec(folder, 8))]:
+        rows, noop_walls = [], {}
+        for name, path in [("deploy", p) for p in specs] + [("noop", noop_spec(folder, 8)), ("noop", noop_spec(folder, 64))]:
             serial = measure(path, 0)
             dist = measure(path, args.workers)
             if name == "deploy":
                 pairs = [(a, b) for a, b in zip(serial["energies"], dist["energies"]) if a is not None and b is not None]
                 diff = max((abs(a - b) / max(abs(b), 1e-300) for a, b in pairs), default=0.0)
                 print(f"{os.path.basename(path)}: largest relative energy difference serial vs distributed: {diff:.3g}")
+            if name == "noop":
+                noop_walls[dist["tasks"]] = dist["wall"]
             for label, w, m in [("serial", 1, serial), (f"{args.workers} workers", args.workers, dist)]:
                 n = m["tasks"]
                 rows.append((os.path.splitext(os.path.basename(path))[0] if name == "deploy" else "noop", n, label, m["process"], m["wall"],
@@ -117,6 +121,10 @@ def main() -> None:
           f"{'speedup':>9}{'peak MB':>9}")
     for case, n, label, proc, wall, over, speed, mb in rows:
         print(f"{case:<15}{n:>6}  {label:<10}{proc:>10.2f}{wall:>9.2f}{over:>17.2f}{speed:>9.2f}{mb:>9.0f}")
+    if 8 in noop_walls and 64 in noop_walls:
+        per_task = (noop_walls[64] - noop_walls[8]) / 56
+        print(f"no-op tasks on {args.workers} workers: fixed cost (cluster start and stop) {noop_walls[8] - 8 * per_task:.2f} s, "
+              f"then {1e3 * per_task:.1f} ms of wall time per task")
 
 
 if __name__ == "__main__":
