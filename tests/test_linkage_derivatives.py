@@ -95,3 +95,18 @@ def test_zero_direction_and_bad_input():
         hessian_derivative(L, np.zeros(3))
     with pytest.raises(InputError, match="scheme"):
         hessian_derivative(L, np.ones(L.num_vars), scheme="complex")
+
+
+def test_third_derivative_product_agrees_with_the_hessian_derivative():
+    from xshells.linkage.derivatives import third_derivative_product
+
+    L = perturbed(banana(k=4), seed=7)
+    rng = np.random.default_rng(3)
+    dx, _ = scaled_direction(L, rng, False)
+    u, _ = scaled_direction(L, rng, False)
+    x0 = L.get_vars()
+    ref = hessian_derivative(L, dx) @ u
+    got = third_derivative_product(L, dx, u)
+    assert np.array_equal(L.get_vars(), x0)
+    assert np.linalg.norm(got - ref) / np.linalg.norm(ref) < 1e-5
+    assert not third_derivative_product(L, np.zeros(L.num_vars), u).any()

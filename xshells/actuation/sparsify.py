@@ -22,8 +22,8 @@ Hessian ``H`` on the free variables):
   ``H δλ = ∇²T δx − dH[δx] λ``; then ``δ(∂f/∂τ) = S_α δλ / l₀²``;
 * the chain rule through ``τ(t)`` adds ``(∂f/∂τ) τ''(t) δt``.
 
-``dH[δx]`` is the Hessian's directional derivative
-(:mod:`xshells.linkage.derivatives`).
+``dH[δx] λ`` is the third derivative contracted with two vectors
+(:func:`xshells.linkage.derivatives.third_derivative_product`).
 
 The bound-constrained problem is solved by a projected trust-region
 Newton-CG (Steihaug CG on the free variables, in the spirit of Lin & Moré's
@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..linkage.derivatives import hessian_derivative
+from ..linkage.derivatives import third_derivative_product
 from ..linkage.state import restore, snapshot
 from ..solve import NewtonOptions, NotPositiveDefinite, SparseCholesky, minimize
 
@@ -239,7 +239,7 @@ class TorqueFit:
         r = np.zeros(self.L.num_vars)
         r[self.pos_rows] = self.weights[:, None] * dx[self.pos_rows]
         if np.any(self._lam) and np.any(dx):
-            r -= hessian_derivative(self.L, dx, scheme="central") @ self._lam
+            r -= third_derivative_product(self.L, dx, self._lam)
         dlam = np.zeros(self.L.num_vars)
         dlam[self.free] = self.chol.solve(r[self.free])
         g_tau = self._lam[self.angle_rows] / self.l0**2
