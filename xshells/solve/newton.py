@@ -301,9 +301,15 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             if sigma == 0:
                 rho = factor_unshifted(H)
             else:
-                H = augmented(H)
-                rho = aug if constraint is not None else 0.0
-                chol.factorize(shifted(H, sigma))
+                # once the Hessian is positive definite again, take pure Newton steps rather
+                # than letting the shift decay over many slow iterations
+                try:
+                    rho = factor_unshifted(H)
+                    sigma = 0.0
+                except NotPositiveDefinite:
+                    H = augmented(H)
+                    rho = aug if constraint is not None else 0.0
+                    chol.factorize(shifted(H, sigma))
         except NotPositiveDefinite:
             indefinite = True
             H = augmented(H) if sigma == 0 else H
