@@ -205,6 +205,24 @@ def test_optimize_and_sparsify_are_registered_and_available():
     assert get_task("optimize").params.keys() >= {"gamma", "beta"}
 
 
+def _fake_sparsify(params, out_dir):
+    n = max(1, round(8 * (1 - params["eta"]) * params["p"]))
+    return {"num_actuators": n, "fit_mean": 0.01 / n}
+
+
+def test_tradeoff_plot_from_the_column_names(tmp_path):
+    from xshells.sweeps.tasks import number
+
+    register_task("fake_sparsify", _fake_sparsify, case=False, params={"p": number(0), "eta": number(0)})
+    try:
+        spec = spec_from_dict({"task": "fake_sparsify", "axes": {"p": [1, 0.5], "eta": [0.1, 0.5, 0.9]}}, str(tmp_path))
+        rep = run_sweep(spec, str(tmp_path), SweepSettings(workers=0))
+        plots = write_summary(str(tmp_path), spec, {r["id"]: r for r in rep.records})
+        assert [os.path.basename(p) for p in plots] == ["tradeoff.png"]
+    finally:
+        del REGISTRY["fake_sparsify"]
+
+
 def test_bundled_example_spec_is_valid():
     spec = load_spec(EXAMPLES / "sweep_example.yaml")
     assert spec.task == "deploy" and len(spec.tasks) == 8

@@ -92,17 +92,23 @@ def _label(varying: dict) -> str:
     return "\n".join(", ".join(parts[i:i + 2]) for i in range(0, len(parts), 2))  # two per line: tiles are narrow
 
 
-def contact_sheet(path: str, out_dir: str, spec: SweepSpec, records: dict, image: str = "deployed.png",
-                  max_tiles: int = 48) -> bool:
-    """A grid of the finished tasks' ``image`` titled by their varying parameters (as Fig. 14); False if none.
+def contact_sheet(path: str, out_dir: str, spec: SweepSpec, records: dict,
+                  images: tuple = ("deployed.png", "actuators.png"), max_tiles: int = 48) -> bool:
+    """A grid of the finished tasks' pictures titled by their varying parameters (as Fig. 14); False if none.
 
-    Only the first ``max_tiles`` are drawn: a contact sheet of thousands is unreadable (see results.csv).
+    Each task shows the first of ``images`` in its folder (deploy and
+    optimize write ``deployed.png``, sparsify ``actuators.png``). Only the
+    first ``max_tiles`` are drawn: a sheet of thousands is unreadable (see results.csv).
     """
     from ..viz.render import _pyplot, _save
 
-    tiles = [(t, os.path.join(out_dir, "tasks", t.id, image)) for t in spec.tasks
-             if records.get(t.id) and records[t.id]["status"] != "failed"]
-    tiles = [(t, p) for t, p in tiles if os.path.isfile(p)][:max_tiles]
+    tiles = []
+    for t in spec.tasks:
+        if records.get(t.id) and records[t.id]["status"] != "failed":
+            found = [p for p in (os.path.join(out_dir, "tasks", t.id, im) for im in images) if os.path.isfile(p)]
+            if found:
+                tiles.append((t, found[0]))
+    tiles = tiles[:max_tiles]
     if not tiles:
         return False
     plt = _pyplot()
