@@ -140,8 +140,8 @@ def third_derivative_product(linkage, dx, u) -> np.ndarray:
     """``dH[δx] · u = ∂³E[δx, u, ·]`` in the state variables, from four gradients.
 
     The mixed central difference ``∂²/∂s∂r ∇E(x + s δx + r u)`` costs four
-    gradients (about a quarter of one Hessian on the designs here) instead of
-    two Hessians; steps of about ``1e-4`` of the variables' scales give a
+    gradients (about one Hessian, see ``benchmarks/linkage.py``) instead of
+    the two Hessians of :func:`hessian_derivative`; steps of about ``1e-4`` of the variables' scales give a
     relative error near 1e-5 (measured), enough for Newton-CG
     Hessian-vector products.
     """
