@@ -264,6 +264,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     last_angle = float(np.degrees(alpha0))
     previous = None  # (x, joint frames) of the equilibrium before the last one, for the predictor
     smooth = False  # whether the last step was easy (then the path is smooth enough to extrapolate)
+    extrapolate = True  # until an extrapolated guess leads into negative curvature
     why = inversion(linkage.get_vars())
     if why:
         result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}° before the first step: {why}"
@@ -273,8 +274,10 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         if i == options.steps:
             opts = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
         try:
+            used_lead = False
             if i > 1:
-                previous = _predict(linkage, a, angle, previous if smooth else None, pins, edge_vars[active])
+                previous, used_lead = _predict(linkage, a, angle, previous if smooth and extrapolate else None, pins,
+                                               edge_vars[active])
             report = solve(angle, opts)
         except InputError as exc:  # a non-finite or degenerate state: keep the last equilibrium
             restore(linkage, last_good)
@@ -284,6 +287,8 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         result.newton_iterations += report.iterations
         # extrapolate only along an easy stretch of the path: no negative curvature and quick convergence last step
         smooth = report.indefinite_events == 0 and report.iterations <= 3
+        if used_lead and report.indefinite_events:
+            extrapolate = False  # this path is too close to instabilities for extrapolation: tangent guesses from now on
         if not report.converged:
             reached_now = float(np.degrees(a @ linkage.get_vars()))
             restore(linkage, last_good)
@@ -365,17 +370,17 @@ def _predict(linkage: Linkage, a, angle, previous, pins, held):
     so the central difference is kept only if its constrained gradient is ten times
     smaller than the tangent's and the state there is still stable. Both satisfy
     ``a·x = angle``. Returns what the next call needs (``previous=None``
-    skips the central difference); any trouble leaves the state as it is
-    (Newton then starts there).
+    skips the central difference) and whether the central difference was
+    used; any trouble leaves the state as it is (Newton then starts there).
     """
     x = linkage.get_vars()
     current = (x, linkage.joint_b0.copy(), linkage.joint_n0.copy())
     t = _constrained_tangent(linkage, np.concatenate([pins, held]), a)
     if t is None:
-        return current
+        return current, False
     h = angle - float(a @ x)
     allheld = np.concatenate([pins, held]).astype(int)
-    guess = x + h * t
+    guess, used = x + h * t, False
     try:
         if previous is not None:
             xp, bp, np_ = previous
@@ -388,11 +393,12 @@ def _predict(linkage: Linkage, a, angle, previous, pins, held):
             if (np.isfinite(lead).all() and abs(float(a @ lead) - angle) <= 1e-9 * max(abs(angle), 1.0)
                     and _constrained_gradient_norm(linkage, lead, a, allheld) < 0.1 * _constrained_gradient_norm(linkage, guess, a, allheld)
                     and _constrained_tangent(linkage, allheld, a) is not None):
-                guess = lead
+                guess, used = lead, True
         linkage.set_vars(guess)
     except InputError:
         linkage.set_vars(x)
-    return current
+        used = False
+    return current, used
 
 
 def solve_equilibrium(linkage: Linkage, *, torques=None, gravity=None, joint_forces=None,
