@@ -191,7 +191,7 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(f"--scheduler {settings.scheduler}: cannot connect ({_one_line(exc)})") from None
     else:
-        n = settings.workers or os.cpu_count() or 1
+        n = settings.workers or _cores()
         with warnings.catch_warnings(), _forkserver_with(["xshells.sweeps.run", _module_of(fn), *preload]):
             warnings.simplefilter("ignore", UserWarning)  # "port 8787 in use" when another cluster runs here
             # processes, one thread each: the solvers hold the GIL and JAX/BLAS threads would oversubscribe
@@ -228,6 +228,14 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
         if cluster is not None:
             cluster.close()
     return stopped
+
+
+def _cores() -> int:
+    """Cores this process may use (a container or batch job may allow fewer than the machine has)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
 
 
 def _module_of(fn) -> str:
