@@ -17,7 +17,10 @@ cluster start-up included, as a user pays them). Columns:
   workers at the tail, writing results); for the no-op sweep the tasks do
   nothing, so this is the machinery alone;
 - ``speedup``: serial process time / this process time;
-- ``peak MB``: the largest resident set of any process (client or worker).
+- ``peak MB``: the largest resident set of any process (client or worker);
+- ``CPU share``: in-task CPU time / in-task wall time; 1 means the tasks had
+  their cores to themselves, 0.3 that other work on the machine left them a
+  third of one (then the times say little about the sweep itself).
 
 Targets (issue 9): overhead ≤ 1 s/task, 2 workers ≥ 1.7× serial on 2 cores.
 
@@ -80,6 +83,7 @@ def child(spec_path: str, out: str, workers: int) -> None:
     wall = time.perf_counter() - t
     client_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(json.dumps({"tasks": len(rep.records), "wall": wall, "process": time.perf_counter() - T_START, "in_task": sum(r["elapsed_s"] for r in rep.records),
+                      "cpu_share": sum(r["cpu_s"] or 0 for r in rep.records) / max(sum(r["elapsed_s"] for r in rep.records), 1e-9),
                       "peak_mb": max([client_mb] + [r["peak_rss_mb"] for r in rep.records]),
                       "failed": rep.failed, "energies": [r["result"].get("energy") for r in rep.records]}))
 
@@ -115,12 +119,13 @@ def main() -> None:
             for label, w, m in [("serial", 1, serial), (f"{args.workers} workers", args.workers, dist)]:
                 n = m["tasks"]
                 rows.append((os.path.splitext(os.path.basename(path))[0] if name == "deploy" else "noop", n, label, m["process"], m["wall"],
-                             (w * m["wall"] - m["in_task"]) / n, serial["process"] / m["process"], m["peak_mb"]))
+                             (w * m["wall"] - m["in_task"]) / n, serial["process"] / m["process"], m["peak_mb"],
+                             m["cpu_share"]))
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end")
     print(f"{'case':<15}{'tasks':>6}  {'workers':<10}{'process s':>10}{'sweep s':>9}{'overhead/task s':>17}"
-          f"{'speedup':>9}{'peak MB':>9}")
-    for case, n, label, proc, wall, over, speed, mb in rows:
-        print(f"{case:<15}{n:>6}  {label:<10}{proc:>10.2f}{wall:>9.2f}{over:>17.2f}{speed:>9.2f}{mb:>9.0f}")
+          f"{'speedup':>9}{'peak MB':>9}{'CPU share':>11}")
+    for case, n, label, proc, wall, over, speed, mb, share in rows:
+        print(f"{case:<15}{n:>6}  {label:<10}{proc:>10.2f}{wall:>9.2f}{over:>17.2f}{speed:>9.2f}{mb:>9.0f}{share:>11.2f}")
     if 8 in noop_walls and 64 in noop_walls:
         per_task = (noop_walls[64] - noop_walls[8]) / 56
         print(f"no-op tasks on {args.workers} workers: fixed cost (cluster start and stop) {noop_walls[8] - 8 * per_task:.2f} s, "

@@ -273,7 +273,7 @@ def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, f
     from .tasks import TaskDef
 
     started = time.time()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     scratch = None
     given = params  # recorded as given, not as relocated into the scratch folder
     try:
@@ -288,7 +288,8 @@ def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, f
             error = "" if status == "ok" else str(result.get("message", "did not converge"))
         except Exception as exc:  # a task's failure is data, the sweep goes on
             result, status, error = {}, "failed", _one_line(exc)
-        rec = _record(task_name, task_id, given, status, error, result, time.perf_counter() - t0, started)
+        rec = _record(task_name, task_id, given, status, error, result, time.perf_counter() - t0, started,
+                      time.process_time() - c0)
         if scratch is not None:
             rec["_outputs"] = _pack(out_dir)
         return rec
@@ -297,7 +298,7 @@ def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, f
             shutil.rmtree(scratch, ignore_errors=True)
 
 
-def _record(task_name, task_id, params, status, error, result, elapsed, started) -> dict:
+def _record(task_name, task_id, params, status, error, result, elapsed, started, cpu=None) -> dict:
     import resource
 
     scalars = {k: v for k, v in result.items() if isinstance(v, (bool, int, float, str)) or v is None}
@@ -310,6 +311,7 @@ def _record(task_name, task_id, params, status, error, result, elapsed, started)
         "params": params,
         "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(started)),
         "elapsed_s": elapsed,
+        "cpu_s": cpu,  # well below elapsed_s: the task waited for a core (a busy machine)
         # peak resident memory of the process that ran it (KiB on Linux): what a worker needs per task
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1024 if sys.platform != "darwin" else 1024**2),
         "host": socket.gethostname(),

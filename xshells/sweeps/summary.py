@@ -16,7 +16,7 @@ from ..io.export import atomic_write_text
 from .spec import SweepSpec
 
 LEADING = ("index", "id", "status")
-TRAILING = ("elapsed_s", "peak_rss_mb", "error")
+TRAILING = ("elapsed_s", "cpu_s", "peak_rss_mb", "error")
 
 
 def _cell(v):
@@ -38,7 +38,8 @@ def table(spec: SweepSpec, records: dict) -> tuple[list, list]:
             if k not in result_keys:
                 result_keys.append(k)
         row = {"index": task.index, "id": task.id, "status": rec["status"], **task.varying, **rec["result"],
-               "elapsed_s": rec["elapsed_s"], "peak_rss_mb": rec.get("peak_rss_mb"), "error": rec["error"]}
+               "elapsed_s": rec["elapsed_s"], "cpu_s": rec.get("cpu_s"), "peak_rss_mb": rec.get("peak_rss_mb"),
+               "error": rec["error"]}
         rows.append(row)
     columns = list(LEADING) + [k for k in spec.varying_keys if k not in LEADING]
     columns += [k for k in result_keys if k not in columns and k not in TRAILING] + list(TRAILING)
