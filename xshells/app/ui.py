@@ -514,6 +514,9 @@ class App:
 
     def stop(self) -> None:
         self._playing.clear()
+        # detach first: a job still finishing must not draw into a stopped server
+        if self._on_event in self.session.listeners:
+            self.session.listeners.remove(self._on_event)
         self.session.close()
         self.server.stop()
 
