@@ -206,7 +206,15 @@ def test_session_solve_and_exports(tmp_path):
         assert np.abs(second.joints - first.joints).max() > 0
         assert warm < 10
         assert any(e == "stability" for e, _ in events)
-        assert len(s.animation_frames()) >= 3
+        frames = s.animation_frames()
+        assert len(frames) >= 3 and frames == sorted(frames)
+        s.show_frame(frames[1])  # one animation frame: a stored state, no solve
+        assert s.worker.wait_idle(30)
+        shown = [p for e, p in events if e == "deployed"][-1]
+        assert shown.info.angle_deg == pytest.approx(np.degrees(frames[1]))
+        s.set_field("bending stress")
+        assert s.worker.wait_idle(30)
+        assert [p for e, p in events if e == "deployed"][-1].field_name == "bending stress"
         for kind in ("svg", "dxf", "case", "obj", "ply", "gltf", "png"):
             for path in s.export(kind):
                 assert os.path.getsize(path) > 0
