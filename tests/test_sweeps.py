@@ -73,6 +73,8 @@ def test_two_worker_cluster_finishes_and_records_the_failure(cluster_run):
     assert [p.done for p in seen] == list(range(1, 9)) and seen[-1].eta_s == 0.0 and seen[-1].failed == 1
     plots = write_summary(str(out), spec, {r["id"]: r for r in report.records})
     assert {os.path.basename(p) for p in plots} == {"contact_sheet.png", "energy_vs_angle.png"}
+    again = run_sweep(spec, str(out), SweepSettings(workers=2))  # all finished: nothing runs, no cluster starts
+    assert (again.ran, again.skipped) == (0, 8) and again.wall_s < 2
 
 
 def test_serial_gives_the_same_numbers(cluster_run, tmp_path):
