@@ -199,7 +199,6 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     ws = _workspace(problem)
     chol = ws.chol
     sigma, sigma0 = 0.0, None
-    sigma_memory = 0.0  # the decaying shift after a return to pure Newton steps
     lam_M = None
     _mass = []
 
@@ -300,27 +299,14 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         indefinite = False
         try:
             if sigma == 0:
-                try:
-                    rho = factor_unshifted(H)
-                except NotPositiveDefinite:
-                    if sigma_memory <= 0:
-                        raise
-                    # indefinite again soon after a shifted spell: resume the decaying shift
-                    # (what the shift would have been) rather than a new eigen-solve
-                    Ha = augmented(H)
-                    chol.factorize(shifted(Ha, sigma_memory))  # if this fails too, H is still the plain one below
-                    H, sigma = Ha, sigma_memory
-                    rho = aug if constraint is not None else 0.0
+                rho = factor_unshifted(H)
             else:
-                # once the Hessian is positive definite again, take pure Newton steps rather
-                # than letting the shift decay over many slow iterations
-                try:
-                    rho = factor_unshifted(H)
-                    sigma_memory, sigma = sigma, 0.0
-                except NotPositiveDefinite:
-                    H = augmented(H)
-                    rho = aug if constraint is not None else 0.0
-                    chol.factorize(shifted(H, sigma))
+                # the shift decays by halves after an indefinite spell (pure Newton steps right
+                # away were tried: near a saddle they head back to it, and each new escape
+                # costs an eigen-solve)
+                H = augmented(H)
+                rho = aug if constraint is not None else 0.0
+                chol.factorize(shifted(H, sigma))
         except NotPositiveDefinite:
             indefinite = True
             H = augmented(H) if sigma == 0 else H
@@ -394,7 +380,6 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             report.message = f"step below round-off at |g| = {gnorm:.3e}"
             break
         sigma = 0.0 if sigma < 1e-8 * (sigma0 or 0.0) else sigma / 2
-        sigma_memory = 0.0 if sigma_memory < 1e-8 * (sigma0 or 0.0) else sigma_memory / 2
         if callback is not None and callback(it, report):
             report.message = "stopped by callback"
             break
