@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..deploy.case import load_case, material_from_spec
+from ..deploy.case import load_case, material_from_spec, target_angle
 from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
 from ..errors import InputError
 from ..io.design import read_design, read_rest_lengths
@@ -49,12 +49,7 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
     else:
         minimize(L, fixed=L.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
     flat_energy = L.energy()
-    if angle_deg is not None:
-        target = np.radians(angle_deg)
-    elif case.angle_rad is not None:
-        target = case.angle_rad
-    else:
-        target = L.average_angle() + (case.open_by_rad if case.open_by_rad is not None else np.radians(60.0))
+    target = target_angle(case, L, angle_deg)
     bar = None
     if progress:
         from tqdm import tqdm

@@ -11,34 +11,15 @@ from __future__ import annotations
 import io
 import json
 import os
-import tempfile
 from xml.sax.saxutils import escape
 
 import numpy as np
 
 from ..errors import InputError
-from ..io.export import atomic_write_text
+from ..io.export import atomic_write_bytes, atomic_write_text
 from .core import Layout
 
 MESH_FORMATS = (".obj", ".ply", ".gltf", ".glb")
-
-
-def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temporary file + ``os.replace``)."""
-    path = os.fspath(path)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(path), dir=os.path.dirname(os.path.abspath(path)))
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
 
 
 def _rest(layout: Layout, rest_lengths) -> np.ndarray:

@@ -74,3 +74,13 @@ def material_from_spec(spec: dict):
     if kind == "contour":
         return Material.from_file(spec["contour_file"], young=E, poisson=nu, stiff_axis=axis)
     return Material.uniform(kind, spec.get("params", []), E=E, nu=nu, stiff_axis=axis)
+
+
+def target_angle(case: Case, linkage, angle_deg=None) -> float:
+    """The case's target average angle (radians): ``angle_deg`` if given, else the case's
+    angle, else the linkage's current angle opened by ``open_by`` (default 60°)."""
+    if angle_deg is not None:
+        return float(np.radians(angle_deg))
+    if case.angle_rad is not None:
+        return float(case.angle_rad)
+    return linkage.average_angle() + (case.open_by_rad if case.open_by_rad is not None else np.radians(60.0))

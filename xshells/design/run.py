@@ -9,7 +9,7 @@ from dataclasses import asdict
 
 import numpy as np
 
-from ..deploy.case import load_case, material_from_spec
+from ..deploy.case import load_case, material_from_spec, target_angle
 from ..deploy.run import _write_outputs
 from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
 from ..errors import InputError
@@ -30,12 +30,7 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
     if p is None:
         rest_length_solve(L)
-    if angle_deg is not None:
-        target = np.radians(angle_deg)
-    elif case.angle_rad is not None:
-        target = case.angle_rad
-    else:
-        target = L.average_angle() + (case.open_by_rad if case.open_by_rad is not None else np.radians(60.0))
+    target = target_angle(case, L, angle_deg)
     if not (0 < target < np.pi):
         raise InputError(f"target angle {np.degrees(target):.4g}° is out of reach: it must lie strictly between 0° and 180°")
     D = copy.deepcopy(L)
