@@ -108,5 +108,5 @@ def test_third_derivative_product_agrees_with_the_hessian_derivative():
     ref = hessian_derivative(L, dx) @ u
     got = third_derivative_product(L, dx, u)
     assert np.array_equal(L.get_vars(), x0)
-    assert np.linalg.norm(got - ref) / np.linalg.norm(ref) < 1e-4  # measured 1e-5
+    assert np.linalg.norm(got - ref) / np.linalg.norm(ref) < 1e-4  # measured 4e-5 (manta ray: 6e-5)
     assert not third_derivative_product(L, np.zeros(L.num_vars), u).any()
