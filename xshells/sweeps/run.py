@@ -192,11 +192,18 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
             raise InputError(f"--scheduler {settings.scheduler}: cannot connect ({_one_line(exc)})") from None
     else:
         n = settings.workers or _cores()
-        with warnings.catch_warnings(), _forkserver_with(["xshells.sweeps.run", _module_of(fn), *preload]):
+        import dask
+
+        env = worker_env()
+        # numeric libraries on one thread (set before the fork server imports NumPy); no statistical
+        # profiler (it samples the task thread's stack every 10 ms, taking the GIL from the solver: it
+        # doubled the worker's own CPU time, to about 4% of a core beside the task)
+        with warnings.catch_warnings(), _environ(env), dask.config.set(WORKER_CONFIG), \
+                _forkserver_with(["xshells.sweeps.run", _module_of(fn), *preload]):
             warnings.simplefilter("ignore", UserWarning)  # "port 8787 in use" when another cluster runs here
             # processes, one thread each: the solvers hold the GIL and JAX/BLAS threads would oversubscribe
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
+                                   silence_logs=logging.ERROR, env=env)
         client = Client(cluster)
     stopped = False
     try:
@@ -236,6 +243,43 @@ def _cores() -> int:
         return max(len(os.sched_getaffinity(0)), 1)
     except AttributeError:  # macOS, Windows
         return os.cpu_count() or 1
+
+
+# One thread per local worker for every numeric library: a worker per core, each running one task, and
+# OpenBLAS's or XLA's own pools (a thread per core each) would put several busy threads on every core.
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+XLA_ONE_THREAD = "--xla_cpu_multi_thread_eigen=false"
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+
+
+def worker_env(environ=None) -> dict:
+    """Environment variables that pin a worker's numeric libraries to one thread.
+
+    BLAS reads its variable when NumPy is imported, XLA when JAX first runs,
+    so they must be set before either: :func:`_run_dask` sets them while the
+    fork server (which imports NumPy) and the workers start. An ``XLA_FLAGS``
+    already set is kept, with the single-thread flag added.
+    """
+    environ = os.environ if environ is None else environ
+    env = {k: "1" for k in THREAD_VARS}
+    xla = environ.get("XLA_FLAGS", "")
+    env["XLA_FLAGS"] = xla if "xla_cpu_multi_thread_eigen" in xla else f"{xla} {XLA_ONE_THREAD}".strip()
+    return env
+
+
+@contextlib.contextmanager
+def _environ(env: dict):
+    """Set ``env`` in this process while local workers start (their fork server inherits it), then restore."""
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def _module_of(fn) -> str:
