@@ -63,7 +63,9 @@ Stretching: ``ks L (|e|/L − 1)² / 2``.
 """
 from __future__ import annotations
 
-import jax.numpy as jnp
+from .. import _jaxconfig  # noqa: F401  (float64) before JAX is used
+
+import jax.numpy as jnp  # noqa: E402
 
 from . import vec
 
