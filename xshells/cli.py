@@ -25,7 +25,8 @@ SUBCOMMANDS = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(modules: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser with the subcommands of ``modules`` (default: all of :data:`SUBCOMMANDS`)."""
     parser = argparse.ArgumentParser(
         prog="xshells",
         description="Design, simulate and fabricate X-shells (deployable elastic gridshells).",
@@ -34,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser.add_argument("--version", action="version", version=f"xshells {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in SUBCOMMANDS:
+    for name in SUBCOMMANDS if modules is None else modules:
         try:
             mod = importlib.import_module(name)
         except ModuleNotFoundError as exc:  # a subcommand still being built
@@ -45,8 +46,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _parser_for(argv: list[str]) -> argparse.ArgumentParser:
+    """A parser with only the named subcommand's module when that is ``xshells.<command>.cli``, else all.
+
+    Importing a subcommand's package may load the solver (JAX, SciPy); ``xshells
+    app`` must serve its page first, so it does not import the others.
+    """
+    if argv and f"xshells.{argv[0]}.cli" in SUBCOMMANDS:
+        parser = build_parser([f"xshells.{argv[0]}.cli"])
+        sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if sub is not None and argv[0] in sub.choices:
+            return parser
+    return build_parser()
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = _parser_for(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
