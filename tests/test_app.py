@@ -63,9 +63,16 @@ def test_app_in_chromium(tmp_path):
                 page.get_by_text("xshells").first.wait_for(timeout=30000)
                 _wait(lambda: len(app.server.get_clients()) == 1, 30, "the page to connect")
                 t_ready = time.perf_counter() - t0
+                # viser's notice about software WebGL (headless Chromium has no GPU) would cover the view
+                notice = page.locator(".mantine-Notification-root button").first
+                try:
+                    notice.click(timeout=5000)
+                except playwright_api.Error:
+                    pass
+                # the solver starts a few seconds after the page has connected, on the worker
+                _wait(lambda: app.session.last_deployed is not None, 120, "the first deployment")
                 assert app.session.worker.wait_idle(120)
                 first = app.session.last_deployed
-                assert first is not None, app.status_md.content
                 page.wait_for_timeout(1500)
                 page.screenshot(path=os.path.join(ARTIFACTS, "01_loaded.png"))
                 print(f"loaded and deployed {time.perf_counter() - t0:.1f} s")
@@ -114,6 +121,36 @@ def test_app_in_chromium(tmp_path):
                 page.screenshot(path=os.path.join(ARTIFACTS, "04_export.png"))
                 print(f"export {time.perf_counter() - t0:.1f} s")
 
+                # sparse actuation and a short optimization step, on a small design made in the page
+                app.grid_n.value = (3, 3)
+                app.grid_angle.value = 70.0
+                page.get_by_role("tab", name="Design").click()
+                page.get_by_role("button", name="New grid").click()
+                _wait(lambda: app.session.name.startswith("grid"), 20, "the new grid")
+                page.get_by_role("button", name="Bend").click()
+                _wait(lambda: app.session.history.can_undo, 20, "the bend warp")
+                page.get_by_role("button", name="Simulate edited layout").click()
+                _wait(lambda: app.session.worker.busy, 10, "the solve to start")
+                assert app.session.worker.wait_idle(120)
+                dense = app.session.last_deployed
+                assert dense is not None and dense.info.converged, app.status_md.content
+                page.get_by_role("tab", name="Optimize").click()
+                app.opt_iters.value = 2
+                page.get_by_role("button", name="Actuate (sparse torques)").click()
+                page.get_by_text(re.compile(r"\d+ of \d+ joints actuated")).first.wait_for(timeout=120000)
+                assert "/deployed/actuators" in app._extras  # drawn on the actuated equilibrium
+                page.wait_for_timeout(1000)
+                page.screenshot(path=os.path.join(ARTIFACTS, "05_actuated.png"))
+                print(f"actuate {time.perf_counter() - t0:.1f} s")
+                page.get_by_role("button", name="Optimize", exact=True).click()
+                page.get_by_text(re.compile(r"J: [0-9.e+-]+ → [0-9.e+-]+")).first.wait_for(timeout=120000)
+                assert len(app._opt_history) >= 2  # live progress: the plot got one point per iteration
+                assert app.session.worker.wait_idle(120)  # then the optimized design is deployed again
+                assert app.session.last_deployed is not dense and app.session.last_deployed.info.converged
+                page.wait_for_timeout(1000)
+                page.screenshot(path=os.path.join(ARTIFACTS, "06_optimized.png"))
+                print(f"optimize {time.perf_counter() - t0:.1f} s")
+
                 # uploads through the page: a design, then a malformed and an oversized file
                 page.get_by_role("tab", name="Design").click()
                 upload = page.locator("input[type=file]").first
@@ -124,7 +161,10 @@ def test_app_in_chromium(tmp_path):
                 # overwritten by the quad's background deployment finishing)
                 page.get_by_text(re.compile(r"upload refused: bad\.obj.*line 2")).first.wait_for(timeout=20000)
                 assert app.session.name == "quad"
-                page.screenshot(path=os.path.join(ARTIFACTS, "05_bad_upload.png"))
+                assert app.session.worker.wait_idle(60)  # the quad's deployment, whose status replaces the message there
+                page.wait_for_timeout(500)
+                assert "bad.obj" in app.upload_md.content and "line 2" in app.upload_md.content  # kept by the button
+                page.screenshot(path=os.path.join(ARTIFACTS, "07_bad_upload.png"))
                 print(f"bad upload {time.perf_counter() - t0:.1f} s")
                 big = b"#" * (MAX_UPLOAD_BYTES + 1)
                 upload.set_input_files(files=[{"name": "big.obj", "mimeType": "text/plain", "buffer": big}])
@@ -136,7 +176,7 @@ def test_app_in_chromium(tmp_path):
                       30, "the upload button to come back")
                 upload.set_input_files(EXAMPLE)
                 _wait(lambda: app.session.name == "nonuniform_linkage", 20, "the second upload to open")
-                page.screenshot(path=os.path.join(ARTIFACTS, "06_big_upload.png"))
+                page.screenshot(path=os.path.join(ARTIFACTS, "08_big_upload.png"))
             finally:
                 browser.close()
         print(f"page interactive {t_ready:.2f} s after start")

@@ -286,3 +286,45 @@ def test_adapters_drive_optimization_and_actuation_and_stop():
 
         out = run(sim.linkage, arg, progress=progress, cancel=cancel)
         assert len(seen) == 2 and np.all(np.isfinite(seen)) and out.message
+
+
+def test_session_optimize_and_actuate_on_the_worker(tmp_path):
+    """The app's Optimize and Actuate paths (session → adapters → xshells.design / xshells.actuation) on a small grid."""
+    from xshells.app import adapters
+    from xshells.app.loading import Project
+    from xshells.app.session import Session
+
+    if not (adapters.optimize_available() and adapters.actuate_available()):
+        pytest.skip("optimization or actuation not available yet")
+    g = grid_project(3, 3, 70)
+    s = Session(Project("bent", core.warp_bend(g.layout, 0.3), g.material, 4), out_dir=str(tmp_path))
+    events = []
+    s.listeners.append(lambda e, p: events.append((e, p)))
+    try:
+        s.request_angle(100.0)
+        assert s.worker.wait_idle(120) and s.last_deployed is not None
+        dense = s.last_deployed
+        p0 = s._rest_lengths().copy()
+
+        assert s.actuate(max_iterations=3)
+        assert s.worker.wait_idle(120), s.worker.last_error
+        (out, joints), = [p for e, p in events if e == "actuated"]
+        assert len(out.torques) == s.sim.linkage.num_joints == len(joints)
+        assert 0 < len(out.actuated) <= len(out.torques) and np.all(out.torques[out.actuated] > 0)
+        assert [p for e, p in events if e == "opt_progress"]  # live progress, one record per iteration
+        assert [p for e, p in events if e == "deployed"][-1].info.message.startswith("sparse actuation")
+        assert s.last_deployed is dense  # the dense state stays the reference for the next actuation
+
+        events.clear()
+        s.optimize(100.0, max_iterations=1)
+        assert s.worker.wait_idle(300), s.worker.last_error
+        (opt,), = [(p,) for e, p in events if e == "optimized"]
+        assert opt.iterations >= 1 and opt.message
+        assert 0 < opt.after["J"] <= opt.before["J"] + 1e-12  # the returned design is the best feasible one
+        # the optimized rest lengths are the design's now (one iteration may keep them)
+        assert s.rest_lengths is opt.rest_lengths and len(opt.rest_lengths) == len(p0)
+        after = s.last_deployed
+        assert after is not dense and abs(after.info.angle_deg - 100.0) < 1e-6  # and it was re-deployed
+        assert np.allclose(s._rest_lengths(), s.rest_lengths)
+    finally:
+        s.close()

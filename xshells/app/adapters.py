@@ -27,6 +27,7 @@ Adapter signatures (what the app calls; plug in new implementations here)
 from __future__ import annotations
 
 import importlib
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,13 +37,26 @@ NOT_AVAILABLE = "not available yet"
 
 @dataclass(frozen=True)
 class OptimizeOutcome:
+    """What a design optimization run gives the app.
+
+    ``before`` / ``after``: the objective's terms at the start and at the
+    design returned (the best feasible iterate, which may be the start) (``J``, ``flat_energy``, ``deployed_energy``), for the
+    before/after comparison.
+    """
+
     rest_lengths: np.ndarray
     message: str
     success: bool
+    iterations: int = 0
+    before: dict | None = None
+    after: dict | None = None
+    rest_lengths_before: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
 class ActuateOutcome:
+    """What a sparse actuation run gives the app: torque per joint, indices of the actuated joints."""
+
     torques: np.ndarray
     actuated: np.ndarray
     message: str
@@ -59,13 +73,25 @@ def _lookup(module: str, name: str):
 
 
 def _present(module: str) -> bool:
-    """Whether ``module`` exists, without importing it (cheap enough for start-up)."""
+    """Whether ``module`` exists, without importing it or its package (cheap enough for start-up).
+
+    ``find_spec("a.b.c")`` would import the package ``a.b``, whose ``__init__``
+    may load the solver; only ``a`` is looked up here, and ``b/c`` on disk.
+    """
     import importlib.util
 
+    top, *rest = module.split(".")
     try:
-        return importlib.util.find_spec(module) is not None
-    except ImportError:  # a missing parent package
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
         return False
+    if spec is None or not rest:
+        return spec is not None
+    for base in spec.submodule_search_locations or []:
+        path = os.path.join(base, *rest)
+        if os.path.isfile(path + ".py") or os.path.isfile(os.path.join(path, "__init__.py")):
+            return True
+    return False
 
 
 def modules_present() -> tuple[bool, bool]:
@@ -82,23 +108,40 @@ def actuate_available() -> bool:
     return _lookup("xshells.actuation", "sparsify") is not None
 
 
-def run_optimize(linkage, target_angle: float, *, progress, cancel) -> OptimizeOutcome:
+def _terms(rec) -> dict:
+    return {k: float(getattr(rec, k)) for k in ("J", "flat_energy", "deployed_energy") if hasattr(rec, k)}
+
+
+def run_optimize(linkage, target_angle: float, *, progress, cancel, max_iterations: int | None = None) -> OptimizeOutcome:
     """Optimize the rest lengths for a low-energy deployment at ``target_angle`` (see the module docstring)."""
     Problem = _lookup("xshells.design.objective", "DesignProblem")
     optimize = _lookup("xshells.design.optimize", "optimize")
     if Problem is None or optimize is None:
         raise NotImplementedError(f"design optimization: {NOT_AVAILABLE}")
+    p_before = np.array(linkage.rest_lengths, float)
     problem = Problem(linkage, target_angle)
+    records: list = []
 
     def cb(rec) -> bool:
+        records.append(rec)
         progress(int(rec.iteration), float(rec.J), f"J = {rec.J:.4g}")
         return cancel.is_set()
 
-    res = optimize(problem, callback=cb)
-    return OptimizeOutcome(np.asarray(res.rest_lengths, float), str(res.message), bool(res.success))
+    kw = {}
+    if max_iterations is not None:
+        kw["options"] = _lookup("xshells.design.optimize", "OptimizeOptions")(max_iterations=int(max_iterations))
+    res = optimize(problem, callback=cb, **kw)
+    history = list(getattr(res, "history", None) or records)
+    try:  # the design returned (the best feasible iterate; the problem is left there)
+        after = {k: float(v) for k, v in problem.terms(res.q).items() if k in ("J", "flat_energy", "deployed_energy")}
+    except Exception:  # noqa: BLE001  (an older DesignProblem: fall back to the last record)
+        after = _terms(history[-1]) if history else None
+    return OptimizeOutcome(np.asarray(res.rest_lengths, float), str(res.message), bool(res.success),
+                           int(getattr(res, "iterations", len(history))), _terms(history[0]) if history else None, after,
+                           p_before)
 
 
-def run_actuate(linkage, torque: float, *, progress, cancel) -> ActuateOutcome:
+def run_actuate(linkage, torque: float, *, progress, cancel, max_iterations: int | None = None) -> ActuateOutcome:
     """Find sparse joint torques that hold the current deployed shape (see the module docstring)."""
     sparsify = _lookup("xshells.actuation", "sparsify")
     if sparsify is None:
@@ -108,5 +151,8 @@ def run_actuate(linkage, torque: float, *, progress, cancel) -> ActuateOutcome:
         progress(int(rec.iteration), float(rec.objective), f"{rec.num_actuators} actuators")
         return cancel.is_set()
 
-    res = sparsify(linkage, float(torque), callback=cb)
+    kw = {}
+    if max_iterations is not None:
+        kw["options"] = _lookup("xshells.actuation", "SparsifyOptions")(max_iterations=int(max_iterations))
+    res = sparsify(linkage, float(torque), callback=cb, **kw)
     return ActuateOutcome(np.asarray(res.torques, float), np.asarray(res.actuated), str(res.message), bool(res.converged))

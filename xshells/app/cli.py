@@ -18,15 +18,25 @@ def register(subparsers) -> None:
 
 
 def start(input_path: str | None = None, *, host: str = "127.0.0.1", port: int = 8080, out_dir: str = "xshells_app_out"):
-    """Build the session and the server; returns the :class:`~xshells.app.ui.App` (already serving)."""
-    from .loading import grid_project, open_path
-    from .session import Session
-    from .ui import App
+    """Build the session and the server; returns the :class:`~xshells.app.ui.App` (already serving).
 
+    The server listens first, so the browser loads the page while the design
+    is read; the solver is imported and run later, on the session's worker.
+    """
     if not 0 < port < 65536:
         raise InputError(f"--port must be 1 to 65535, got {port}")
-    project = open_path(input_path) if input_path else grid_project(6, 6)
-    return App(Session(project, out_dir=out_dir), host=host, port=port)
+    from .ui import App, serve
+
+    server = serve(host, port)
+    try:
+        from .loading import grid_project, open_path
+        from .session import Session
+
+        project = open_path(input_path) if input_path else grid_project(6, 6)
+        return App(Session(project, out_dir=out_dir), server=server)
+    except BaseException:
+        server.stop()
+        raise
 
 
 def _app(args) -> int:

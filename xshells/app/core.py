@@ -216,16 +216,27 @@ def topology_problems(layout: Layout) -> list[str]:
 
 
 def components(layout: Layout) -> int:
-    """Number of connected parts among the vertices that carry a segment."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    """Number of connected parts among the vertices that carry a segment.
 
-    n, E = layout.num_vertices, layout.edges
+    A plain union-find (a few hundred joints): SciPy's graph module would add
+    half a second to the app's start-up.
+    """
+    E = layout.edges
     if len(E) == 0:
         return 0
-    A = coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(n, n))
-    _, label = connected_components(A, directed=False)
-    return int(len(np.unique(label[np.unique(E)])))
+    parent = list(range(layout.num_vertices))
+
+    def root(v: int) -> int:
+        while parent[v] != v:
+            parent[v] = parent[parent[v]]
+            v = parent[v]
+        return v
+
+    for a, b in E.tolist():
+        ra, rb = root(a), root(b)
+        if ra != rb:
+            parent[ra] = rb
+    return len({root(v) for v in np.unique(E).tolist()})
 
 
 # ----------------------------------------------------------------------------- picking

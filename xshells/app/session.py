@@ -3,13 +3,17 @@
 The UI layer (:mod:`.ui`) only forwards user actions to a :class:`Session`
 and draws what the session reports through its listeners:
 
+* ``"project"`` — a design was opened (payload: its name); what was solved for the last one is gone;
 * ``"layout"`` — the flat layout changed (payload: the :class:`Layout`);
 * ``"problems"`` — topology problems (list of one-line messages);
 * ``"material"`` — the material summary text;
 * ``"flat"`` / ``"deployed"`` — a :class:`View` of the flat assembly state / the deployed state;
 * ``"stability"`` — ``(λ_min, gap)`` at the shown deployed state;
 * ``"status"`` — a one-line message (errors included);
-* ``"progress"`` — ``(fraction, text)`` of the running job.
+* ``"upload"`` — what became of the last upload (opened, or why it was refused);
+* ``"progress"`` — ``(fraction, text)`` of the running job;
+* ``"opt_progress"`` — ``(iteration, value, text)`` of a running optimization or actuation;
+* ``"optimized"`` / ``"actuated"`` — their outcomes; ``"task_failed"`` — why one of them failed.
 
 Solves run on the session's :class:`~.worker.Worker`; a newer angle request
 cancels the solve still running for an older one.
@@ -49,6 +53,13 @@ class View:
     solve_time_s: float = 0.0
 
 
+def spec_summary(spec: dict) -> str:
+    """A material spec as one line, before its stiffnesses are computed (that needs the section's torsion solve)."""
+    params = ", ".join(f"{float(v):g}" for v in spec.get("params", []))
+    return (f"{spec.get('type', 'rectangle')} {params}, E = {float(spec.get('E', 20000.0)):.4g}, "
+            f"ν = {float(spec.get('nu', 0.3)):.3g}  \nstiffnesses: computed with the first solve")
+
+
 def material_summary(material) -> str:
     """Stiffnesses of a material as one short Markdown block."""
     B1, B2 = material.bending_stiffness
@@ -79,6 +90,7 @@ class Session:
         self._sim_key = None
         self.last_deployed: View | None = None
         self.angle_deg: float | None = None
+        self._opt_stop = threading.Event()
         self.load(project)
 
     # ------------------------------------------------------------------ events
@@ -105,9 +117,10 @@ class Session:
             self.rest_lengths = project.rest_lengths
             self.target_angle_deg = project.target_angle_deg
             self.material_spec = dict(project.material)
-            self.material = self._build_material(self.material_spec)
+            self._material = None  # built on the worker, with the first solve
             self.sim, self._sim_key, self.last_deployed, self.angle_deg = None, None, None, None
-        self._emit("material", material_summary(self.material))
+        self._emit("project", project.name)
+        self._emit("material", spec_summary(self.material_spec))
         self._layout_changed()
         self.status(f"opened {project.name}: {project.layout.num_segments} segments")
 
@@ -115,15 +128,21 @@ class Session:
         self.load(open_path(path))
 
     def open_upload(self, name: str, content: bytes) -> bool:
-        """Open an uploaded file; a bad upload only produces a status message. Returns success."""
+        """Open an uploaded file; a bad upload only produces a message (``"upload"`` and status). Returns success."""
         try:
             self.load(self.uploads.open_upload(name, content))
+            self._emit("upload", f"opened {os.path.basename(str(name))}")
             return True
         except InputError as exc:
-            self.status(f"upload refused: {exc}")
+            self.upload_refused(str(exc))
         except Exception as exc:  # noqa: BLE001  (malformed input must never crash the app)
-            self.status(f"upload refused: {os.path.basename(str(name))}: cannot read it ({type(exc).__name__})")
+            self.upload_refused(f"{os.path.basename(str(name))}: cannot read it ({type(exc).__name__})")
         return False
+
+    def upload_refused(self, why: str) -> None:
+        """Report a refused upload: in the status line and as the ``"upload"`` event (kept beside the upload button)."""
+        self._emit("upload", f"upload refused: {why}")
+        self.status(f"upload refused: {why}")
 
     def new_grid(self, nx: int, ny: int, angle_deg: float) -> None:
         self.load(grid_project(int(nx), int(ny), float(angle_deg)))
@@ -176,6 +195,29 @@ class Session:
             return Material.from_file(spec["contour_file"], young=E, poisson=nu, stiff_axis=spec.get("stiff_axis"))
         return Material.uniform(kind, spec.get("params", []), E=E, nu=nu, stiff_axis=spec.get("stiff_axis"))
 
+    @property
+    def material(self):
+        """The current :class:`~xshells.section.Material`, built on first use.
+
+        Building it runs the section's torsion solve (and imports SciPy and
+        scikit-fem), so the session does it on the worker, not at start-up.
+        """
+        with self._lock:
+            spec, m = self.material_spec, self._material
+        if m is not None:
+            return m
+        m = self._build_material(spec)
+        with self._lock:
+            if self.material_spec is not spec:  # changed meanwhile: that one wins
+                return self._material if self._material is not None else m
+            fresh = self._material is None
+            if fresh:
+                self._material = m
+            m = self._material
+        if fresh:
+            self._emit("material", material_summary(m))
+        return m
+
     def set_material(self, kind: str, params, E: float, nu: float) -> bool:
         """Change the cross-section and elastic constants; a bad value only shows a message."""
         spec = {"type": kind, "params": [float(v) for v in params], "E": float(E), "nu": float(nu)}
@@ -185,7 +227,7 @@ class Session:
             self.status(f"material: {exc}")
             return False
         with self._lock:
-            self.material_spec, self.material = spec, material
+            self.material_spec, self._material = spec, material
         self._emit("material", material_summary(material))
         return True
 
@@ -194,21 +236,27 @@ class Session:
 
     # ------------------------------------------------------------------ simulation
     def _key(self):
-        return (id(self.layout), id(self.material), self.subdivision,
+        return (id(self.layout), id(self.material_spec), self.subdivision,
                 None if self.rest_lengths is None else id(self.rest_lengths))
 
     def _ensure_sim(self, cancel):
         """The simulation of the current layout and material, building it (assembly solve) if stale."""
         with self._lock:
-            key, layout, material, k, p = self._key(), self.layout, self.material, self.subdivision, self.rest_lengths
+            key, layout, k, p = self._key(), self.layout, self.subdivision, self.rest_lengths
             if self.sim is not None and self._sim_key == key:
                 return self.sim
         problems = core.topology_problems(layout)
         if problems:
             raise InputError("cannot simulate: " + problems[0])
-        self._emit("progress", (0.0, "assembly state…"))
-        from .sim import Simulation
+        self._emit("progress", (0.02, "loading the solver…"))
+        from .sim import Simulation  # the first time: JAX, SciPy (about a second)
 
+        self._emit("progress", (0.05, "cross-section stiffnesses…"))
+        material = self.material
+        if cancel is not None and cancel.is_set():
+            from .sim import Cancelled
+            raise Cancelled()
+        self._emit("progress", (0.1, f"assembly state ({layout.num_segments} segments)…"))
         sim = Simulation(layout, material, k, rest_lengths=p, cancel=cancel)
         with self._lock:
             self.sim, self._sim_key = sim, key
@@ -234,10 +282,10 @@ class Session:
         self.angle_deg = float(angle_deg)
 
         def job(cancel, progress):
-            t0 = time.perf_counter()
             sim = self._ensure_sim(cancel)
             t0 = time.perf_counter()
-            info = sim.solve_to(angle_deg, cancel=cancel, progress=progress)
+            info = sim.solve_to(angle_deg, cancel=cancel,
+                                progress=lambda f, text: progress(f, f"deploying to {angle_deg:.1f}°: at {text}"))
             view = self._view(sim, t0, info)
             return view
 
@@ -269,7 +317,92 @@ class Session:
         self._emit("progress", (0.0, "stopped"))
 
     def cancel(self) -> None:
+        self._opt_stop.set()
         self.worker.cancel_all()
+
+    # ------------------------------------------------------------------ optimize / actuate
+    def optimize(self, angle_deg: float, max_iterations: int = 10) -> None:
+        """Design optimization on the worker (:func:`.adapters.run_optimize`) for a deployment at ``angle_deg``.
+
+        Starts from the current rest lengths, so running it again resumes.
+        Emits ``"opt_progress"`` ``(iteration, J, text)`` per iteration and
+        ``"optimized"`` (:class:`~.adapters.OptimizeOutcome`) at the end;
+        the new rest lengths then become the design's and it is re-deployed
+        to ``angle_deg``. :meth:`stop_optimization` stops after the current iteration.
+        """
+        from . import adapters
+
+        self._opt_stop = stop = threading.Event()
+
+        def job(cancel, progress):
+            sim = self._ensure_sim(cancel)
+            sim.show_state(sim.flat_angle)
+
+            def step(it, value, text):
+                if cancel.is_set():
+                    stop.set()
+                self._emit("opt_progress", (it, value, text))
+                progress(min(1.0, it / max(1, max_iterations)), f"optimizing: iteration {it}, {text}")
+
+            return adapters.run_optimize(sim.linkage, np.radians(float(angle_deg)), progress=step, cancel=stop,
+                                         max_iterations=max_iterations)
+
+        def done(out) -> None:
+            with self._lock:
+                self.rest_lengths = out.rest_lengths
+            self._emit("optimized", out)
+            self.status(f"optimization: {out.message}; deploying the optimized design")
+            self.request_angle(angle_deg)
+
+        self.worker.submit(job, key="optimize", on_done=done, on_error=lambda e: self._task_error("optimization", e))
+
+    def stop_optimization(self) -> None:
+        self._opt_stop.set()
+
+    def actuate(self, max_iterations: int = 20) -> bool:
+        """Sparse actuation on the worker (:func:`.adapters.run_actuate`) at the shown deployed state.
+
+        Emits ``"opt_progress"`` per iteration, then ``"deployed"`` with the
+        sparsely actuated equilibrium and ``"actuated"`` ``(outcome, joints)``
+        (joint positions there). Returns False when nothing is deployed yet.
+        """
+        from . import adapters
+
+        view, sim = self.last_deployed, self.sim
+        if view is None or sim is None:
+            self.status("deploy first (move the angle slider), then actuate")
+            return False
+        self._opt_stop = stop = threading.Event()
+
+        def job(cancel, progress):
+            sim.show_state(np.radians(view.info.angle_deg))
+
+            def step(it, value, text):
+                if cancel.is_set():
+                    stop.set()
+                self._emit("opt_progress", (it, value, text))
+                progress(min(1.0, it / max(1, max_iterations)), f"actuation: iteration {it}, {text}")
+
+            t0 = time.perf_counter()
+            out = adapters.run_actuate(sim.linkage, view.info.torque, progress=step, cancel=stop,
+                                       max_iterations=max_iterations)
+            info = sim._info(out.success, 0, f"sparse actuation: {len(out.actuated)} actuated joints")
+            return out, self._view(sim, t0, info)
+
+        def done(res) -> None:
+            out, shown = res
+            self._emit("deployed", shown)
+            self._emit("actuated", (out, shown.joints))
+            self.status(f"actuation: {len(out.actuated)} of {len(out.torques)} joints actuated; {out.message}")
+
+        self.worker.submit(job, key="optimize", on_done=done, on_error=lambda e: self._task_error("actuation", e))
+        return True
+
+    def _task_error(self, what: str, exc: BaseException) -> None:
+        text = f"{what}: {exc}" if isinstance(exc, (InputError, NotImplementedError)) else f"{what}: {type(exc).__name__}: {exc}"
+        self._emit("task_failed", text)
+        self.status(text)
+        self._emit("progress", (0.0, "stopped"))
 
     def animation_frames(self) -> list[float]:
         """Angles (radians) of the stored deployed states, for the deployment animation."""

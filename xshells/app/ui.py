@@ -18,12 +18,21 @@ import numpy as np
 
 from ..errors import InputError
 from . import adapters, core
-from .session import FIELDS, Session, View
+from .session import FIELDS, Session, View, material_summary, spec_summary
 
 EXAMPLES_DIR = os.path.join(os.path.dirname(__file__), "..", "data", "examples")
 MODES = ("view / orbit", "move joint", "add joint", "add segment", "delete joint", "delete segment")
+MODE_HINTS = {
+    "view / orbit": "drag to orbit, scroll to zoom",
+    "move joint": "click a joint on the flat layout (left), then drag its handle",
+    "add joint": "click on the flat layout to place a joint (joined to the last one added)",
+    "add segment": "click the two joints to join",
+    "delete joint": "click a joint to delete it and its segments",
+    "delete segment": "click a segment to delete it",
+}
 SECTION_TYPES = ("rectangle", "ellipse", "I", "L", "+")
 GAP = 1.25  # scene units between the centre of each half and the origin
+FIRST_SOLVE_DELAY_S = 3.0  # after the first page connects (see App.__init__; measured in benchmarks/app.py)
 
 
 def bundled_examples() -> dict[str, str]:
@@ -57,6 +66,23 @@ def _plot_image(xs, ys, title: str) -> np.ndarray:
     return np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
 
 
+def serve(host: str = "127.0.0.1", port: int = 8080):
+    """Start the viser server with the app's scene settings and nothing in it yet.
+
+    :func:`.cli.start` calls this first, so that the browser loads the page's
+    client (seconds of JavaScript) while the design is read and the panels are built.
+    """
+    import viser
+
+    server = viser.ViserServer(host=host, port=port, label="xshells app", verbose=False)
+    server.scene.set_up_direction("+z")
+    server.gui.configure_theme(control_width="large")  # room for the five tabs and the result tables
+    # look down on both halves (flat left, deployed right), both clear of the panel on the right
+    server.initial_camera.position = (0.75, -2.8, 2.35)
+    server.initial_camera.look_at = (0.75, 0.0, 0.15)
+    return server
+
+
 class App:
     """The viser server and its panels, bound to one :class:`Session`.
 
@@ -64,48 +90,50 @@ class App:
     ----------
     session : Session
     host, port : str, int
+    server : viser.ViserServer, optional
+        One already started by :func:`serve` (else started here).
     """
 
-    def __init__(self, session: Session, host: str = "127.0.0.1", port: int = 8080):
-        import viser
-
+    def __init__(self, session: Session, host: str = "127.0.0.1", port: int = 8080, server=None):
         self.session = session
-        self.server = viser.ViserServer(host=host, port=port, label="xshells app", verbose=False)
-        self.server.scene.set_up_direction("+z")
-        # look down on both halves (flat left, deployed right)
-        self.server.initial_camera.position = (0.35, -2.6, 2.2)
-        self.server.initial_camera.look_at = (0.35, 0.0, 0.15)
+        self.server = server if server is not None else serve(host, port)
         self._selected: int | None = None
         self._pending_segment: int | None = None
         self._gizmo = None
         self._frame = (np.zeros(2), 1.0)  # layout centre, scene scale
         self._playing = threading.Event()
         self._opt_history: list[tuple[int, float]] = []
-        self._opt_cancel = threading.Event()
+        self._opt_title = "objective J"
+        self._shown_deployed: View | None = None
+        self._extras: dict = {}  # removable scene nodes by name: the swept meshes, the "before" ghost, the actuators
         self._build_gui()
         self._limit_uploads()
         session.listeners.append(self._on_event)
         # draw the current state (the session was loaded before we listened)
         self._on_event("layout", session.layout)
         self._on_event("problems", session.problems())
-        from .session import material_summary
-        self._on_event("material", material_summary(session.material))
+        self._on_event("material", material_summary(session._material) if session._material is not None
+                       else spec_summary(session.material_spec))
         self.server.scene.add_grid("/ground", width=6, height=3, cell_size=0.25, position=(0, 0, -0.01))
-        # The first solve waits for the first page (or 5 s): on a small machine the
-        # assembly solve would otherwise compete with serving the page.
-        self._first_client = threading.Event()
+        # The solver (its imports included) starts only once the first page has
+        # connected and had time to draw the panel and the flat layout (or after 5 s
+        # without a page): on a small machine it would otherwise compete with the
+        # browser and the server for the CPU and hold up the page.
+        self._first_client, self._stopped = threading.Event(), threading.Event()
         self.server.on_client_connect(lambda _client: self._first_client.set())
         threading.Thread(target=self._initial_solve_when_ready, daemon=True, name="xshells-app-start").start()
 
     def _initial_solve_when_ready(self) -> None:
         self._first_client.wait(5.0)
-        time.sleep(0.3)  # let the page take the initial scene and GUI
-        self._solve_initial()
+        self._stopped.wait(FIRST_SOLVE_DELAY_S)
+        if not self._stopped.is_set():
+            self._solve_initial()
 
     # ------------------------------------------------------------------ GUI
     def _build_gui(self) -> None:
         gui, s = self.server.gui, self.session
-        self.status_md = gui.add_markdown("**xshells** — loading…")
+        self.status_md = gui.add_markdown(f"**xshells** — {s.name}: {s.layout.num_segments} segments; "
+                                          "the solver starts when the page has loaded")
         self.progress = gui.add_progress_bar(0.0, animated=False)
         tabs = gui.add_tab_group()
 
@@ -119,6 +147,7 @@ class App:
                 b.on_click(lambda _: self._guard(lambda: (s.open_path(examples[self.example.value]), self._solve_initial())))
                 self.upload = gui.add_upload_button("Upload OBJ / .msh / case JSON (≤ 5 MB)", icon=None)
                 self.upload.on_upload(lambda ev: self._on_upload(ev))
+                self.upload_md = gui.add_markdown("")  # the last upload's fate (a status line is soon overwritten)
                 self.grid_n = gui.add_vector2("grid segments", (6, 6), step=1)
                 self.grid_angle = gui.add_number("grid angle (°)", 90.0, min=5.0, max=175.0, step=1.0)
                 b = gui.add_button("New grid")
@@ -127,6 +156,7 @@ class App:
             with gui.add_folder("Edit"):
                 self.mode = gui.add_dropdown("click mode", MODES, initial_value=MODES[0])
                 self.mode.on_update(lambda _: self._set_mode())
+                self.mode_md = gui.add_markdown(f"*{MODE_HINTS[MODES[0]]}*")
                 row = gui.add_button_group("history", ("Undo", "Redo"))
                 row.on_click(lambda ev: (s.undo() if ev.target.value == "Undo" else s.redo()))
                 self.warp_amount = gui.add_slider("warp amount", -0.5, 0.5, 0.01, 0.1)
@@ -162,10 +192,12 @@ class App:
 
         with tabs.add_tab("Optimize"):
             self.opt_md = gui.add_markdown(self._availability())
+            self.opt_iters = gui.add_number("max iterations", 10, min=1, max=500, step=1)
             row = gui.add_button_group("design optimization", ("Optimize", "Stop", "Resume"))
             row.on_click(lambda ev: self._optimize(ev.target.value))
             b = gui.add_button("Actuate (sparse torques)")
             b.on_click(lambda _: self._actuate())
+            self.result_md = gui.add_markdown("")
             # a blank canvas: matplotlib is imported only when there is something to plot
             self.opt_plot = gui.add_image(np.full((144, 256, 3), 255, np.uint8), label="progress")
 
@@ -194,8 +226,8 @@ class App:
                 # keep acknowledging parts (so the page finishes and re-enables the
                 # button) but store none: viser then drops the short upload
                 state["parts"] = _DiscardingParts()
-                self.session.status(f"upload refused: {os.path.basename(str(message.filename))}: "
-                                    f"{message.size_bytes / 2**20:.1f} MB is over the {limit / 2**20:.0f} MB upload limit")
+                self.session.upload_refused(f"{os.path.basename(str(message.filename))}: {message.size_bytes / 2**20:.1f} MB "
+                                            f"is over the {limit / 2**20:.0f} MB upload limit")
 
         try:
             gui._websock_interface.register_handler(_messages.FileTransferStartUpload, check)
@@ -268,6 +300,7 @@ class App:
         scene.remove_click_callback("all")
         self._pending_segment = None
         self._drop_gizmo()
+        self.mode_md.content = f"*{MODE_HINTS.get(self.mode.value, '')}*"
         if self.mode.value != MODES[0]:
             scene.on_click()(self._on_click)
 
@@ -341,29 +374,60 @@ class App:
 
     # ------------------------------------------------------------------ session events → view
     def _on_event(self, event: str, payload) -> None:
-        if event == "layout":
+        if event == "project":  # the meshes of the design before would be drawn in the new one's frame
+            for name in ("/flat/mesh", "/deployed/mesh"):
+                self._remove(name)
+            self._shown_deployed = None
+            self.info_md.content = ""
+            self.progress.value = 0.0
+        elif event == "layout":
+            self._remove("/deployed/before")
+            self._remove("/deployed/actuators")
             if self._gizmo is not None and (self._selected is None or self._selected >= payload.num_vertices):
                 self._drop_gizmo()  # its joint is gone (delete, undo, new design)
             self._draw_layout(payload)
         elif event == "problems":
             self.problems_md.content = ("**topology:** ok" if not payload else
                                         "**topology problems:**\n\n" + "\n".join(f"- {p}" for p in payload))
+        elif event == "upload":
+            self.upload_md.content = f"*{payload}*"
         elif event == "status":
             self.status_md.content = f"**xshells** — {payload}"
         elif event == "progress":
-            self.progress.value = float(np.clip(100 * payload[0], 0, 100))
+            fraction, text = payload
+            self.progress.value = float(np.clip(100 * fraction, 0, 100))
+            if text and text not in ("done", "stopped"):
+                self.status_md.content = f"**xshells** — {text}"
         elif event == "material":
             self.material_md.content = payload
             self._show_material_spec(self.session.material_spec)
         elif event == "flat":
             self._draw_mesh("/flat/mesh", payload, -GAP, flat=True)
         elif event == "deployed":
+            self._remove("/deployed/actuators")  # drawn again by "actuated" when this is the actuated state
             self._draw_mesh("/deployed/mesh", payload, GAP)
+            self._shown_deployed = payload
             i = payload.info
             self.info_md.content = (f"angle **{i.angle_deg:.2f}°**  \nenergy {i.energy:.5g} "
                                     f"(bend {i.energy_bend:.3g}, twist {i.energy_twist:.3g}, stretch {i.energy_stretch:.3g})  \n"
                                     f"torque {i.torque:.4g}  \nmax |z| {i.max_abs_z:.4g}  \n"
                                     f"solve + mesh {payload.solve_time_s:.2f} s")
+        elif event == "opt_progress":
+            it, value, text = payload
+            self._opt_history.append((len(self._opt_history), value))
+            xs, ys = zip(*self._opt_history)
+            self.opt_plot.image = _plot_image(xs, ys, f"{self._opt_title} — {text}")
+        elif event == "optimized":
+            before = self._shown_deployed
+            if before is not None:  # the deployed state before, as a grey ghost behind the optimized one
+                V = self._deployed_to_scene(before.vertices, before)
+                self._extras["/deployed/before"] = self.server.scene.add_mesh_simple(
+                    "/deployed/before", V.astype(np.float32), before.triangles, color=(150, 150, 150), opacity=0.35)
+            self._show_optimized(payload)
+        elif event == "actuated":
+            self._show_actuated(*payload)
+        elif event == "task_failed":
+            self.result_md.content = f"**failed** — {payload}"
         elif event == "stability":
             lam, gap = payload
             self.info_md.content = self.info_md.content.split("  \nstability")[0] + \
@@ -396,22 +460,35 @@ class App:
             scene.add_point_cloud("/flat/joints", (P + [0, 0, 0.025]).astype(np.float32),
                                   colors=(220, 40, 40), point_size=size, point_shape="circle")
 
+    def _remove(self, name: str) -> None:
+        handle = self._extras.pop(name, None)
+        if handle is not None:
+            handle.remove()
+
+    def _to_view_scene(self, P: np.ndarray, view: View, offset: float) -> np.ndarray:
+        """Design coordinates of one state's points → scene (its half of the view, resting on the ground grid)."""
+        c, k = self._frame
+        V = np.array(P, float)
+        V[:, :2] = (V[:, :2] - c) * k
+        V[:, 2] = (V[:, 2] - view.vertices[:, 2].min()) * k
+        V[:, 0] += offset
+        return V
+
+    def _deployed_to_scene(self, P: np.ndarray, view: View | None = None) -> np.ndarray:
+        return self._to_view_scene(P, view if view is not None else self._shown_deployed, GAP)
+
     def _draw_mesh(self, name: str, view: View, offset: float, flat: bool = False) -> None:
         import trimesh
 
         from .exports import field_colors
 
-        c, k = self._frame
-        V = view.vertices.copy()
-        V[:, :2] = (V[:, :2] - c) * k
-        V[:, 2] = (V[:, 2] - V[:, 2].min()) * k  # resting on the ground grid
-        V[:, 0] += offset
+        V = self._to_view_scene(view.vertices, view, offset)
         if flat:
             colors = np.tile([180, 180, 200], (len(V), 1)).astype(np.uint8)
         else:
             colors = field_colors(view.field)
         tm = trimesh.Trimesh(V, view.triangles, vertex_colors=np.c_[colors, np.full(len(V), 255, np.uint8)], process=False)
-        self.server.scene.add_mesh_trimesh(name, tm)
+        self._extras[name] = self.server.scene.add_mesh_trimesh(name, tm)
 
     # ------------------------------------------------------------------ animation
     def _play(self) -> None:
@@ -439,58 +516,50 @@ class App:
     def _optimize(self, action: str) -> None:
         s = self.session
         if action == "Stop":
-            self._opt_cancel.set()
+            s.stop_optimization()
             return
         if not adapters.optimize_available():
             self.opt_md.content = f"design optimization: {adapters.NOT_AVAILABLE}"
             return
-        if action == "Optimize":
+        if action == "Optimize":  # Resume keeps the plot and goes on from the current rest lengths
             self._opt_history = []
-        self._opt_cancel = cancel = threading.Event()
-        target = np.radians(float(self.angle.value))
-
-        def progress(it, value, text):
-            self._opt_history.append((len(self._opt_history), value))
-            xs, ys = zip(*self._opt_history)
-            self.opt_plot.image = _plot_image(xs, ys, f"objective — {text}")
-
-        def job(_cancel, _progress):
-            sim = s._ensure_sim(_cancel)
-            sim.show_state(sim.flat_angle)
-            out = adapters.run_optimize(sim.linkage, target, progress=progress, cancel=cancel)
-            s.rest_lengths = out.rest_lengths
-            return out
-
-        def done(out):
-            self.opt_md.content = f"optimization: {out.message}"
-            s.request_angle(float(self.angle.value))
-
-        s.worker.submit(job, key="optimize", on_done=done, on_error=lambda e: s.status(f"optimization: {e}"))
+        self._opt_title = "objective J"
+        self.result_md.content = "optimizing…"
+        s.optimize(float(self.angle.value), int(self.opt_iters.value))
 
     def _actuate(self) -> None:
-        s = self.session
         if not adapters.actuate_available():
             self.opt_md.content = f"sparse actuation: {adapters.NOT_AVAILABLE}"
             return
-        view = s.last_deployed
-        if view is None or s.sim is None:
-            s.status("deploy first (move the angle slider), then actuate")
-            return
-        cancel = self._opt_cancel = threading.Event()
         self._opt_history = []
+        self._opt_title = "actuation objective"
+        if self.session.actuate(int(self.opt_iters.value)):
+            self.result_md.content = "sparse actuation…"
 
-        def progress(it, value, text):
-            self._opt_history.append((it, value))
-            xs, ys = zip(*self._opt_history)
-            self.opt_plot.image = _plot_image(xs, ys, f"actuation — {text}")
+    def _show_optimized(self, out) -> None:
+        b, a = out.before or {}, out.after or {}
+        rows = [f"**optimization** ({out.iterations} iterations): {out.message}"]
+        for key, label in (("J", "J"), ("deployed_energy", "deployed energy"), ("flat_energy", "flat energy")):
+            if key in b and key in a:
+                rows.append(f"{label}: {b[key]:.4g} → {a[key]:.4g}")
+        p0 = out.rest_lengths_before
+        if p0 is not None and len(p0) == len(out.rest_lengths):
+            change = float(np.max(np.abs(out.rest_lengths / p0 - 1)))
+            rows.append(f"rest lengths changed by up to {change:.2%}" if change > 0 else
+                        "rest lengths unchanged: no better feasible design in these iterations")
+        rows.append("grey: the deployed state before")
+        self.result_md.content = "  \n".join(rows)
 
-        def job(_cancel, _progress):
-            return adapters.run_actuate(s.sim.linkage, view.info.torque, progress=progress, cancel=cancel)
-
-        def done(out):
-            self.opt_md.content = f"actuation: {int(np.count_nonzero(out.actuated))} actuated joints; {out.message}"
-
-        s.worker.submit(job, key="optimize", on_done=done, on_error=lambda e: s.status(f"actuation: {e}"))
+    def _show_actuated(self, out, joints) -> None:
+        n, idx = len(out.torques), np.asarray(out.actuated, int)
+        order = idx[np.argsort(-np.abs(out.torques[idx]))] if idx.size else idx
+        top = ", ".join(f"{int(j)}: {out.torques[j]:.3g}" for j in order[:8]) + (" …" if idx.size > 8 else "")
+        self.result_md.content = (f"**actuation**: {idx.size} of {n} joints actuated (orange)  \n"
+                                  f"torques (joint: τ) {top}  \n{out.message}")
+        if idx.size:
+            P = self._deployed_to_scene(joints[idx])
+            self._extras["/deployed/actuators"] = self.server.scene.add_point_cloud(
+                "/deployed/actuators", P.astype(np.float32), colors=(255, 140, 0), point_size=0.06, point_shape="circle")
 
     # ------------------------------------------------------------------ export
     def _export(self, kind: str, client) -> None:
@@ -513,6 +582,8 @@ class App:
         threading.Thread(target=job, daemon=True, name="xshells-app-export").start()
 
     def stop(self) -> None:
+        self._stopped.set()
+        self._first_client.set()
         self._playing.clear()
         # detach first: a job still finishing must not draw into a stopped server
         if self._on_event in self.session.listeners:

@@ -71,13 +71,20 @@ class Worker:
         with self._cv:
             return self._cv.wait_for(lambda: self._running is None and not self._queue, timeout)
 
-    def close(self) -> None:
+    def close(self, timeout: float = 30.0) -> None:
+        """Drop queued jobs, cancel the running one and wait (up to ``timeout`` s) for the thread to end.
+
+        Waiting matters at exit: a daemon thread still inside the solver's
+        native code when the interpreter shuts down can abort the process.
+        """
         with self._cv:
             self._closed = True
             self._queue.clear()
             if self._running is not None:
                 self._running.cancel.set()
             self._cv.notify_all()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout)
 
     def _progress(self, fraction: float, text: str) -> None:
         if self.on_progress is not None:
