@@ -114,7 +114,7 @@ class App:
         self._on_event("problems", session.problems())
         self._on_event("material", material_summary(session._material) if session._material is not None
                        else spec_summary(session.material_spec))
-        self.server.scene.add_grid("/ground", width=6, height=3, cell_size=0.25, position=(0, 0, -0.01))
+        self._draw_ground()
         # The solver (its imports included) starts only once the first page has
         # connected and had time to draw the panel and the flat layout (or after 5 s
         # without a page): on a small machine it would otherwise compete with the
@@ -122,6 +122,18 @@ class App:
         self._first_client, self._stopped = threading.Event(), threading.Event()
         self.server.on_client_connect(lambda _client: self._first_client.set())
         threading.Thread(target=self._initial_solve_when_ready, daemon=True, name="xshells-app-start").start()
+
+    def _draw_ground(self, width: float = 6.0, height: float = 3.0, cell: float = 0.25) -> None:
+        """A ground grid of thin lines under both halves.
+
+        viser's own grid is a shader over the whole plane with a shadow pass,
+        which in software WebGL (headless Chromium, machines without a GPU)
+        costs about a second of page start-up (benchmarks/app.py --startup).
+        """
+        xs, ys = np.arange(-width / 2, width / 2 + 1e-9, cell), np.arange(-height / 2, height / 2 + 1e-9, cell)
+        seg = [[(x, ys[0], 0.0), (x, ys[-1], 0.0)] for x in xs] + [[(xs[0], y, 0.0), (xs[-1], y, 0.0)] for y in ys]
+        self.server.scene.add_line_segments("/ground", np.asarray(seg, np.float32) - [0, 0, 0.01], colors=(215, 215, 215),
+                                            thickness=1.0, thickness_units="screen")
 
     def _initial_solve_when_ready(self) -> None:
         self._first_client.wait(5.0)
