@@ -113,10 +113,12 @@ def test_existing_scheduler_with_files_shipped_over_dask(cluster_run, tmp_path):
 def test_local_workers_run_numeric_libraries_on_one_thread(tmp_path, monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/nonexistent")  # a user's own flags are kept
     monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)  # Dask's default would make tasks 1.5x dearer
     spec = spec_from_dict({"task": "noop", "axes": {"sleep_s": [0.0]}}, str(tmp_path))
     (rec,) = run_sweep(spec, str(tmp_path), SweepSettings(workers=1)).records
     assert rec["pid"] != os.getpid() and rec["result"]["blas_threads"] == "1"
     assert rec["result"]["xla_flags"] == "--xla_dump_to=/nonexistent --xla_cpu_multi_thread_eigen=false"
+    assert rec["result"]["malloc_trim_threshold"] == ""
     # this process's environment is left as it was
     assert os.environ["XLA_FLAGS"] == "--xla_dump_to=/nonexistent" and "OPENBLAS_NUM_THREADS" not in os.environ
 

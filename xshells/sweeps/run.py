@@ -197,7 +197,8 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
         env = worker_env()
         # numeric libraries on one thread (set before the fork server imports NumPy); no statistical
         # profiler (it samples the task thread's stack every 10 ms, taking the GIL from the solver: it
-        # doubled the worker's own CPU time, to about 4% of a core beside the task)
+        # doubled the worker's own CPU time, to about 4% of a core beside the task); glibc's malloc as
+        # in a serial run (WORKER_CONFIG)
         with warnings.catch_warnings(), _environ(env), dask.config.set(WORKER_CONFIG), \
                 _forkserver_with(["xshells.sweeps.run", _module_of(fn), *preload]):
             warnings.simplefilter("ignore", UserWarning)  # "port 8787 in use" when another cluster runs here
@@ -249,7 +250,13 @@ def _cores() -> int:
 # OpenBLAS's or XLA's own pools (a thread per core each) would put several busy threads on every core.
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 XLA_ONE_THREAD = "--xla_cpu_multi_thread_eigen=false"
-WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+WORKER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    # Dask's nanny sets MALLOC_TRIM_THRESHOLD_=65536 in workers; setting it at all turns off glibc's
+    # adaptive mmap threshold, so every NumPy temporary above 128 KiB is mapped and zeroed anew: 35x
+    # the page faults and 1.5x the CPU time of a deploy task (sys time 0.3 -> 4.4 s). Leave it unset.
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+}
 
 
 def worker_env(environ=None) -> dict:

@@ -260,15 +260,15 @@ def optimize_task(params: dict, out_dir: str) -> dict:
 def noop_task(params: dict, out_dir: str) -> dict:
     """Does nothing (optionally sleeps or fails): measures the sweep machinery's own cost.
 
-    Also returns the thread settings of the process it ran in (``blas_threads``,
-    ``xla_flags``), to check what workers get.
+    Also returns the settings of the process it ran in (``blas_threads``,
+    ``xla_flags``, ``malloc_trim_threshold``), to check what workers get.
     """
     if params.get("fail"):
         raise RuntimeError(params["fail"] if isinstance(params["fail"], str) else "failed on request")
     t0 = time.perf_counter()
     time.sleep(params.get("sleep_s", 0.0))
     return {"slept_s": time.perf_counter() - t0, "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", ""),
-            "xla_flags": os.environ.get("XLA_FLAGS", "")}
+            "xla_flags": os.environ.get("XLA_FLAGS", ""), "malloc_trim_threshold": os.environ.get("MALLOC_TRIM_THRESHOLD_", "")}
 
 
 _PLOTS = ("xshells.viz.render", "matplotlib.pyplot")
