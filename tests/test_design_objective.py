@@ -33,15 +33,21 @@ class PointFit:
         return self.weights[:, None] * dP
 
 
-@pytest.fixture(scope="module")
-def banana():
-    """The wiggly banana before optimization (a real design), coarse (k = 4), flat and deployed to 80°."""
+def banana_states(k: int = 4):
+    """The wiggly banana before optimization (a real design), coarse: its flat state and a copy deployed to 80°."""
     folder = EXAMPLES / "wiggly_banana_preopt"
     d = read_design(folder / "flat_opt.msh")
-    L = Linkage(d, PLUS, subdivision=4, rest_lengths=read_rest_lengths(folder / "design_parameters.txt", d.num_segments))
+    L = Linkage(d, PLUS, subdivision=k, rest_lengths=read_rest_lengths(folder / "design_parameters.txt", d.num_segments))
     minimize(L, fixed=L.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
     D = copy.deepcopy(L)
     assert deploy(D, np.radians(80), DeployOptions(steps=10)).converged
+    return L, D
+
+
+@pytest.fixture(scope="module")
+def banana():
+    """The banana's design problem with noisy point targets (k = 4)."""
+    L, D = banana_states()
     rng = np.random.default_rng(0)
     span = np.linalg.norm(np.ptp(D.joint_positions(), axis=0))
     fit = PointFit(D.joint_positions() + 0.01 * span * rng.standard_normal((L.num_joints, 3)), np.full(L.num_joints, 1.0 / L.num_joints))
@@ -110,6 +116,54 @@ def test_hessian_vector_product_is_symmetric(banana):
     q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
     u, v = rng.standard_normal(len(q)), rng.standard_normal(len(q))
     assert u @ prob.hessp(q, v) == pytest.approx(v @ prob.hessp(q, u), rel=1e-5)
+
+
+def test_flat_stability_gradient_matches_finite_differences(banana):
+    prob = banana
+    rng = np.random.default_rng(4)
+    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
+    v = rng.standard_normal(len(q))
+    sigma, g = prob.flat_stability(q)
+    assert sigma > 0  # the planar flat state is stable
+    lam, grads = prob.flat_stability_modes(q)
+    assert np.all(np.diff(lam) >= 0) and np.allclose(grads.shape, (4, len(q)))
+    errs = [abs((prob.flat_stability(q + h * v)[0] - prob.flat_stability(q - h * v)[0]) / (2 * h) - g @ v) / abs(g @ v)
+            for h in (1e-4, 5e-5, 2.5e-5)]
+    assert errs[-1] < 2e-3, errs
+    assert errs[0] / errs[1] > 3, errs
+
+
+def test_dense_hessian_is_the_exact_energy_hessian(banana):
+    """With β = 0 the dense model is exact: it must match the Hessian-vector products."""
+    prob = banana
+    q = prob._q.copy()
+    w = prob.w
+    try:
+        prob.w = DesignWeights(gamma=w.gamma, beta=0.0)
+        prob._cache = {}
+        H = prob.dense_hessian(q)
+        rng = np.random.default_rng(5)
+        for _ in range(2):
+            v = rng.standard_normal(len(q))
+            hv = prob.hessp(q, v)
+            assert np.linalg.norm(H @ v - hv) / np.linalg.norm(hv) < 1e-6
+        assert np.allclose(H, H.T)
+    finally:
+        prob.w = w
+        prob._cache = {}
+    # with the fitting term the model leaves out only the adjoint's third-derivative term
+    H = prob.dense_hessian(q)
+    v = np.random.default_rng(6).standard_normal(len(q))
+    hv = prob.hessp(q, v)
+    assert np.linalg.norm(H @ v - hv) / np.linalg.norm(hv) < 0.2
+
+
+def test_multi_column_kkt_solve_matches_single(banana):
+    eq = banana.deployed
+    R = np.random.default_rng(7).standard_normal((eq.nx, 3))
+    W = eq.kkt_solve_many(R)
+    for j in range(3):
+        assert np.allclose(W[:, j], eq.kkt_solve(R[:, j]), rtol=1e-12, atol=1e-14 * np.abs(W).max())
 
 
 def test_energy_terms_are_normalized_at_the_start(banana):

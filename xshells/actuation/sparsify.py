@@ -42,6 +42,7 @@ from ..errors import InputError
 from ..linkage.derivatives import third_derivative_product
 from ..linkage.state import restore, snapshot
 from ..solve import NewtonOptions, NotPositiveDefinite, SparseCholesky, minimize
+from ..solve.trust_region import steihaug
 
 
 @dataclass(frozen=True)
@@ -246,37 +247,6 @@ class TorqueFit:
         return dlam[self.angle_rows] / self.l0**2 * self._dtau(t) + g_tau * self._d2tau(t) * v
 
 
-def _steihaug(hessp, g, radius, tol, max_iter):
-    """Steihaug–Toint CG for ``min gᵀs + ½ sᵀHs`` with ``‖s‖ ≤ radius``."""
-    s = np.zeros_like(g)
-    r = -g
-    d = r.copy()
-    rr = r @ r
-    if np.sqrt(rr) <= tol:
-        return s
-    for _ in range(max_iter):
-        Hd = hessp(d)
-        dHd = d @ Hd
-        if dHd <= 0:
-            return s + _to_boundary(s, d, radius) * d
-        a = rr / dHd
-        if np.linalg.norm(s + a * d) >= radius:
-            return s + _to_boundary(s, d, radius) * d
-        s = s + a * d
-        r = r - a * Hd
-        rr_new = r @ r
-        if np.sqrt(rr_new) <= tol:
-            return s
-        d = r + (rr_new / rr) * d
-        rr = rr_new
-    return s
-
-
-def _to_boundary(s, d, radius):
-    a, b, c = d @ d, 2 * s @ d, s @ s - radius**2
-    return (-b + np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a)
-
-
 def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions(), *, targets=None, weights=None,
              t0=None, allowed=None, flat_energy: float = 0.0, callback=None) -> SparsifyResult:
     """Sparse joint torques that deploy ``linkage`` to its current (densely actuated) shape.
@@ -347,7 +317,7 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
                 w[freeset] = v
                 return fit.hessp(t, w)[freeset]
 
-            s_free = _steihaug(hp, pg[freeset], radius, 1e-2 * min(1.0, np.linalg.norm(pg)) * np.linalg.norm(pg), o.max_cg_iterations)
+            s_free = steihaug(hp, pg[freeset], radius, 1e-2 * min(1.0, np.linalg.norm(pg)) * np.linalg.norm(pg), o.max_cg_iterations)
             s = np.zeros(n)
             s[freeset] = s_free
             t_trial = np.clip(t + s, 0.0, ub)

@@ -15,6 +15,8 @@ one Cholesky factor of ``H + ρ a aᵀ`` (one of them, with ``a``, cached).
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -49,6 +51,13 @@ class ConstrainedEquilibrium:
         self.chol = SparseCholesky()
         self.newton_iterations = 0
         self.Hfull = None
+        self.chol_matrix = None  # H + ρ a aᵀ on the free variables, the matrix of ``chol``
+        # Trial designs in an outer optimization: give up on the first
+        # indefinite Hessian (a planar flat state that is a saddle buckles)
+        # or after ``trial_iterations`` Newton steps, instead of following a
+        # long escape to a state the optimizer will reject anyway.
+        self.stop_on_indefinite = False
+        self.trial_iterations: int | None = None
 
     @property
     def nx(self) -> int:
@@ -56,9 +65,15 @@ class ConstrainedEquilibrium:
 
     def solve(self) -> None:
         """Newton-solve at the current rest lengths from the current state, then factorize."""
-        report = minimize(self.L, fixed=self.pins, constraint=(self.a, self.angle), options=self.newton)
+        options = self.newton
+        if self.trial_iterations is not None:
+            options = replace(options, max_iterations=min(options.max_iterations, self.trial_iterations))
+        stop = (lambda it, rep: rep.indefinite_events > 0) if self.stop_on_indefinite else None
+        report = minimize(self.L, fixed=self.pins, constraint=(self.a, self.angle), options=options, callback=stop)
         self.newton_iterations += report.iterations
         if not report.converged:
+            if report.message == "stopped by callback":
+                raise ArithmeticError(f"the state at {np.degrees(self.angle):.2f}° has an indefinite Hessian (unstable)")
             raise ArithmeticError(f"equilibrium at {np.degrees(self.angle):.2f}° did not converge ({report.message})")
         self.L.update_source_frame()
         self.factorize()
@@ -78,7 +93,8 @@ class ConstrainedEquilibrium:
             aa = sp.csr_matrix((np.full(len(idx) ** 2, rho * self.af[idx[0]] ** 2),
                                 (np.repeat(idx, len(idx)), np.tile(idx, len(idx)))), shape=H.shape)
             try:
-                self.chol.factorize((H + aa).tocsr())
+                self.chol_matrix = (H + aa).tocsr()
+                self.chol.factorize(self.chol_matrix)
                 break
             except NotPositiveDefinite:
                 rho *= 100.0
@@ -93,6 +109,27 @@ class ConstrainedEquilibrium:
         w = np.zeros(self.nx)
         w[self.free] = u - (float(self.af @ u) / self._av) * self._v
         return w
+
+    def kkt_solve_many(self, R: np.ndarray) -> np.ndarray:
+        """:meth:`kkt_solve` for the columns of ``R`` (num_vars, k) at once."""
+        U = self.chol.solve(np.asarray(R, float)[self.free])
+        W = np.zeros((self.nx, U.shape[1]))
+        W[self.free] = U - np.outer(self._v, (self.af @ U) / self._av)
+        return W
+
+    def state_jacobian(self) -> np.ndarray:
+        """``∂x*/∂p`` (num_vars, S), dense: one multi-column KKT solve."""
+        return self.kkt_solve_many(-self.Hxp.toarray())
+
+    def energy_hessian_p(self, X=None) -> np.ndarray:
+        """``d²E(x*(p), p)/dp² = H_pp + H_px ∂x*/∂p`` (S, S), dense and exact.
+
+        (``dE/dp = ∂E/∂p`` at the constrained equilibrium, so no third
+        derivatives enter.)
+        """
+        X = self.state_jacobian() if X is None else X
+        Hs = self.Hpp.toarray() + self.Hpx @ X
+        return 0.5 * (Hs + Hs.T)
 
     def state_derivative(self, dp: np.ndarray) -> np.ndarray:
         """First-order change ``δx = ∂x*/∂p · δp``."""

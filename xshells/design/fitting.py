@@ -441,6 +441,16 @@ class FittingTerm:
             h += self.surface_weights[:, None] * (dP - np.einsum("nij,nj->ni", proj[1], dP))
         return h
 
+    def hessian_vectors(self, P, dPs) -> np.ndarray:
+        """:meth:`hessian_vector` for a stack of directions ``dPs`` (m, n, 3), one projection for all."""
+        P = self._check(P)
+        dPs = np.asarray(dPs, float).reshape((-1,) + P.shape)
+        h = self.weights[None, :, None] * dPs
+        proj = self._project(P)
+        if proj is not None:
+            h += self.surface_weights[None, :, None] * (dPs - np.einsum("nij,mnj->mni", proj[1], dPs))
+        return h
+
     def __repr__(self) -> str:
         surf = "none" if self.surface is None else f"{len(self.surface[0])} vertices, {len(self.surface[1])} triangles"
         return (f"FittingTerm(joints={len(self.targets)}, sum W={self.weights.sum():.4g}, "

@@ -298,6 +298,37 @@ class DesignProblem:
             out += 0.5 * w.beta / self.l0**2 * self._state_hessp_p(self.deployed, self._fit_term(), "fit", dp, "3d")
         return out * self.p0
 
+    def dense_hessian(self, q) -> np.ndarray:
+        """A dense model of ``∇²J`` in ``q`` (S, S), from multi-column solves with the equilibria's factors.
+
+        The energy terms are exact (:meth:`ConstrainedEquilibrium.energy_hessian_p`);
+        the fitting term is its Gauss–Newton part ``Xᵀ ∇²T X`` (``X`` the
+        deployed joint positions' Jacobian in ``p``), without the adjoint's
+        third-derivative term that :meth:`hessp` includes. Costs ``2S``
+        back-solves, no Hessian derivative.
+        """
+        self.set_q(q)
+        k = ("dense_hessian",)
+        if k in self._cache:
+            return self._cache[k]
+        w = self.w
+        X3 = self.deployed.state_jacobian()
+        H = (1 - w.gamma) / self.E0 * self.deployed.energy_hessian_p(X3)
+        if w.gamma:
+            H += w.gamma / self.E0 * self.flat.energy_hessian_p()
+        if w.beta:
+            L, rows, fit = self.deployed.L, self.pos_rows, self.fitting
+            P = L.joint_positions()
+            Xp = X3[rows.ravel()]  # (3n, S)
+            if hasattr(fit, "hessian_vectors"):
+                HX = fit.hessian_vectors(P, Xp.T.reshape(Xp.shape[1], -1, 3)).reshape(Xp.shape[1], -1).T
+            else:
+                HX = np.stack([fit.hessian_vector(P, Xp[:, j].reshape(-1, 3)).ravel() for j in range(Xp.shape[1])], axis=1)
+            H += 0.5 * w.beta / self.l0**2 * (Xp.T @ HX)
+        H = self.p0[:, None] * H * self.p0[None, :]
+        self._cache[k] = H
+        return H
+
     def _flat_dx(self, dp):
         k = ("dx2", dp.tobytes())
         if k not in self._cache:
@@ -330,6 +361,85 @@ class DesignProblem:
         self.set_q(q)
         dp = np.asarray(v, float) * self.p0
         return self._state_hessp_p(self.flat, self._angle_term(), "angle", dp, "2d") * self.p0
+
+    # ------------------------------------------------------------ stability
+    def flat_stability(self, q, modes: int = 4) -> tuple[float, np.ndarray]:
+        """How far the flat state is from buckling, and its gradient in ``q``.
+
+        The smallest eigenvalues ``λ_i`` of ``H v = λ M₀ v`` on the
+        constraint's tangent space (``aᵀv = 0``; ``M₀`` the mass matrix of the
+        initial flat state, held fixed so that ``λ`` depends on ``p`` only
+        through ``H``), relative to the initial smallest one ``λ_ref`` and
+        aggregated by the smooth minimum ``σ = KS(λ/λ_ref, 0.05)`` over the
+        lowest ``modes`` (the lowest modes are close together and cross, so
+        the bare minimum is not differentiable). While ``σ > 0`` the planar
+        flat equilibrium is stable, hence it is the equilibrium found, and
+        the planarity constraint ``c = 0`` holds; at ``σ ≤ 0`` the flat state
+        buckles out of the plane. Unlike ``c``, whose gradient vanishes on
+        the whole planar set, ``σ`` tells the optimizer how close a design is
+        to buckling.
+
+        ``dλ_i/dp = ∂³E[v_i, v_i, ·]_p − H_px w_i`` with ``K w_i =
+        ∂³E[v_i, v_i, ·]_x`` (one adjoint solve each); ``∂³E[v, v, ·]`` is
+        the second difference of gradients along ``v``.
+
+        Returns
+        -------
+        value : float
+        gradient : (S,) array
+        """
+        self.set_q(q)
+        key = ("stability", modes)
+        if key in self._cache:
+            return self._cache[key]
+        import scipy.sparse.linalg as spla
+
+        from ..linkage.derivatives import _restore_state, _save_state, _step
+
+        eq = self.flat
+        if getattr(self, "_M0", None) is None:
+            self._M0 = self.flat.L.mass_matrix()[eq.free][:, eq.free].tocsc()
+        M = self._M0
+        n = len(eq.free)
+        op = spla.LinearOperator((n, n), matvec=eq.chol.solve, dtype=float)
+        v0 = getattr(self, "_stability_v0", None)
+        lam, vecs = spla.eigsh(eq.chol_matrix, k=modes, M=M, sigma=0.0, which="LM", OPinv=op, tol=1e-10,
+                               v0=np.ones(n) if v0 is None else v0)
+        order = np.argsort(lam)
+        lam, vecs = lam[order], vecs[:, order]
+        self._stability_v0 = vecs[:, 0].copy()
+        if getattr(self, "_lambda_ref", None) is None:
+            self._lambda_ref = float(lam[0])
+        value, weights, _ = ks_min(lam / self._lambda_ref, 0.05)
+        L = eq.L
+        nx = eq.nx
+        saved = _save_state(L)
+        x0 = L.get_vars()
+        grads = np.zeros((modes, len(self.p0)))
+        try:
+            G0 = L.gradient(with_rest_lengths=True)
+            for i in range(modes):
+                v = np.zeros(nx)
+                v[eq.free] = vecs[:, i] / np.sqrt(float(vecs[:, i] @ (M @ vecs[:, i])))
+                h = _step(L, v, None, "central") * 100.0
+                L.set_vars(x0 + h * v)
+                Gp = L.gradient(with_rest_lengths=True)
+                L.set_vars(x0 - h * v)
+                Gm = L.gradient(with_rest_lengths=True)
+                _restore_state(L, saved)
+                T = (Gp + Gm - 2.0 * G0) / (h * h)
+                w = eq.kkt_solve(T[:nx])
+                grads[i] = (T[nx:] - eq.Hpx @ w) * self.p0 / self._lambda_ref
+        finally:
+            _restore_state(L, saved)
+        self._cache[key] = (float(value), weights @ grads)
+        self._cache[("stability_modes", modes)] = (lam / self._lambda_ref, grads)
+        return self._cache[key]
+
+    def flat_stability_modes(self, q, modes: int = 4) -> tuple[np.ndarray, np.ndarray]:
+        """The lowest ``λ_i / λ_ref`` (modes,) and their gradients in ``q`` (modes, S); see :meth:`flat_stability`."""
+        self.flat_stability(q, modes)
+        return self._cache[("stability_modes", modes)]
 
     @property
     def rest_lengths(self) -> np.ndarray:
