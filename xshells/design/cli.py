@@ -15,6 +15,8 @@ def register(subparsers) -> None:
     p.add_argument("--target-surface", help="a triangle mesh (OBJ, PLY, STL) to fit (default: the deployed design's quads, Loop-subdivided twice)")
     p.add_argument("--angle", type=float, help="target average opening angle, degrees (default: the case's)")
     p.add_argument("--max-iters", type=int, default=20)
+    p.add_argument("--method", choices=("newton-cg", "bfgs", "trust-constr"), default="newton-cg",
+                   help="trust-region Newton-CG (default), the same with BFGS, or scipy's trust-constr")
     p.add_argument("--min-angle", type=float, help="smallest flat joint angle ε, degrees (default: the initial KS minimum less 0.5°)")
     p.add_argument("--resume", action="store_true", help="start from OUT/design_parameters.txt of an earlier run")
     p.add_argument("--no-baseline", action="store_true", help="skip the BFGS comparison run")
@@ -33,7 +35,7 @@ def _optimize(args) -> int:
     if not args.case.endswith(".json"):
         raise InputError(f"{args.case}: optimize takes a case file (.json) naming the design, material and angle")
     weights = DesignWeights(gamma=args.gamma, beta=args.beta)
-    opts = OptimizeOptions(max_iterations=args.max_iters,
+    opts = OptimizeOptions(method=args.method, max_iterations=args.max_iters,
                            min_angle=np.radians(args.min_angle) if args.min_angle is not None else None)
     r = run_optimize(args.case, args.out, weights=weights, options=opts, angle_deg=args.angle,
                      target_surface=args.target_surface, resume=args.resume, baseline=not args.no_baseline,

@@ -87,7 +87,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=options.max_iterations, desc="optimizing (Newton-CG)", unit="it")
+        bar = tqdm(total=options.max_iterations, desc=f"optimizing ({options.method})", unit="it")
 
     def on_iter(rec):
         if bar is not None:
@@ -109,14 +109,14 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     _write_outputs(out_dir, "flat", problem.flat.L)
     _write_outputs(out_dir, "deployed", problem.deployed.L)
     bfgs = None
-    if baseline and not interrupted:
+    if baseline and not interrupted and options.method != "bfgs":
         base_problem, _ = build_problem(case_path, weights=weights, angle_deg=angle_deg, target_surface=target_surface,
                                         rest_lengths_path=rl, progress=False)
         b = optimize(base_problem, OptimizeOptions(**{**options.__dict__, "method": "bfgs"}))
         bfgs = [asdict(r) for r in b.history]
     from ..viz.render import plot_convergence
 
-    plot_convergence(os.path.join(out_dir, "convergence.png"), {"Newton-CG": [r.J for r in res.history],
+    plot_convergence(os.path.join(out_dir, "convergence.png"), {options.method: [r.J for r in res.history],
                                                                  **({"BFGS": [r["J"] for r in bfgs]} if bfgs else {})},
                      title=name)
     iters = max(res.iterations, 1)
@@ -129,6 +129,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         "initial": {"J": initial["J"], "energy_flat": initial["energy_flat"], "energy_deployed": initial["energy_deployed"]},
         "constraints": {"planarity": final["planarity"], "min_angle_deg": final["min_angle_deg"],
                         "planarity_tolerance": options.planarity_tolerance},
+        "method": options.method,
         "weights": asdict(weights),
         "target_angle_deg": float(np.degrees(problem.deployed.angle)),
         "flat_angle_deg": float(np.degrees(problem.flat.angle)),
