@@ -34,7 +34,9 @@ class NewtonOptions:
     ----------
     max_iterations : int
     gradient_tolerance : float
-        Stop when the free gradient's Euclidean norm falls below this.
+        Stop when the free gradient's Euclidean norm falls below this (or
+        below 4× this after a step too small to change the state: the
+        gradient's round-off can be above the tolerance's estimate of it).
     sigma_factor : float
         First Hessian shift as a multiple of ``λmax(H)/λmax(M)``.
     saddle_gradient_factor : float
@@ -265,7 +267,9 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     def shifted(H, sigma):
         return ws.combine("shift", [H, mass()], [1.0, sigma])
 
+    stalled = False  # the last step was below round-off: accept a gradient up to 4× the tolerance
     for it in range(options.max_iterations + 1):
+        tolerance = options.gradient_tolerance * (4.0 if stalled else 1.0)
         g = (problem.gradient() - f)[free_idx]
         if constraint is not None:
             residual = target - float(a_full @ problem.get_vars())
@@ -280,14 +284,16 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         report.gradient_norm.append(gnorm)
         H = None
         rho = 0.0
-        if gnorm < options.gradient_tolerance and feasible:
+        if gnorm < tolerance and feasible:
+            below = "gradient below tolerance" if gnorm < options.gradient_tolerance else \
+                f"gradient at its rounding floor (|g| = {gnorm:.3e}, under 4x the tolerance)"
             if not options.require_minimum:
-                report.converged, report.message = True, "gradient below tolerance"
+                report.converged, report.message = True, below
                 break
             H = hessian()
             try:
                 factor_unshifted(H)
-                report.converged, report.message = True, "gradient below tolerance at a minimum"
+                report.converged, report.message = True, below + " at a minimum"
                 break
             except NotPositiveDefinite:
                 sigma = 0.0  # a saddle: fall through to the negative-curvature step
@@ -377,8 +383,13 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             problem.update_source_frame()
         report.iterations = it + 1
         if alpha * np.abs(full_d).max() <= 1e-15 * (1.0 + np.abs(x).max()):
-            report.message = f"step below round-off at |g| = {gnorm:.3e}"
-            break
+            # The gradient's own round-off can exceed the tolerance's estimate of it
+            # (a rounding floor): where nothing moves any more and |g| is within 4× of
+            # the tolerance, one more iteration accepts it if the Hessian is positive definite.
+            if stalled or gnorm >= 4.0 * options.gradient_tolerance or not feasible:
+                report.message = f"step below round-off at |g| = {gnorm:.3e}"
+                break
+            stalled = True
         sigma = 0.0 if sigma < 1e-8 * (sigma0 or 0.0) else sigma / 2
         if callback is not None and callback(it, report):
             report.message = "stopped by callback"
