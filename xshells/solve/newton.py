@@ -101,6 +101,10 @@ class _ReusableCholesky:
     def solve(self, b):
         return self.chol.solve(b)
 
+    def forget(self) -> None:
+        """Before ``self.chol`` is used directly: its factor no longer matches the cached matrix."""
+        self._last = None
+
 
 class _Workspace:
     """What one problem's successive :func:`minimize` calls can share: the
@@ -114,6 +118,7 @@ class _Workspace:
         self.sums = {}
         self.aug = None  # (a copy, ρ)
         self.skip_plain = 0  # factorizations left before the plain (unaugmented) Hessian is tried again
+        self.eig_chol = None  # a second factor, of H + sM with the eigen-solve's shift s
 
     def free_part(self, H, free_idx, n):
         if H.format != "csr":
@@ -339,7 +344,10 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             # Is H itself indefinite? (the shift may just be decaying)
             report.indefinite_events += int(indefinite)
             if indefinite and gnorm < options.saddle_gradient_factor * options.gradient_tolerance:
-                v = _most_negative_direction(H, mass(), chol, sigma)
+                if ws.eig_chol is None:
+                    ws.eig_chol = SparseCholesky()
+                chol.forget()  # its factor may be overwritten by the shift search
+                v = _most_negative_direction(H, mass(), chol.chol, sigma, ws.eig_chol, lambda s: shifted(H, s))
                 if v is not None:
                     step = options.saddle_step or 1e-3
                     if hasattr(problem, "min_arc_length") and options.saddle_step is None:
@@ -457,15 +465,34 @@ def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None) -> np.nda
     return np.sort(lam)
 
 
-def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float):
+def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: SparseCholesky | None = None,
+                             shifted=None):
     """Eigenvector of the most negative eigenvalue of ``H d = λ M d``, or None.
 
-    Shift-invert about ``−σ`` reuses the factorization of ``H + σM``.
+    Shift-invert about ``−s``. The step's shift σ (``chol`` holds ``H + σM``)
+    is usually far above ``|λmin|`` (1e-3 of ``λmax(H)/λmax(M)`` against a
+    λmin just past zero), and the wanted ``1/(λmin + σ)`` is then not
+    separated from the near-zero modes' ``1/(λ + σ)``: ARPACK ran to its
+    iteration limit. So with ``spare`` (a second Cholesky object) and
+    ``shifted(s)`` (returns ``H + sM``), the shift is first lowered by factors
+    of 100 while ``H + sM`` still factors, leaving ``s`` within 100× of
+    ``|λmin|`` (a few factorizations; the solve then takes one Lanczos cycle).
+    ``chol`` and ``spare`` take turns, so a failed try never overwrites the
+    last factor that succeeded; ``chol`` may be left holding another matrix.
     """
     n = H.shape[0]
-    op = spla.LinearOperator((n, n), matvec=chol.solve, dtype=float)
+    solver, s = chol, sigma
+    if spare is not None and shifted is not None:
+        other = spare
+        for _ in range(8):
+            try:
+                other.factorize(shifted(s / 100))
+            except NotPositiveDefinite:
+                break
+            solver, other, s = other, solver, s / 100
+    op = spla.LinearOperator((n, n), matvec=solver.solve, dtype=float)
     try:
-        lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-sigma, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n))
+        lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n))
     except (spla.ArpackNoConvergence, ValueError):
         return None
     if lam[0] >= 0:
