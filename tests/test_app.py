@@ -77,14 +77,42 @@ def test_app_in_chromium(tmp_path):
                 page.screenshot(path=os.path.join(ARTIFACTS, "01_loaded.png"))
                 print(f"loaded and deployed {time.perf_counter() - t0:.1f} s")
 
-                # move the opening-angle slider (through its server-side handle: dragging in WebGL is impractical)
-                app.angle.value = round(first.info.angle_deg + 15.0, 1)
-                _wait(lambda: app.session.worker.busy or app.session.last_deployed is not first, 5, "the solve to start")
-                assert app.session.worker.wait_idle(120)
+                # move the opening-angle slider in the page, as a user does: drag its thumb with the
+                # mouse (the view re-solves as it goes), then step to the exact angle with the arrow keys
+                page.get_by_role("tab", name="Deploy").click()
+                label = page.locator("label", has_text="opening angle (°)")
+                slider = page.locator(f'[id="{label.get_attribute("for")}"]')  # the label's Mantine slider
+                thumb = slider.get_by_role("slider")
+                number = slider.locator("xpath=..").locator("input.mantine-NumberInput-input")  # the box beside it
+                shown = lambda: float(thumb.get_attribute("aria-valuenow"))  # noqa: E731
+                assert abs(shown() - first.info.angle_deg) < 0.06  # the page shows the deployed angle
+                lo, hi = (float(thumb.get_attribute(a)) for a in ("aria-valuemin", "aria-valuemax"))
+                target = round(first.info.angle_deg + 15.0, 1)
+                track, knob = slider.locator(".mantine-Slider-track").bounding_box(), thumb.bounding_box()
+                y = knob["y"] + knob["height"] / 2
+                sent = []  # the angles the page sends while the thumb moves
+                app.angle.on_update(lambda _: sent.append(float(app.angle.value)))
+                page.mouse.move(knob["x"] + knob["width"] / 2, y)
+                page.mouse.down()
+                page.mouse.move(track["x"] + (target - lo) / (hi - lo) * track["width"], y, steps=10)
+                page.mouse.up()
+                dragged = shown()
+                assert abs(dragged - target) < 3.0, dragged  # within a few pixels' worth of degrees
+                _wait(lambda: sent and sent[-1] == dragged, 10, "the server to get the dragged angle")
+                assert len(sent) >= 2, sent  # sent while dragging, not only on release
+                thumb.focus()
+                for _ in range(round(abs(target - dragged) * 10)):
+                    thumb.press("ArrowRight" if dragged < target else "ArrowLeft")
+                assert abs(shown() - target) < 0.05 and abs(float(number.input_value()) - target) < 0.05
+                _wait(lambda: abs(app.angle.value - target) < 0.05, 10, "the server to get the angle")
+                _wait(lambda: not app.session.worker.busy and abs(app.session.last_deployed.info.angle_deg - target) < 0.06,
+                      120, "the re-solve at the new angle")
                 second = app.session.last_deployed
-                assert second is not first
-                assert abs(second.info.angle_deg - (first.info.angle_deg + 15.0)) < 0.2
+                assert second is not first and second.info.converged, app.status_md.content
                 assert np.abs(second.joints - first.joints).max() > 1e-3 * np.ptp(first.joints[:, :2])
+                page.get_by_text(f"{second.info.angle_deg:.2f}°").first.wait_for(timeout=10000)  # the live readout
+                thumb.blur()  # no focus/hover tooltip over the panel in the screenshot (and the
+                label.hover()  # pointer off the 3D canvas, which would orbit the camera)
                 page.wait_for_timeout(1500)
                 page.screenshot(path=os.path.join(ARTIFACTS, "02_deployed.png"))
                 print(f"slider {time.perf_counter() - t0:.1f} s")
@@ -98,6 +126,7 @@ def test_app_in_chromium(tmp_path):
                 a, b = (int(v) for v in lay.edges[0])
                 click = lambda v: app._on_click(SimpleNamespace(  # noqa: E731
                     ray_origin=tuple(app._to_scene(lay.vertices[v]) + [0, 0, 5.0]), ray_direction=(0.0, 0.0, -1.0)))
+                page.get_by_role("tab", name="Design").click()  # where the topology check is listed
                 app.mode.value = "add segment"
                 click(a)
                 click(b)
