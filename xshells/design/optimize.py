@@ -23,6 +23,7 @@ kept for comparison.
 """
 from __future__ import annotations
 
+import logging
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -134,8 +135,7 @@ class OptimizeResult:
     success: bool = False
 
 
-import os
-_DEBUG = bool(os.environ.get("XSHELLS_DEBUG_OPT"))
+_log = logging.getLogger(__name__)
 
 
 class _Stop(Exception):
@@ -329,9 +329,8 @@ def _trust_region(problem, q0, options, eps, feasible, record, best, failures):
                 reason = f"no equilibrium ({exc})"
             actual = f - f_trial if not reason else -np.inf
             rho = actual / predicted if predicted > 0 else -1.0
-            if _DEBUG:
-                print(f"    trial |y|={np.linalg.norm(y):.3g} |s|={np.linalg.norm(step):.3g} radius={radius:.3g} pred={predicted:.3g} act={actual:.3g} "
-                      f"rho={rho:.3g} {reason}", flush=True)
+            _log.debug("trial |y|=%.3g |s|=%.3g radius=%.3g predicted=%.3g actual=%.3g rho=%.3g %s",
+                       np.linalg.norm(y), np.linalg.norm(step), radius, predicted, actual, rho, reason)
             if not reason and actual > 0 and rho > 1e-4:
                 break
             if reason:
