@@ -347,7 +347,11 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 if ws.eig_chol is None:
                     ws.eig_chol = SparseCholesky()
                 chol.forget()  # its factor may be overwritten by the shift search
-                v = _most_negative_direction(H, mass(), chol.chol, sigma, ws.eig_chol, lambda s: shifted(H, s))
+                v, s_eig = _most_negative_direction(H, mass(), chol.chol, sigma, ws.eig_chol, lambda s: shifted(H, s))
+                # H + s_eig·M factors too (s_eig is within 100× of |λmin|): the next steps' shift
+                # decays from 100·s_eig, not from σ (at σ ≫ |λmin| a step barely moves the soft
+                # modes: Darth Vader took 16 such steps after its buckling escape)
+                sigma = min(sigma, 100.0 * s_eig)
                 if v is not None:
                     step = options.saddle_step or 1e-3
                     if hasattr(problem, "min_arc_length") and options.saddle_step is None:
@@ -467,7 +471,7 @@ def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None) -> np.nda
 
 def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: SparseCholesky | None = None,
                              shifted=None):
-    """Eigenvector of the most negative eigenvalue of ``H d = λ M d``, or None.
+    """Eigenvector of the most negative eigenvalue of ``H d = λ M d`` (or None), and the smallest shift tried that factors.
 
     Shift-invert about ``−s``. The step's shift σ (``chol`` holds ``H + σM``)
     is usually far above ``|λmin|`` (1e-3 of ``λmax(H)/λmax(M)`` against a
@@ -494,7 +498,7 @@ def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: Sp
     try:
         lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n))
     except (spla.ArpackNoConvergence, ValueError):
-        return None
+        return None, s
     if lam[0] >= 0:
-        return None
-    return vecs[:, 0]
+        return None, s
+    return vecs[:, 0], s
