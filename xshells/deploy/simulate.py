@@ -274,9 +274,9 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         if i == options.steps:
             opts = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
         try:
-            used_lead = False
+            used_lead = unstable_lead = False
             if i > 1:
-                previous, used_lead = _predict(linkage, a, angle, previous if smooth and extrapolate else None, pins,
+                previous, used_lead, unstable_lead = _predict(linkage, a, angle, previous if smooth and extrapolate else None, pins,
                                                edge_vars[active])
             report = solve(angle, opts)
         except InputError as exc:  # a non-finite or degenerate state: keep the last equilibrium
@@ -287,7 +287,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         result.newton_iterations += report.iterations
         # extrapolate only along an easy stretch of the path: no negative curvature and quick convergence last step
         smooth = report.indefinite_events == 0 and report.iterations <= 3
-        if used_lead and report.indefinite_events:
+        if unstable_lead or (used_lead and report.indefinite_events):
             extrapolate = False  # this path is too close to instabilities for extrapolation: tangent guesses from now on
         if not report.converged:
             reached_now = float(np.degrees(a @ linkage.get_vars()))
@@ -370,17 +370,18 @@ def _predict(linkage: Linkage, a, angle, previous, pins, held):
     so the central difference is kept only if its constrained gradient is ten times
     smaller than the tangent's and the state there is still stable. Both satisfy
     ``a·x = angle``. Returns what the next call needs (``previous=None``
-    skips the central difference) and whether the central difference was
-    used; any trouble leaves the state as it is (Newton then starts there).
+    skips the central difference), whether the central difference was
+    used, and whether it was turned down for instability; any trouble leaves the
+    state as it is (Newton then starts there).
     """
     x = linkage.get_vars()
     current = (x, linkage.joint_b0.copy(), linkage.joint_n0.copy())
     t = _constrained_tangent(linkage, np.concatenate([pins, held]), a)
     if t is None:
-        return current, False
+        return current, False, False
     h = angle - float(a @ x)
     allheld = np.concatenate([pins, held]).astype(int)
-    guess, used = x + h * t, False
+    guess, used, unstable = x + h * t, False, False
     try:
         if previous is not None:
             xp, bp, np_ = previous
@@ -389,16 +390,18 @@ def _predict(linkage: Linkage, a, angle, previous, pins, held):
             lead = xq + (h + float(a @ (x - xq))) * t  # central difference: x_{i−1} + 2h t for equal steps
             lead[allheld] = x[allheld]
             # keep it only where it is clearly better and still stable on the constraint surface (positive
-            # definite augmented Hessian: its factorization is then reused by the first Newton iteration)
-            if (np.isfinite(lead).all() and abs(float(a @ lead) - angle) <= 1e-9 * max(abs(angle), 1.0)
-                    and _constrained_gradient_norm(linkage, lead, a, allheld) < 0.1 * _constrained_gradient_norm(linkage, guess, a, allheld)
-                    and _constrained_tangent(linkage, allheld, a) is not None):
-                guess, used = lead, True
+            # definite augmented Hessian: its factorization is then reused by the first Newton iteration,
+            # so the lead is evaluated last and the check runs on the lead's state)
+            if np.isfinite(lead).all() and abs(float(a @ lead) - angle) <= 1e-9 * max(abs(angle), 1.0):
+                g_guess = _constrained_gradient_norm(linkage, guess, a, allheld)
+                if _constrained_gradient_norm(linkage, lead, a, allheld) < 0.1 * g_guess:
+                    unstable = _constrained_tangent(linkage, allheld, a) is None
+                    guess, used = (guess, False) if unstable else (lead, True)
         linkage.set_vars(guess)
     except InputError:
         linkage.set_vars(x)
         used = False
-    return current, used
+    return current, used, unstable
 
 
 def solve_equilibrium(linkage: Linkage, *, torques=None, gravity=None, joint_forces=None,
