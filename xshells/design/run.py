@@ -33,7 +33,12 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     target = target_angle(case, L, angle_deg)
     if not (0 < target < np.pi):
         raise InputError(f"target angle {np.degrees(target):.4g}° is out of reach: it must lie strictly between 0° and 180°")
+    # Deploy from the flat equilibrium at the design's own angle (the flat
+    # state of the problem), not from the file's unrelaxed state.
+    from .equilibrium import ConstrainedEquilibrium
+
     D = copy.deepcopy(L)
+    ConstrainedEquilibrium(D, D.average_angle()).solve()
     steps = deploy_steps or case.steps
     bar = None
     if progress:
