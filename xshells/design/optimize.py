@@ -64,8 +64,9 @@ class OptimizeOptions:
         Stop when the projected gradient of ``J`` (in the scaled variables)
         falls below this.
     objective_tolerance : float
-        Stop when an accepted step that the trust region did not cut
-        lowers ``J`` by less than this fraction.
+        Stop when an accepted step that the trust region did not cut, or
+        three accepted steps in a row, lower ``J`` by less than this
+        fraction.
     max_cg_iterations : int
         Hessian-vector products per trust-region subproblem.
     barrier : float
@@ -251,6 +252,7 @@ def _trust_region(problem, q0, options, eps, feasible, record, best, failures):
     B = None  # BFGS matrix of J, scaled after the first step
     gJ = problem.gradient(q)
     radius = None  # set on the first iteration, relative to the preconditioned gradient
+    small = 0  # consecutive accepted steps that lowered J by less than the tolerance
     for it in range(1, options.max_iterations + 1):
         held = (q <= lb) & (g > 0)
         pg = np.where(held, 0.0, g)
@@ -356,7 +358,8 @@ def _trust_region(problem, q0, options, eps, feasible, record, best, failures):
         elif rho < 0.25:
             radius *= 0.25
         record(q, it)
-        if 0 <= decrease < options.objective_tolerance and interior:
+        small = small + 1 if 0 <= decrease < options.objective_tolerance else 0
+        if small and interior or small >= 3:
             return "relative decrease of J below tolerance", True
     return "reached the iteration limit", False
 
