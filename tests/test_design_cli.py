@@ -43,6 +43,7 @@ def test_optimize_writes_its_outputs_and_resumes(small_case, tmp_path):
 @pytest.mark.parametrize("argv,match", [
     (["--gamma", "1.5"], "gamma must lie in"), (["--beta", "-2"], "beta must be"),
     (["--target-surface", "missing.obj"], "missing.obj"), (["--resume"], "does not exist"),
+    (["--min-angle", "170", "--no-baseline"], "is infeasible"),
 ])
 def test_bad_input_is_one_line(small_case, tmp_path, capsys, argv, match):
     assert main(["optimize", str(small_case), "--out", str(tmp_path / "o"), "--no-progress", *argv]) == 2
