@@ -132,6 +132,15 @@ def banana_energies():
     return out
 
 
+def test_a_real_design_deploys_from_its_files_unrelaxed_state():
+    """The pre-optimization banana (k = 10) straight from its file, not relaxed first: Newton must not
+    give up where the gradient sits at its rounding floor (it stopped at 43° once)."""
+    L, _ = _optimized("wiggly_banana_preopt")
+    res = deploy(L, np.radians(80), DeployOptions(steps=20))
+    assert res.converged, res.message
+    assert np.degrees(L.average_angle()) == pytest.approx(80.0, abs=1e-6)
+
+
 def test_optimized_designs_redeploy_onto_the_reference_states(banana_energies):
     for name, (_, deviation) in banana_energies.items():
         assert deviation < 0.01, name  # within 1% of the bounding-box diagonal
