@@ -82,6 +82,10 @@ def test_cli_deploy_case_file(tmp_path):
         assert key in result
     assert len(result["deployed"]["joint_positions"]) == result["joints"]
     assert (out / "deployment.csv").read_text().count("\n") == 7
+    # holding the angle adds a positive semi-definite term: it can only raise the lowest eigenvalue
+    dep = result["deployed"]
+    assert dep["min_eigenvalue_at_fixed_angle"] > 0
+    assert dep["min_eigenvalue_at_fixed_angle"] >= dep["min_hessian_eigenvalue"] * (1 - 1e-6)
 
 
 def test_cli_contradictory_options(tmp_path, capsys):

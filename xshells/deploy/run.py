@@ -95,6 +95,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         deployed["torque"] = res.torque
         deployed["min_hessian_eigenvalue"] = res.min_hessian_eigenvalue
         deployed["stiffness_gap"] = res.stiffness_gap
+        deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
     _write_outputs(out_dir, "deployed", linkage)
     steps_out = [asdict(s) for s in (res.steps if res is not None else [])]
     result = {
