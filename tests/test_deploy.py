@@ -12,6 +12,8 @@ from xshells.linkage.grids import rhombic_grid
 from xshells.linkage.linkage import Linkage
 from xshells.section import Material
 
+from data_paths import DATA, needs_data
+
 FLAT_BEAM = Material.uniform("rectangle", [4.0, 1.5], E=2000, nu=0.3)
 
 
@@ -272,3 +274,17 @@ def test_cli_writes_the_partial_deployment(tmp_path):
     result = json.loads((out / "result.json").read_text())
     assert not result["reached"] and "inverts" in result["message"]
     assert result["steps"] and abs(result["deployed"]["average_angle_deg"] - result["steps"][-1]["average_angle_deg"]) < 1e-9
+
+
+@needs_data
+def test_a_folding_joint_is_named_when_the_solver_stalls():
+    """The reference's ``debug_propagation/fail.obj`` ('hole') cannot open to 2 rad: a joint folds flat at about 44°."""
+    from xshells.io import read_design
+
+    L = Linkage(read_design(DATA / "examples" / "florin" / "debug_propagation" / "fail.obj"),
+                Material.uniform("+", [3.0, 3.0, 0.6, 0.6], E=2000, nu=0.3), subdivision=5)
+    rest_length_solve(L)
+    res = deploy(L, 2.0, DeployOptions(steps=25))
+    assert not res.converged
+    assert 40 < res.reached_angle_deg < 50
+    assert "folding" in res.message or "inverts" in res.message, res.message

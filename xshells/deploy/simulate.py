@@ -291,10 +291,17 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         if unstable_lead or (used_lead and report.indefinite_events):
             extrapolate = False  # this path is too close to instabilities for extrapolation: tangent guesses from now on
         if not report.converged:
-            reached_now = float(np.degrees(a @ linkage.get_vars()))
+            x_stalled = linkage.get_vars()
+            reached_now = float(np.degrees(a @ x_stalled))
             restore(linkage, last_good)
             result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver stalled on the way to "
                               f"{np.degrees(angle):.2f}° (at {reached_now:.2f}°: {report.message})")
+            alpha = x_stalled[linkage.angle_indices()]
+            j = int(np.argmin(np.minimum(alpha, np.pi - alpha)))
+            if min(alpha[j], np.pi - alpha[j]) < np.radians(5.0):
+                # a stall next to a folding joint is usually the inversion itself
+                result.message += (f"; joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) is folding "
+                                   f"({np.degrees(alpha[j]):.2f}°): the linkage is about to invert")
             break
         why = inversion(linkage.get_vars())
         if why:
