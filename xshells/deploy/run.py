@@ -31,15 +31,19 @@ def _state_summary(linkage: Linkage) -> dict:
     }
 
 
-def _write_outputs(out_dir: str, tag: str, linkage: Linkage) -> None:
+def bending_field(linkage: Linkage) -> np.ndarray:
+    """√(bending-energy density) per rod vertex, the field of the rendered views (Fig. 6)."""
+    return np.sqrt(np.maximum(scalar_fields(linkage)["bending_energy_density"], 0.0))
+
+
+def _write_outputs(out_dir: str, tag: str, linkage: Linkage, vmax: float | None = None) -> None:
     from ..viz.render import render_linkage
 
     write_centerlines(os.path.join(out_dir, f"{tag}_centerlines.obj"), linkage)
     write_swept(os.path.join(out_dir, f"{tag}.obj"), linkage)
     write_swept(os.path.join(out_dir, f"{tag}.ply"), linkage)
-    field = np.sqrt(np.maximum(scalar_fields(linkage)["bending_energy_density"], 0.0))
-    render_linkage(os.path.join(out_dir, f"{tag}.png"), linkage.rods.points, linkage.rods.edges, field,
-                   title=f"{tag}: average angle {np.degrees(linkage.average_angle()):.1f}°")
+    render_linkage(os.path.join(out_dir, f"{tag}.png"), linkage.rods.points, linkage.rods.edges, bending_field(linkage),
+                   title=f"{tag}: average angle {np.degrees(linkage.average_angle()):.1f}°", vmax=vmax)
 
 
 def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,

@@ -10,7 +10,7 @@ from dataclasses import asdict
 import numpy as np
 
 from ..deploy.case import load_case, material_from_spec, target_angle
-from ..deploy.run import _write_outputs
+from ..deploy.run import _write_outputs, bending_field
 from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
 from ..errors import InputError
 from ..io import read_design, read_rest_lengths
@@ -86,8 +86,9 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
                                   rest_lengths_path=rl, progress=progress)
     q0 = np.ones(len(problem.p0))
     initial = _summary(problem, q0)
-    _write_outputs(out_dir, "flat_before", problem.flat.L)
-    _write_outputs(out_dir, "deployed_before", problem.deployed.L)
+    # before and after share one colour scale per state (Fig. 6): the larger of the two maxima
+    scale = {"flat": float(bending_field(problem.flat.L).max()), "deployed": float(bending_field(problem.deployed.L).max())}
+    before = {"flat": copy.deepcopy(problem.flat.L), "deployed": copy.deepcopy(problem.deployed.L)}
     bar = None
     if progress:
         from tqdm import tqdm
@@ -111,8 +112,10 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     final = _summary(problem, res.q)
     p = res.rest_lengths
     atomic_write_text(os.path.join(out_dir, "design_parameters.txt"), "".join(f"{v:.17g}\n" for v in p))
-    _write_outputs(out_dir, "flat", problem.flat.L)
-    _write_outputs(out_dir, "deployed", problem.deployed.L)
+    for state, L in (("flat", problem.flat.L), ("deployed", problem.deployed.L)):
+        vmax = max(scale[state], float(bending_field(L).max()))
+        _write_outputs(out_dir, f"{state}_before", before[state], vmax=vmax)
+        _write_outputs(out_dir, state, L, vmax=vmax)
     bfgs = None
     if baseline and not interrupted and options.method != "bfgs":
         base_problem, _ = build_problem(case_path, weights=weights, angle_deg=angle_deg, target_surface=target_surface,

@@ -23,7 +23,7 @@ def _save(fig, path) -> None:
 
 
 def render_linkage(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray, title: str = "",
-                   label: str = "√(bending energy density)") -> None:
+                   label: str = "√(bending energy density)", vmax: float | None = None) -> None:
     """Save a 3D view of rod centerlines coloured per edge.
 
     Parameters
@@ -32,6 +32,9 @@ def render_linkage(path, points: np.ndarray, edges: np.ndarray, vertex_values: n
     edges : (E, 2) int array
     vertex_values : (V,) array
         Colour field; each edge shows the mean of its endpoints.
+    vmax : float, optional
+        Top of the colour scale (from 0), so that several views compare;
+        default: the field's maximum.
     """
     plt = _pyplot()
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
@@ -41,6 +44,8 @@ def render_linkage(path, points: np.ndarray, edges: np.ndarray, vertex_values: n
     fig = plt.figure(figsize=(7, 5.5))
     ax = fig.add_subplot(projection="3d")
     lc = Line3DCollection(segs, array=vals, cmap="viridis", linewidths=1.6)
+    if vmax is not None:
+        lc.set_clim(0.0, vmax)
     ax.add_collection3d(lc)
     lo, hi = points.min(axis=0), points.max(axis=0)
     c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
