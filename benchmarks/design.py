@@ -70,7 +70,6 @@ def main(argv=None):
             ours_deployed = problem.deployed.L.joint_positions()
             ours_q = res.q.copy()
             # continuation along the straight line to the paper's rest lengths (a jump to them stalls the Newton solves)
-            from xshells.design.optimize import _move_to  # noqa: F401  (kept at the optimum above)
             fresh, _ = build_problem(CASE, weights=DesignWeights())
             for s in np.linspace(0.1, 1.0, 10):
                 tp = fresh.terms(q0 + s * (p_paper / fresh.p0 - 1))

@@ -193,7 +193,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
         if options.method == "trust-constr":
             message, success = _scipy_trust_constr(problem, q0, options, eps, record, failures)
         else:
-            message, success = _trust_region(problem, q0, options, eps, feasible, record, best, failures)
+            message, success = _trust_region(problem, q0, options, eps, record, failures)
     except _Stop:
         message = "stopped by request"
     except KeyboardInterrupt:
@@ -208,7 +208,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
                           message=message, time_s=time.perf_counter() - start, success=success)
 
 
-def _trust_region(problem, q0, options, eps, feasible, record, best, failures):
+def _trust_region(problem, q0, options, eps, record, failures):
     """Projected trust-region iteration with exact (Newton-CG) or BFGS model Hessians.
 
     It minimizes ``Φ = J − μ log(KS − ε) − μ log(σ − σ_min)``: log barriers
@@ -238,8 +238,8 @@ def _trust_region(problem, q0, options, eps, feasible, record, best, failures):
             return J, np.inf, parts
         return J, J - mu * sum(np.log(c) for c, _ in parts), parts
 
-    def merit_gradient(q, parts):
-        g = problem.gradient(q)
+    def merit_gradient(gJ, parts):
+        g = gJ
         for c, dc in parts:
             g = g - mu / c * dc
         return g
@@ -247,10 +247,10 @@ def _trust_region(problem, q0, options, eps, feasible, record, best, failures):
     J, f, parts = merit(q)
     if not np.isfinite(f):
         raise InputError("the starting design violates the minimum-angle or flat-stability bound")
-    g = merit_gradient(q, parts)
+    gJ = problem.gradient(q)
+    g = merit_gradient(gJ, parts)
     states = (snapshot(problem.flat.L), snapshot(problem.deployed.L))
     B = None  # BFGS matrix of J, scaled after the first step
-    gJ = problem.gradient(q)
     radius = None  # set on the first iteration, relative to the preconditioned gradient
     small = 0  # consecutive accepted steps that lowered J by less than the tolerance
     for it in range(1, options.max_iterations + 1):
@@ -341,17 +341,17 @@ def _trust_region(problem, q0, options, eps, feasible, record, best, failures):
             _move_to(problem, q, states)
         gJ_new = problem.gradient(q_trial)
         if not exact:
-            y = gJ_new - gJ
-            sy = float(step @ y)
-            if sy > 1e-12 * float(np.linalg.norm(step) * np.linalg.norm(y)):
+            dg = gJ_new - gJ  # (not ``y``: that is the step in the preconditioned variables)
+            sy = float(step @ dg)
+            if sy > 1e-12 * float(np.linalg.norm(step) * np.linalg.norm(dg)):
                 if B is None:
-                    B = np.eye(len(q)) * float(y @ y) / sy
+                    B = np.eye(len(q)) * float(dg @ dg) / sy
                 Bs = B @ step
-                B = B - np.outer(Bs, Bs) / float(step @ Bs) + np.outer(y, y) / sy
+                B = B - np.outer(Bs, Bs) / float(step @ Bs) + np.outer(dg, dg) / sy
         decrease = (J - J_trial) / max(abs(J), 1e-300)
         interior = np.linalg.norm(y) < 0.8 * radius  # the model's own minimizer, not cut by the trust region
         q, f, J, parts, gJ = q_trial, f_trial, J_trial, parts_trial, gJ_new
-        g = merit_gradient(q, parts)
+        g = merit_gradient(gJ, parts)
         states = (snapshot(problem.flat.L), snapshot(problem.deployed.L))
         if rho > 0.75 and np.linalg.norm(y) > 0.8 * radius:
             radius *= 2.0
