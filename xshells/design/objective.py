@@ -394,7 +394,7 @@ class DesignProblem:
             return self._cache[key]
         import scipy.sparse.linalg as spla
 
-        from ..linkage.derivatives import _restore_state, _save_state, _step
+        from ..linkage.derivatives import _step
 
         eq = self.flat
         if getattr(self, "_M0", None) is None:
@@ -413,7 +413,7 @@ class DesignProblem:
         value, weights, _ = ks_min(lam / self._lambda_ref, 0.05)
         L = eq.L
         nx = eq.nx
-        saved = _save_state(L)
+        saved = L.move_checkpoint()
         x0 = L.get_vars()
         grads = np.zeros((modes, len(self.p0)))
         try:
@@ -426,12 +426,12 @@ class DesignProblem:
                 Gp = L.gradient(with_rest_lengths=True)
                 L.set_vars(x0 - h * v)
                 Gm = L.gradient(with_rest_lengths=True)
-                _restore_state(L, saved)
+                L.move_rollback(saved)
                 T = (Gp + Gm - 2.0 * G0) / (h * h)
                 w = eq.kkt_solve(T[:nx])
                 grads[i] = (T[nx:] - eq.Hpx @ w) * self.p0 / self._lambda_ref
         finally:
-            _restore_state(L, saved)
+            L.move_rollback(saved)
         self._cache[key] = (float(value), weights @ grads)
         self._cache[("stability_modes", modes)] = (lam / self._lambda_ref, grads)
         return self._cache[key]

@@ -121,29 +121,15 @@ def hessian_derivative(linkage, dx, dp=None, *, with_rest_lengths: bool = False,
     if scheme == "forward" and hessian is None:
         hessian = linkage.hessian(with_rest_lengths)
     x0, p0 = linkage.get_vars(), linkage.rest_lengths
-    saved = _save_state(linkage)
+    saved = linkage.move_checkpoint()
     try:
         Hp = _hessian_at(linkage, x0 + h * dx, None if dp is None else p0 + h * dp, with_rest_lengths)
         if scheme == "central":
             Hm = _hessian_at(linkage, x0 - h * dx, None if dp is None else p0 - h * dp, with_rest_lengths)
             return _difference(Hp, Hm, 0.5 / h)
     finally:
-        _restore_state(linkage, saved)
+        linkage.move_rollback(saved)
     return _difference(Hp, hessian, 1.0 / h)
-
-
-def _save_state(linkage):
-    """References to everything a move of ``x`` or ``p`` replaces (moves never write in place)."""
-    r = linkage.rods
-    return linkage._x, linkage._p, r.points, r.thetas, r.rest_lengths, getattr(linkage, "_cache", None)
-
-
-def _restore_state(linkage, saved):
-    """Undo moves of ``x``/``p`` bit for bit, cached evaluations at the state included."""
-    r = linkage.rods
-    linkage._x, linkage._p, r.points, r.thetas, r.rest_lengths, cache = saved
-    if cache is not None:
-        linkage._cache = cache
 
 
 def _difference(A, B, scale) -> sp.csr_matrix:
@@ -181,11 +167,11 @@ def third_derivative_product(linkage, dx, u) -> np.ndarray:
         return np.zeros(linkage.num_vars)
     x0 = linkage.get_vars()
     out = np.zeros(linkage.num_vars)
-    saved = _save_state(linkage)
+    saved = linkage.move_checkpoint()
     try:
         for s, r, sign in ((1, 1, 1.0), (1, -1, -1.0), (-1, 1, -1.0), (-1, -1, 1.0)):
             linkage.set_vars(x0 + s * hs * dx + r * hr * u)
             out += sign * linkage.gradient()
     finally:
-        _restore_state(linkage, saved)
+        linkage.move_rollback(saved)
     return out / (4.0 * hs * hr)

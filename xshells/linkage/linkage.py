@@ -321,6 +321,24 @@ class Linkage:
         self.rods.set_rest_lengths(edge)
         self._p = p.copy()
 
+    def move_checkpoint(self):
+        """A cheap checkpoint before temporary moves of ``x`` or ``p`` (e.g. finite differences).
+
+        :meth:`set_vars` and :meth:`set_rest_lengths` replace their arrays
+        rather than write into them, so references suffice; the cached
+        evaluations at the state are kept too. Frames are not covered: do
+        not call :meth:`update_source_frame` between checkpoint and rollback.
+        """
+        r = self.rods
+        return self._x, self._p, r.points, r.thetas, r.rest_lengths, getattr(self, "_cache", None)
+
+    def move_rollback(self, checkpoint) -> None:
+        """Back to a :meth:`move_checkpoint`, bit for bit, cached evaluations included."""
+        r = self.rods
+        self._x, self._p, r.points, r.thetas, r.rest_lengths, cache = checkpoint
+        if cache is not None:
+            self._cache = cache
+
     def update_source_frame(self) -> None:
         """Fold the joint rotations into the source frames (ω ← 0) and update the rods' frames."""
         xj = self._x[: self.num_joint_vars].reshape(-1, 9)
