@@ -75,3 +75,26 @@ def test_escapes_an_exact_saddle():
     report = minimize(Q, options=NewtonOptions(gradient_tolerance=1e-10, saddle_step=1e-2))
     assert report.converged and report.saddle_escapes >= 1
     assert np.isclose(abs(Q.x[0]), 1 / np.sqrt(2), atol=1e-8)
+
+
+def _clustered_pencil(n=300, low=(1e-6, 1.3e-6, 2e-6), seed=0):
+    """H = Q diag(λ) Qᵀ with a few tiny, clustered eigenvalues beside stiff ones (as a deployed linkage), M = I."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    lam = np.concatenate([low, np.geomspace(1.0, 1e4, n - len(low))])
+    return sp.csr_matrix((q * lam) @ q.T), sp.identity(n, format="csr"), np.sort(lam)
+
+
+def test_smallest_eigenvalues_of_a_clustered_spectrum():
+    from xshells.solve import smallest_eigenvalues
+
+    H, M, lam = _clustered_pencil()
+    np.testing.assert_allclose(smallest_eigenvalues(H, M, k=2), lam[:2], rtol=0, atol=1e-11)  # backward error ~ eps·λmax
+    np.testing.assert_allclose(smallest_eigenvalues(H, M, k=1), lam[:1], rtol=0, atol=1e-11)
+
+
+def test_smallest_eigenvalues_of_an_indefinite_pencil():
+    from xshells.solve import smallest_eigenvalues
+
+    H, M, lam = _clustered_pencil(low=(-3e-6, 1e-6, 2e-6))
+    np.testing.assert_allclose(smallest_eigenvalues(H, M, k=2), lam[:2], rtol=0, atol=1e-11)  # backward error ~ eps·λmax
