@@ -22,6 +22,9 @@ def register(subparsers) -> None:
     p.add_argument("--subdivision", type=int, help="edges per segment (default 10)")
     p.add_argument("--rest-lengths", help="per-segment rest lengths file (skips the rest-length solve)")
     p.add_argument("--direction", choices=["up", "down"], default="up", help="which way the flat state buckles: up = its middle rises along the layout normal")
+    p.add_argument("--start", choices=["auto", "average", "central-joint"], default="auto",
+                   help="how the assembly state is held while it first relaxes: at its average angle, or by the central "
+                        "joint's angle alone (auto: the average, unless that folds a joint at once)")
     p.add_argument("--out", default="deploy_out", help="output folder")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_deploy)
@@ -70,7 +73,7 @@ def _deploy(args) -> int:
         design = args.input
     if kw["steps"] < 1:
         raise InputError(f"--steps must be at least 1, got {kw['steps']}")
-    result = run_deployment(design, material, out_dir=args.out, direction=args.direction, progress=not args.no_progress, **kw)
+    result = run_deployment(design, material, out_dir=args.out, direction=args.direction, start=args.start, progress=not args.no_progress, **kw)
     _print_summary(result, args.out)
     return 0 if result["reached"] else 1
 

@@ -47,7 +47,7 @@ def _write_outputs(out_dir: str, tag: str, linkage: Linkage, vmax: float | None 
 
 
 def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,
-                   rest_lengths_path=None, direction="up", progress=True, name=None) -> dict:
+                   rest_lengths_path=None, direction="up", progress=True, name=None, start="auto") -> dict:
     """Build the linkage, find its assembly state, deploy it and write the outputs into ``out_dir``.
 
     Returns the ``result.json`` content. Interrupting (Ctrl-C) keeps and
@@ -86,7 +86,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     t2 = time.perf_counter()
     interrupted = False
     try:
-        res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction), callback=on_step)
+        res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start), callback=on_step)
     except KeyboardInterrupt:
         interrupted = True
         res = None
@@ -118,6 +118,9 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy, "total": time.perf_counter() - t0},
         "newton_iterations": res.newton_iterations if res is not None else 0,
     }
+    if res is not None:
+        # how the assembly state was held when it first relaxed (see DeployOptions.start)
+        result["start"] = {"mode": res.start, "average_angle_deg": res.start_angle_deg, "note": res.start_note}
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     buf = io.StringIO()
     if steps_out:

@@ -46,6 +46,17 @@ class DeployOptions:
         (default 0: when it reaches 0 or π, i.e. the joint folds through).
     collapse_ratio : float
         Deployment stops when a rod edge shrinks below this fraction of its rest length.
+    start : {"auto", "average", "central-joint"}
+        How the assembly state is held while it first relaxes. "average": at
+        its average angle (the deployment's own control). "central-joint":
+        only the pinned central joint's angle is held (one driving joint, as
+        a physical assembly would be held), so the rest of the mechanism
+        settles where its forces balance, possibly far from the drawn angle
+        and out of plane; the steps then run from the average angle reached.
+        "auto": "average", unless its first step folds a joint (or stalls
+        beside one); then the start is re-done as "central-joint" (a drawn state whose
+        equilibrium at its own average angle needs a joint folded through:
+        the Fig. 14 "hole" design folds joint 28 at once).
     """
 
     steps: int = 40
@@ -58,6 +69,7 @@ class DeployOptions:
     min_joint_edge_length: float | None = None
     inversion_margin: float = 0.0
     collapse_ratio: float = 1e-2
+    start: str = "auto"
 
 
 @dataclass
@@ -89,6 +101,9 @@ class DeploymentResult:
     time_s: float = 0.0
     active_joint_edges: list = field(default_factory=list)
     gradient_norm: float = float("nan")
+    start: str = "average"
+    start_angle_deg: float = float("nan")
+    start_note: str = ""
 
 
 class _RestLengthProblem:
@@ -185,6 +200,8 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     """
     if options.direction not in ("up", "down"):
         raise InputError(f"direction must be 'up' or 'down', got {options.direction!r}")
+    if options.start not in ("auto", "average", "central-joint"):
+        raise InputError(f"start must be 'auto', 'average' or 'central-joint', got {options.start!r}")
     if not (0 < target_angle < np.pi):
         raise InputError(f"target angle {np.degrees(target_angle):.4g}° is out of reach: an opening angle must lie strictly between 0° and 180°")
     start = time.perf_counter()
@@ -261,69 +278,108 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                     f"{100 * ratio[e]:.3g}% of its rest length")
         return ""
 
-    last_good = snapshot(linkage)
-    last_angle = float(np.degrees(alpha0))
-    previous = None  # (x, joint frames) of the equilibrium before the last one, for the predictor
-    smooth = False  # whether the last step was easy (then the path is smooth enough to extrapolate)
-    extrapolate = True  # until an extrapolated guess leads into negative curvature
-    why = inversion(linkage.get_vars())
-    if why:
-        result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}° before the first step: {why}"
-    for i in range(1, options.steps + 1) if not why else ():
-        angle = alpha0 + (target_angle - alpha0) * i / options.steps
-        opts = newton
-        if i == options.steps:
-            opts = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
-        try:
-            used_lead = unstable_lead = False
-            if i > 1:
-                previous, used_lead, unstable_lead = _predict(linkage, a, angle, previous if smooth and extrapolate else None, pins,
-                                               edge_vars[active])
-            report = solve(angle, opts)
-        except InputError as exc:  # a non-finite or degenerate state: keep the last equilibrium
-            restore(linkage, last_good)
-            result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver broke down on the way to "
-                              f"{np.degrees(angle):.2f}° ({exc})")
-            break
+    def relax_holding_central_joint() -> str:
+        """Relax with only the pinned joint's angle held; '' or why it failed."""
+        j = int(pins[0]) // 9
+        held = np.concatenate([pins, [9 * j + 6]])
+        opts = NewtonOptions(**{**newton.__dict__, "max_iterations": max(newton.max_iterations, 2000)})
+        report = minimize(linkage, fixed=held, options=opts, saddle_hint=hint)
         result.newton_iterations += report.iterations
-        # extrapolate only along an easy stretch of the path: no negative curvature and quick convergence last step
-        smooth = report.indefinite_events == 0 and report.iterations <= 3
-        if unstable_lead or (used_lead and report.indefinite_events):
-            extrapolate = False  # this path is too close to instabilities for extrapolation: tangent guesses from now on
         if not report.converged:
-            x_stalled = linkage.get_vars()
-            reached_now = float(np.degrees(a @ x_stalled))
-            restore(linkage, last_good)
-            result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver stalled on the way to "
-                              f"{np.degrees(angle):.2f}° (at {reached_now:.2f}°: {report.message})")
-            alpha = x_stalled[linkage.angle_indices()]
-            j = int(np.argmin(np.minimum(alpha, np.pi - alpha)))
-            if min(alpha[j], np.pi - alpha[j]) < np.radians(5.0):
-                # a stall next to a folding joint is usually the inversion itself
-                result.message += (f"; joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) is folding "
-                                   f"({np.degrees(alpha[j]):.2f}°): the linkage is about to invert")
-            break
-        why = inversion(linkage.get_vars())
+            return f"relaxing with joint {j}'s angle held did not converge ({report.message})"
+        return inversion(linkage.get_vars())
+
+    initial, initial_active = snapshot(linkage), active.copy()
+    result.start, result.start_angle_deg = "average", float(np.degrees(alpha0))
+    why = ""
+    if options.start == "central-joint":
+        why = relax_holding_central_joint()
+        result.start = "central-joint"
+        alpha0 = float(a @ linkage.get_vars())
+        result.start_angle_deg = float(np.degrees(alpha0))
+    while True:
+        last_good = snapshot(linkage)
+        last_angle = float(np.degrees(alpha0))
+        previous = None  # (x, joint frames) of the equilibrium before the last one, for the predictor
+        smooth = False  # whether the last step was easy (then the path is smooth enough to extrapolate)
+        extrapolate = True  # until an extrapolated guess leads into negative curvature
+        why = why or inversion(linkage.get_vars())
         if why:
-            restore(linkage, last_good)
-            result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: {why} on the way to {np.degrees(angle):.2f}°"
-            break
-        parts = linkage.energy_parts()
-        z = Sz @ linkage.get_vars() - z0
-        g = linkage.gradient()
-        torque = float(np.mean(g[linkage.angle_indices()[joints]]))
-        rec = StepRecord(i, float(np.degrees(a @ linkage.get_vars())), parts.total, parts.stretch, parts.bend, parts.twist,
-                         torque, float(np.abs(z).max()), report.iterations, report.converged)
-        result.steps.append(rec)
-        result.reached_angle_deg, result.torque = rec.average_angle_deg, torque
-        last_good, last_angle = snapshot(linkage), rec.average_angle_deg
-        if callback is not None and callback(rec):
-            result.message = f"stopped by request at {rec.average_angle_deg:.2f}°"
-            break
-    else:
-        if not why:
-            result.converged = True
-            result.message = "reached the target angle"
+            result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}° before the first step: {why}"
+        first_failed = False
+        for i in _deploy_steps(options.steps, why):
+            angle = alpha0 + (target_angle - alpha0) * i / options.steps
+            opts = newton
+            if i == options.steps:
+                opts = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
+            try:
+                used_lead = unstable_lead = False
+                if i > 1:
+                    previous, used_lead, unstable_lead = _predict(linkage, a, angle, previous if smooth and extrapolate else None, pins,
+                                                   edge_vars[active])
+                report = solve(angle, opts)
+            except InputError as exc:  # a non-finite or degenerate state: keep the last equilibrium
+                restore(linkage, last_good)
+                result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver broke down on the way to "
+                                  f"{np.degrees(angle):.2f}° ({exc})")
+                break
+            result.newton_iterations += report.iterations
+            # extrapolate only along an easy stretch of the path: no negative curvature and quick convergence last step
+            smooth = report.indefinite_events == 0 and report.iterations <= 3
+            if unstable_lead or (used_lead and report.indefinite_events):
+                extrapolate = False  # this path is too close to instabilities for extrapolation: tangent guesses from now on
+            if not report.converged:
+                x_stalled = linkage.get_vars()
+                reached_now = float(np.degrees(a @ x_stalled))
+                restore(linkage, last_good)
+                result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver stalled on the way to "
+                                  f"{np.degrees(angle):.2f}° (at {reached_now:.2f}°: {report.message})")
+                alpha = x_stalled[linkage.angle_indices()]
+                j = int(np.argmin(np.minimum(alpha, np.pi - alpha)))
+                if min(alpha[j], np.pi - alpha[j]) < np.radians(5.0):
+                    # a stall next to a folding joint is usually the inversion itself
+                    result.message += (f"; joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) is folding "
+                                       f"({np.degrees(alpha[j]):.2f}°): the linkage is about to invert")
+                    first_failed = i == 1
+                break
+            why = inversion(linkage.get_vars())
+            if why:
+                restore(linkage, last_good)
+                result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: {why} on the way to {np.degrees(angle):.2f}°"
+                first_failed = i == 1
+                break
+            parts = linkage.energy_parts()
+            z = Sz @ linkage.get_vars() - z0
+            g = linkage.gradient()
+            torque = float(np.mean(g[linkage.angle_indices()[joints]]))
+            rec = StepRecord(i, float(np.degrees(a @ linkage.get_vars())), parts.total, parts.stretch, parts.bend, parts.twist,
+                             torque, float(np.abs(z).max()), report.iterations, report.converged)
+            result.steps.append(rec)
+            result.reached_angle_deg, result.torque = rec.average_angle_deg, torque
+            last_good, last_angle = snapshot(linkage), rec.average_angle_deg
+            if callback is not None and callback(rec):
+                result.message = f"stopped by request at {rec.average_angle_deg:.2f}°"
+                break
+        else:
+            if not why:
+                result.converged = True
+                result.message = "reached the target angle"
+        if first_failed and options.start == "auto" and result.start == "average":
+            restore(linkage, initial)
+            active = initial_active.copy()
+            result.steps, result.reached_angle_deg, result.torque = [], 0.0, 0.0
+            result.start = "central-joint"
+            result.start_note = (f"held at its average angle {np.degrees(alpha0):.2f}°, the assembly state cannot relax "
+                                 f"({result.message.split(': ', 1)[-1]}); relaxed with only the central joint's angle held")
+            why = relax_holding_central_joint()
+            alpha0 = float(a @ linkage.get_vars())
+            result.start_angle_deg = float(np.degrees(alpha0))
+            if not why:
+                result.start_note += f", it settled at {result.start_angle_deg:.2f}°"
+            continue
+        break
+    if result.start_note:
+        result.message += f" (start: {result.start_note})"
     if not result.steps:
         result.reached_angle_deg = last_angle
     result.active_joint_edges = [int(v) for v in edge_vars[active]]
@@ -354,6 +410,11 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         result.message += f"; stability check failed: {exc}"
     result.time_s = time.perf_counter() - start
     return result
+
+
+def _deploy_steps(steps: int, why: str):
+    """Step numbers 1…steps, or none when the start is already broken (``why``)."""
+    return range(1, steps + 1) if not why else ()
 
 
 def _rotation_between(b_from, n_from, b_to, n_to) -> np.ndarray:
