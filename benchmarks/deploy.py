@@ -45,7 +45,10 @@ def run_one(case: dict) -> dict:
 
     design = read_design(os.path.join(DATA, case.get("flat_file") or case["file"]))
     p = read_rest_lengths(os.path.join(DATA, case["rest_lengths"]), design.num_segments) if case.get("rest_lengths") else None
-    L = Linkage(design, material_from_spec(case["material"]), subdivision=case.get("subdivision", 10), rest_lengths=p)
+    material = dict(case["material"])
+    if material.get("contour_file"):  # paths in cases.json are relative to it
+        material["contour_file"] = os.path.join(DATA, material["contour_file"])
+    L = Linkage(design, material_from_spec(material), subdivision=case.get("subdivision", 10), rest_lengths=p)
     t0 = time.perf_counter()
     if p is None:
         rest_length_solve(L)
