@@ -698,5 +698,8 @@ class _ReducedHessianAssembler:
         if 1 in self.gather:
             data += self.gather[1] @ he.ravel()
         H = sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+        # the constructor may copy the index arrays: share the pattern's own, so that all
+        # Hessians of this linkage are recognisably on one pattern (cheap differences)
+        H.indices, H.indptr = self.indices, self.indptr
         H.has_canonical_format = True
         return H
