@@ -126,10 +126,17 @@ def hessian_derivative(linkage, dx, dp=None, *, with_rest_lengths: bool = False,
         Hp = _hessian_at(linkage, x0 + h * dx, None if dp is None else p0 + h * dp, with_rest_lengths)
         if scheme == "central":
             Hm = _hessian_at(linkage, x0 - h * dx, None if dp is None else p0 - h * dp, with_rest_lengths)
-            return _difference(Hp, Hm, 0.5 / h, overwrite_a=True)
+            return _difference(Hp, Hm, 0.5 / h, overwrite_a=_own(Hp, saved))
     finally:
         linkage.move_rollback(saved)  # drops the perturbed states' cached Hessians: Hp is ours alone
-    return _difference(Hp, hessian, 1.0 / h, overwrite_a=True)
+    return _difference(Hp, hessian, 1.0 / h, overwrite_a=_own(Hp, saved) and Hp is not hessian)
+
+
+def _own(H, checkpoint) -> bool:
+    """Whether ``H`` (from a perturbed state) is not a Hessian cached at the checkpoint's state
+    (a step too small to change the state bitwise would return that one)."""
+    cache = checkpoint[-1] or {}
+    return all(H is not v for v in cache.values())
 
 
 def _difference(A, B, scale, overwrite_a: bool = False) -> sp.csr_matrix:
