@@ -75,6 +75,15 @@ class OptimizeOptions:
         iterates feasible, it keeps them away from the boundaries, where
         steps get rejected: on the wiggly banana 1e-2 reached J = 0.125 in
         20 iterations, 1e-4 stalled at 0.266 against the angle bound.
+    angle_curvature : bool
+        Newton-CG: while the minimum angle is within 0.25° of ε, the model
+        Hessian includes the angle barrier's curvature term
+        ``−(μ/(KS − ε)) ∇²KS`` (one more Hessian-vector product per CG
+        iteration), not only its Gauss–Newton part. Without it, steps along
+        the active bound leave it at second order and are rejected: with
+        ε = 1.16° (0.2° below the initial KS) the wiggly banana stalled at
+        J = 0.198 after 30 iterations; with it, J = 0.143 after 30 and
+        0.125 after 60.
     min_stability : float
         Floor ``σ_min`` of the flat state's stability measure (its lowest
         eigenvalues relative to the initial design's; see
@@ -99,6 +108,7 @@ class OptimizeOptions:
     objective_tolerance: float = 1e-4
     max_cg_iterations: int = 50
     barrier: float = 1e-2
+    angle_curvature: bool = True
     min_stability: float = 0.1
     hold_stability: bool = True
     stability_modes: int = 4
@@ -263,10 +273,16 @@ def _trust_region(problem, q0, options, eps, record, failures):
         nf = int(free.sum())
         gn = [(np.sqrt(mu) / c) * dc for c, dc in parts]
 
-        def model_hessp(v, q=q, gn=gn):
+        curv = exact and options.angle_curvature and parts[0][0] < np.radians(0.25)
+
+        def model_hessp(v, q=q, gn=gn, w_ang=mu / parts[0][0], curv=curv):
             hv = problem.hessp(q, v) if exact else (v if B is None else B @ v)
             for u in gn:
                 hv = hv + u * float(u @ v)
+            if curv:
+                # the angle barrier's own curvature −(μ/c)∇²KS: near the bound the
+                # steps follow the bound's curvature instead of leaving it at second order
+                hv = hv - w_ang * problem.min_angle_hessp(q, v)
             return hv
 
         # Preconditioner: a dense model of the Hessian on the free variables
