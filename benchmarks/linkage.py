@@ -51,7 +51,7 @@ def main(argv=None):
     from xshells.linkage.linkage import Linkage
     from xshells.section import Material
 
-    print(f"{'case':<22} {'segments':>8} {'DoF':>7} {'build s':>8} {'set_vars ms':>11} {'gradient ms':>12} {'Hessian ms':>11} {'dH c ms':>8} {'dH f ms':>8} {'dH·u ms':>8} {'peak MB':>8} {'RSS MB':>7}")
+    print(f"{'case':<22} {'segments':>8} {'DoF':>7} {'build s':>8} {'set_vars ms':>11} {'gradient ms':>12} {'Hessian ms':>11} {'dH c ms':>8} {'dH f ms':>8} {'dH·u ms':>8} {'dHf/H':>6} {'peak MB':>8} {'RSS MB':>7}")
     for name, path, (kind, params) in cases():
         t = time.perf_counter()
         L = Linkage(read_design(path), Material.uniform(kind, params, E=20000, nu=0.3), subdivision=args.subdivision)
@@ -80,13 +80,25 @@ def main(argv=None):
 
         H0 = L.hessian()
         dhf = median_ms(forward, args.repeats) - t_move
+        # the ratio that the target is about, from interleaved pairs (a Hessian after a move,
+        # then a forward dH from there): separate medians drift with the machine's load by ±10 %
+        ratios = []
+        for _ in range(max(args.repeats, 20)):
+            move()
+            t = time.perf_counter()
+            H0 = L.hessian()
+            t_h = time.perf_counter() - t
+            t = time.perf_counter()
+            hessian_derivative(L, d, scheme="forward", hessian=H0)
+            ratios.append((time.perf_counter() - t) / t_h)
+        ratio = float(np.median(ratios))
         dhu = median_ms(lambda: (move(), third_derivative_product(L, d, d)), args.repeats) - t_move
-        move()  # a fresh state: the Hessian at the current one is cached
+        L.set_vars(x0 + 1e-9 * rng.standard_normal(L.num_vars))  # a state never seen: nothing cached
         tracemalloc.start()
         L.hessian()
         peak = tracemalloc.get_traced_memory()[1] / 2**20
         tracemalloc.stop()
-        print(f"{name:<22} {L.num_segments:>8} {L.num_vars:>7} {build:>8.2f} {t_move:>11.2f} {g:>12.2f} {h:>11.2f} {dhc:>8.2f} {dhf:>8.2f} {dhu:>8.2f} {peak:>8.1f} {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:>7.0f}")
+        print(f"{name:<22} {L.num_segments:>8} {L.num_vars:>7} {build:>8.2f} {t_move:>11.2f} {g:>12.2f} {h:>11.2f} {dhc:>8.2f} {dhf:>8.2f} {dhu:>8.2f} {ratio:>6.3f} {peak:>8.1f} {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:>7.0f}")
 
 
 if __name__ == "__main__":
