@@ -182,6 +182,7 @@ def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
     ({"base": {"file": "grid.obj"}, "cases": [{"material": {"type": "recangle"}}]}, "material: unknown cross-section type"),
     ({"base": {"file": "grid.obj"}, "axes": {"params": [[4, 1.5], [4]]}}, "material: rectangle takes 2 parameters"),
     ({"axes": {"angle_deg": [70]}}, "base.file: missing"),
+    ({"base": {"file": "grid.obj", "start": "joint"}}, "base.start: must be one of"),
 ])
 def test_spec_errors_name_the_key(tmp_path, data, key):
     small_grid(tmp_path / "grid.obj")

@@ -52,6 +52,7 @@ CASE_CHECKS = {
     "angle_rad": T.number(),
     "open_by_deg": T.number(),
     "direction": T.choice("up", "down"),
+    "start": T.choice("auto", "average", "central-joint"),
     "material.type": T.text,
     "material.E": T.number(0, open_min=True),
     "material.nu": T.number(-1, 0.5, open_min=True),

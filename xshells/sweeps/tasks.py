@@ -175,7 +175,7 @@ def deploy_task(params: dict, out_dir: str) -> dict:
     r = run_deployment(params["file"], material_from_spec(params.get("material") or {}), out_dir=out_dir,
                        subdivision=params.get("subdivision", 10), target_angle=target, open_by=open_by,
                        steps=params.get("steps", 40), rest_lengths_path=params.get("rest_lengths"),
-                       direction=params.get("direction", "up"), progress=False,
+                       direction=params.get("direction", "up"), start=params.get("start", "auto"), progress=False,
                        name=params.get("name") or os.path.splitext(os.path.basename(params["file"]))[0])
     d, f = r["deployed"], r["flat"]
     return {
