@@ -242,3 +242,14 @@ def test_tradeoff_plot_from_the_column_names(tmp_path):
 def test_bundled_example_spec_is_valid():
     spec = load_spec(EXAMPLES / "sweep_example.yaml")
     assert spec.task == "deploy" and len(spec.tasks) == 8
+
+
+def test_dispatch_size_ranks_larger_designs_first(tmp_path):
+    from xshells.sweeps.run import estimated_size
+
+    small_grid(tmp_path / "grid.obj")
+    spec = spec_from_dict({"base": {"file": "grid.obj", "subdivision": 4, "steps": 5},
+                           "cases": [{}, {"subdivision": 8}, {"steps": 20}]}, str(tmp_path))
+    sizes = [estimated_size(t.params) for t in spec.tasks]
+    assert sizes[0] > 0 and sizes[1] == 2 * sizes[0] and sizes[2] == 4 * sizes[0]
+    assert estimated_size({"file": str(tmp_path / "missing.obj")}) == 0  # the task itself reports the file
