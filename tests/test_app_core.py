@@ -328,3 +328,18 @@ def test_session_optimize_and_actuate_on_the_worker(tmp_path):
         assert np.allclose(s._rest_lengths(), s.rest_lengths)
     finally:
         s.close()
+
+
+def test_an_inverting_joint_stops_the_slider_at_the_last_good_state():
+    """Opened towards 179°, a warped grid folds a joint through 180° near 157.5°: the tool says so and keeps
+    the last valid state instead of showing a converged but inverted linkage."""
+    from xshells.app.session import Session
+    from xshells.app.sim import Simulation
+
+    sim = Simulation(core.warp_bend(grid_project(4, 4, 70).layout, 0.5), Session._build_material(grid_project(4, 4).material), 4)
+    assert sim.solve_to(150.0).converged
+    info = sim.solve_to(179.0)
+    assert not info.converged and "inverts" in info.message and "joint" in info.message
+    alpha = sim.linkage.joint_angles()
+    assert np.all((alpha > 0) & (alpha < np.pi))
+    assert info.angle_deg == pytest.approx(np.degrees(sim.current_angle))

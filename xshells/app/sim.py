@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..deploy.simulate import DeployOptions, _gradient_scale, _noise_floor, rest_length_solve
+from ..deploy.simulate import DeployOptions, _gradient_scale, _noise_floor, folded_joint, rest_length_solve
 from ..errors import InputError
 from ..linkage.linkage import Linkage
 from ..linkage.state import restore, snapshot
@@ -203,6 +203,14 @@ class Simulation:
                 report = minimize(self.linkage, fixed=self._pins, constraint=(self._a, angle), options=self._newton,
                                   callback=stop, saddle_hint=self._hint)
             last = self._info(report.converged, report.iterations, "" if report.converged else report.message)
+            folded = folded_joint(self.linkage) if report.converged else ""
+            if folded:
+                # a converged but inverted state is not a linkage: keep the last good one and say why
+                _, snap, good = self.nearest_state(angle)
+                restore(self.linkage, snap)
+                self.current_angle = self.linkage.average_angle()
+                return StateInfo(**{**good.__dict__, "converged": False,
+                                    "message": f"stopped near {np.degrees(angle):.1f}°: {folded}"})
             if not report.converged:
                 # keep the linkage at the last good state; report where the solver gave up
                 restore(self.linkage, self.nearest_state(angle)[1])

@@ -265,11 +265,9 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
 
     def inversion(x) -> str:
         """Why the state ``x`` is inverted (a joint folding flat or an edge collapsing), or ''."""
-        alpha = x[linkage.angle_indices()]
-        j = int(np.argmin(np.minimum(alpha, np.pi - alpha)))
-        if min(alpha[j], np.pi - alpha[j]) <= options.inversion_margin:
-            return (f"the linkage inverts: joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) reaches an opening angle of "
-                    f"{np.degrees(alpha[j]):.2f}° (a joint must stay strictly between 0° and 180°)")
+        why = folded_joint(linkage, x, options.inversion_margin)
+        if why:
+            return why
         rods = linkage.rods
         ratio = np.linalg.norm(rods.points[rods.edges[:, 1]] - rods.points[rods.edges[:, 0]], axis=1) / rods.rest_lengths
         e = int(np.argmin(ratio))
@@ -410,6 +408,17 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         result.message += f"; stability check failed: {exc}"
     result.time_s = time.perf_counter() - start
     return result
+
+
+def folded_joint(linkage: Linkage, x=None, margin: float = 0.0) -> str:
+    """'' or why the state ``x`` (default: the current one) is inverted: a joint
+    whose opening angle is within ``margin`` radians of 0 or 180° or beyond."""
+    alpha = (linkage.get_vars() if x is None else x)[linkage.angle_indices()]
+    j = int(np.argmin(np.minimum(alpha, np.pi - alpha)))
+    if min(alpha[j], np.pi - alpha[j]) <= margin:
+        return (f"the linkage inverts: joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) reaches an opening angle of "
+                f"{np.degrees(alpha[j]):.2f}° (a joint must stay strictly between 0° and 180°)")
+    return ""
 
 
 def _deploy_steps(steps: int, why: str):
