@@ -32,6 +32,7 @@ import numpy as np
 from scipy.optimize import Bounds, NonlinearConstraint, minimize
 from scipy.sparse.linalg import LinearOperator
 
+from ..deploy.simulate import folded_joint
 from ..errors import InputError
 from ..linkage.state import restore, snapshot
 from ..solve.trust_region import steihaug
@@ -212,6 +213,11 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
         message = f"stopped: an equilibrium solve failed ({exc})"
     if best["states"] is not None:
         _move_to(problem, best["q"], best["states"])
+    for name, eq in (("flat", problem.flat), ("deployed", problem.deployed)):
+        folded = folded_joint(eq.L)  # the energy alone does not keep a joint from crossing 0° or 180°
+        if folded:
+            message += f"; the {name} state is not valid: {folded}"
+            success = False
     if failures:
         message += f" ({len(failures)} trial designs rejected)"
     return OptimizeResult(q=best["q"], rest_lengths=best["q"] * problem.p0, history=history, iterations=len(history) - 1,
