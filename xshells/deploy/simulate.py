@@ -54,9 +54,9 @@ class DeployOptions:
         settles where its forces balance, possibly far from the drawn angle
         and out of plane; the steps then run from the average angle reached.
         "auto": "average", unless its first step folds a joint (or stalls
-        beside one); then the start is re-done as "central-joint" (a drawn state whose
-        equilibrium at its own average angle needs a joint folded through:
-        the Fig. 14 "hole" design folds joint 28 at once).
+        beside one); then the start is re-done as "central-joint" (a drawn
+        state whose equilibrium at its own average angle needs a joint folded
+        through: the Fig. 14 "hole" design folds joint 28 at once).
     """
 
     steps: int = 40
@@ -276,36 +276,18 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                     f"{100 * ratio[e]:.3g}% of its rest length")
         return ""
 
-    def relax_holding_central_joint() -> str:
-        """Relax with only the pinned joint's angle held; '' or why it failed."""
-        j = int(pins[0]) // 9
-        held = np.concatenate([pins, [9 * j + 6]])
-        opts = NewtonOptions(**{**newton.__dict__, "max_iterations": max(newton.max_iterations, 2000)})
-        report = minimize(linkage, fixed=held, options=opts, saddle_hint=hint)
-        result.newton_iterations += report.iterations
-        if not report.converged:
-            return f"relaxing with joint {j}'s angle held did not converge ({report.message})"
-        return inversion(linkage.get_vars())
-
-    initial, initial_active = snapshot(linkage), active.copy()
-    result.start, result.start_angle_deg = "average", float(np.degrees(alpha0))
-    why = ""
-    if options.start == "central-joint":
-        why = relax_holding_central_joint()
-        result.start = "central-joint"
-        alpha0 = float(a @ linkage.get_vars())
-        result.start_angle_deg = float(np.degrees(alpha0))
-    while True:
-        last_good = snapshot(linkage)
-        last_angle = float(np.degrees(alpha0))
+    def run_steps(alpha0: float, why: str) -> bool:
+        """Steps from ``alpha0`` to the target (none if ``why`` says the start is broken); whether the first folded a joint."""
+        last_good, last_angle = snapshot(linkage), float(np.degrees(alpha0))
+        result.reached_angle_deg = last_angle  # until a step is taken
         previous = None  # (x, joint frames) of the equilibrium before the last one, for the predictor
         smooth = False  # whether the last step was easy (then the path is smooth enough to extrapolate)
         extrapolate = True  # until an extrapolated guess leads into negative curvature
         why = why or inversion(linkage.get_vars())
         if why:
             result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}° before the first step: {why}"
-        first_failed = False
-        for i in _deploy_steps(options.steps, why):
+            return False
+        for i in range(1, options.steps + 1):
             angle = alpha0 + (target_angle - alpha0) * i / options.steps
             opts = newton
             if i == options.steps:
@@ -320,7 +302,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                 restore(linkage, last_good)
                 result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver broke down on the way to "
                                   f"{np.degrees(angle):.2f}° ({exc})")
-                break
+                return False
             result.newton_iterations += report.iterations
             # extrapolate only along an easy stretch of the path: no negative curvature and quick convergence last step
             smooth = report.indefinite_events == 0 and report.iterations <= 3
@@ -338,14 +320,13 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                     # a stall next to a folding joint is usually the inversion itself
                     result.message += (f"; joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) is folding "
                                        f"({np.degrees(alpha[j]):.2f}°): the linkage is about to invert")
-                    first_failed = i == 1
-                break
+                    return i == 1
+                return False
             why = inversion(linkage.get_vars())
             if why:
                 restore(linkage, last_good)
                 result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: {why} on the way to {np.degrees(angle):.2f}°"
-                first_failed = i == 1
-                break
+                return i == 1
             parts = linkage.energy_parts()
             z = Sz @ linkage.get_vars() - z0
             g = linkage.gradient()
@@ -357,29 +338,42 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             last_good, last_angle = snapshot(linkage), rec.average_angle_deg
             if callback is not None and callback(rec):
                 result.message = f"stopped by request at {rec.average_angle_deg:.2f}°"
-                break
-        else:
-            if not why:
-                result.converged = True
-                result.message = "reached the target angle"
-        if first_failed and options.start == "auto" and result.start == "average":
-            restore(linkage, initial)
-            active = initial_active.copy()
-            result.steps, result.reached_angle_deg, result.torque = [], 0.0, 0.0
-            result.start = "central-joint"
-            result.start_note = (f"held at its average angle {np.degrees(alpha0):.2f}°, the assembly state cannot relax "
-                                 f"({result.message.split(': ', 1)[-1]}); relaxed with only the central joint's angle held")
-            why = relax_holding_central_joint()
-            alpha0 = float(a @ linkage.get_vars())
-            result.start_angle_deg = float(np.degrees(alpha0))
-            if not why:
-                result.start_note += f", it settled at {result.start_angle_deg:.2f}°"
-            continue
-        break
+                return False
+        result.converged = True
+        result.message = "reached the target angle"
+        return False
+
+    def relax_holding_central_joint() -> tuple[float, str]:
+        """Relax with only the pinned joint's angle held; (the average angle reached, '' or why the start is broken)."""
+        j = int(pins[0]) // 9
+        held = np.concatenate([pins, [9 * j + 6]])
+        opts = NewtonOptions(**{**newton.__dict__, "max_iterations": max(newton.max_iterations, 2000)})
+        report = minimize(linkage, fixed=held, options=opts, saddle_hint=hint)
+        result.newton_iterations += report.iterations
+        angle = float(a @ linkage.get_vars())
+        result.start, result.start_angle_deg = "central-joint", float(np.degrees(angle))
+        if not report.converged:
+            return angle, f"relaxing with joint {j}'s angle held did not converge ({report.message})"
+        return angle, inversion(linkage.get_vars())
+
+    result.start, result.start_angle_deg = "average", float(np.degrees(alpha0))
+    why = ""
+    if options.start == "central-joint":
+        alpha0, why = relax_holding_central_joint()
+    initial, initial_active, initial_angle = snapshot(linkage), active.copy(), alpha0
+    if run_steps(alpha0, why) and options.start == "auto":
+        # the assembly state cannot relax at its own average angle: start over, held by one joint
+        first = result.message.split(": ", 1)[-1]
+        restore(linkage, initial)
+        active = initial_active
+        result.steps, result.torque = [], 0.0
+        alpha0, why = relax_holding_central_joint()
+        result.start_note = (f"held at its average angle {np.degrees(initial_angle):.2f}°, the assembly state cannot relax "
+                             f"({first}); relaxed with only the central joint's angle held"
+                             + ("" if why else f", it settled at {result.start_angle_deg:.2f}°"))
+        run_steps(alpha0, why)
     if result.start_note:
         result.message += f" (start: {result.start_note})"
-    if not result.steps:
-        result.reached_angle_deg = last_angle
     result.active_joint_edges = [int(v) for v in edge_vars[active]]
     # the constrained gradient norm of the final state (free variables, constraint force removed)
     held = np.zeros(linkage.num_vars, bool)
@@ -419,11 +413,6 @@ def folded_joint(linkage: Linkage, x=None, margin: float = 0.0) -> str:
         return (f"the linkage inverts: joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) reaches an opening angle of "
                 f"{np.degrees(alpha[j]):.2f}° (a joint must stay strictly between 0° and 180°)")
     return ""
-
-
-def _deploy_steps(steps: int, why: str):
-    """Step numbers 1…steps, or none when the start is already broken (``why``)."""
-    return range(1, steps + 1) if not why else ()
 
 
 def _rotation_between(b_from, n_from, b_to, n_to) -> np.ndarray:
