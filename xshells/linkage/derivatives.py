@@ -126,35 +126,17 @@ def hessian_derivative(linkage, dx, dp=None, *, with_rest_lengths: bool = False,
         Hp = _hessian_at(linkage, x0 + h * dx, None if dp is None else p0 + h * dp, with_rest_lengths)
         if scheme == "central":
             Hm = _hessian_at(linkage, x0 - h * dx, None if dp is None else p0 - h * dp, with_rest_lengths)
-            return _difference(Hp, Hm, 0.5 / h, overwrite_a=_own(Hp, saved))
+            return _difference(Hp, Hm, 0.5 / h)
     finally:
-        linkage.move_rollback(saved)  # drops the perturbed states' cached Hessians: Hp is ours alone
-    return _difference(Hp, hessian, 1.0 / h, overwrite_a=_own(Hp, saved) and Hp is not hessian)
+        linkage.move_rollback(saved)
+    return _difference(Hp, hessian, 1.0 / h)
 
 
-def _own(H, checkpoint) -> bool:
-    """Whether ``H`` (from a perturbed state) is not a Hessian cached at the checkpoint's state
-    (a step too small to change the state bitwise would return that one)."""
-    cache = checkpoint[-1] or {}
-    return all(H is not v for v in cache.values())
-
-
-def _difference(A, B, scale, overwrite_a: bool = False) -> sp.csr_matrix:
-    """``(A − B)·scale``; on the reduced Hessian's fixed pattern, a difference of the value arrays.
-
-    With ``overwrite_a`` (``A`` is a temporary nobody else holds) the result
-    is written into ``A``'s values: no new arrays of the Hessian's size, whose
-    first-touch page faults cost as much as the arithmetic (hourglass: 24 MB).
-    """
+def _difference(A, B, scale) -> sp.csr_matrix:
+    """``(A − B)·scale``; on the reduced Hessian's fixed pattern, a difference of the value arrays."""
     if (isinstance(A, sp.csr_matrix) and isinstance(B, sp.csr_matrix) and A.shape == B.shape
             and A.indptr is B.indptr and A.indices is B.indices):
-        if overwrite_a:
-            data = A.data
-            np.subtract(data, B.data, out=data)
-            data *= scale
-        else:
-            data = (A.data - B.data) * scale
-        return sp.csr_matrix((data, A.indices, A.indptr), shape=A.shape)
+        return sp.csr_matrix(((A.data - B.data) * scale, A.indices, A.indptr), shape=A.shape)
     return ((A - B) * scale).tocsr()
 
 

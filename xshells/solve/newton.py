@@ -477,16 +477,26 @@ def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None) -> np.nda
         except NotPositiveDefinite:
             s *= 4
     if shift is None:
-        spare = SparseCholesky()
-        for _ in range(4):
-            try:
-                spare.factorize(H + (s / 100) * M)
-            except NotPositiveDefinite:
-                break
-            chol, spare, s = spare, chol, s / 100
+        chol, s = _lowered_shift(chol, SparseCholesky(), lambda t: H + t * M, s, 4)
     op = spla.LinearOperator((n, n), matvec=chol.solve, dtype=float)
     lam = spla.eigsh(H, k=k, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-8, maxiter=2000, return_eigenvectors=False, v0=np.ones(n))
     return np.sort(lam)
+
+
+def _lowered_shift(solver: SparseCholesky, other: SparseCholesky, shifted, s: float, tries: int):
+    """Lower the shift ``s`` by factors of 100 while ``shifted(s)`` (= ``H + sM``) still factors.
+
+    ``solver`` holds the factor at ``s``; the two Cholesky objects take turns,
+    so a failed try never overwrites the last factor that succeeded. Returns
+    the one holding that factor and its shift.
+    """
+    for _ in range(tries):
+        try:
+            other.factorize(shifted(s / 100))
+        except NotPositiveDefinite:
+            break
+        solver, other, s = other, solver, s / 100
+    return solver, s
 
 
 def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: SparseCholesky | None = None,
@@ -507,13 +517,7 @@ def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: Sp
     n = H.shape[0]
     solver, s = chol, sigma
     if spare is not None and shifted is not None:
-        other = spare
-        for _ in range(8):
-            try:
-                other.factorize(shifted(s / 100))
-            except NotPositiveDefinite:
-                break
-            solver, other, s = other, solver, s / 100
+        solver, s = _lowered_shift(chol, spare, shifted, sigma, 8)
     op = spla.LinearOperator((n, n), matvec=solver.solve, dtype=float)
     try:
         lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n))
