@@ -202,20 +202,15 @@ class Simulation:
                 self._predict(angle)
                 report = minimize(self.linkage, fixed=self._pins, constraint=(self._a, angle), options=self._newton,
                                   callback=stop, saddle_hint=self._hint)
-            last = self._info(report.converged, report.iterations, "" if report.converged else report.message)
-            folded = folded_joint(self.linkage) if report.converged else ""
-            if folded:
-                # a converged but inverted state is not a linkage: keep the last good one and say why
+            # a stalled solve, or a converged state with a joint folded through (not a linkage):
+            # keep the linkage at the last good state, with its numbers, and say why
+            why = folded_joint(self.linkage) if report.converged else f"the solver gave up ({report.message})"
+            if why:
                 _, snap, good = self.nearest_state(angle)
                 restore(self.linkage, snap)
                 self.current_angle = self.linkage.average_angle()
-                return StateInfo(**{**good.__dict__, "converged": False,
-                                    "message": f"stopped near {np.degrees(angle):.1f}°: {folded}"})
-            if not report.converged:
-                # keep the linkage at the last good state; report where the solver gave up
-                restore(self.linkage, self.nearest_state(angle)[1])
-                self.current_angle = self.linkage.average_angle()
-                return StateInfo(**{**last.__dict__, "message": f"solver stopped near {np.degrees(angle):.1f}°: {report.message}"})
+                return StateInfo(**{**good.__dict__, "converged": False, "message": f"stopped near {np.degrees(angle):.1f}°: {why}"})
+            last = self._info(True, report.iterations)
             self._store(angle, last)
             self.current_angle = angle
             if progress is not None:

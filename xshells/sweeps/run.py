@@ -215,15 +215,14 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
             ship = {p: client.scatter(_read_bytes(p), hash=True) for p in paths}
         run_id = uuid.uuid4().hex[:8]  # keys unique per run: several sweeps may share one scheduler
         futures = {}
-        size = {}
+        designs = {}
+        size = {task.id: estimated_size(task.params, designs) for task in todo}
         # largest first (a big design started last leaves the other workers idle at the end):
         # submitted in that order, since the first tasks go to idle workers as they arrive
-        order = sorted(todo, key=lambda t: -estimated_size(t.params, size))
-        for task in order:
+        for task in sorted(todo, key=lambda t: -size[t.id]):
             files = {p: ship[p] for p in _paths(task.params)} if ship else None
             f = client.submit(execute_task, spec.task, fn, task.id, task.params, task_dir(out_dir, task), files,
-                              key=f"xshells-sweep-{task.id}-{run_id}", pure=False,
-                              priority=estimated_size(task.params, size))
+                              key=f"xshells-sweep-{task.id}-{run_id}", pure=False, priority=size[task.id])
             futures[f.key] = (f, task)
         for f in as_completed([f for f, _ in futures.values()]):
             task = futures.pop(f.key)[1]
