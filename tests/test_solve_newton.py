@@ -77,6 +77,27 @@ def test_escapes_an_exact_saddle():
     assert np.isclose(abs(Q.x[0]), 1 / np.sqrt(2), atol=1e-8)
 
 
+def _semidefinite_at_rounding(lam_min):
+    """A minimum of a quadratic whose Hessian has one eigenvalue ``lam_min`` (others 1…1e6)."""
+    rng = np.random.default_rng(3)
+    Q, _ = np.linalg.qr(rng.standard_normal((12, 12)))
+    lam = np.concatenate([[lam_min], np.geomspace(1.0, 1e6, 11)])
+    return Quadratic(Q @ np.diag(lam) @ Q.T, np.zeros(12))
+
+
+def test_rounding_level_negative_curvature_is_a_minimum_not_a_saddle():
+    # A semidefinite Hessian's zero eigenvalue rounds to ±ε·λmax; escaping it cost the
+    # uniform grid's rest-length solve 92 iterations. Curvature −1e-15·λmax is accepted...
+    P = _semidefinite_at_rounding(-1e-9)
+    report = minimize(P, options=NewtonOptions(gradient_tolerance=1e-8))
+    assert report.converged and report.iterations == 0 and report.saddle_escapes == 0
+    assert "round-off" in report.message
+    # ...curvature −1e-9·λmax is not: it is escaped
+    P = _semidefinite_at_rounding(-1e-3)
+    report = minimize(P, options=NewtonOptions(gradient_tolerance=1e-8, max_iterations=3))
+    assert report.saddle_escapes >= 1
+
+
 def _clustered_pencil(n=300, low=(1e-6, 1.3e-6, 2e-6), seed=0):
     """H = Q diag(λ) Qᵀ with a few tiny, clustered eigenvalues beside stiff ones (as a deployed linkage), M = I."""
     rng = np.random.default_rng(seed)

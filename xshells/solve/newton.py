@@ -158,6 +158,11 @@ def _workspace(problem) -> _Workspace:
         return _Workspace()
 
 
+ROUND_OFF_CURVATURE = 1e3 * np.finfo(float).eps
+"""Generalized eigenvalues of ``H d = λ M d`` above ``−ROUND_OFF_CURVATURE·λmax``
+are indistinguishable from zero in a Hessian assembled in double precision."""
+
+
 def _largest_eigenvalue(A: sp.spmatrix) -> float:
     try:
         return float(spla.eigsh(A, k=1, which="LA", tol=1e-2, return_eigenvectors=False, maxiter=200, v0=np.ones(A.shape[0]))[0])
@@ -299,6 +304,21 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             try:
                 factor_unshifted(H)
                 report.converged, report.message = True, below + " at a minimum"
+                break
+            except NotPositiveDefinite:
+                pass
+            # A Hessian that is positive semidefinite (e.g. the flat state's free rest
+            # lengths) need not factor: its zero eigenvalues come out of the rounding as
+            # ±ε·λmax. Curvature that small is not a saddle to escape (the uniform grid's
+            # rest-length solve spent 92 escapes on eigenvalues of −2e-16·λmax).
+            if sigma0 is None:
+                lam_M = lam_M or _largest_eigenvalue(mass())
+                sigma0 = options.sigma_factor * _largest_eigenvalue(augmented(H)) / lam_M
+            s_round = ROUND_OFF_CURVATURE / options.sigma_factor * sigma0
+            try:
+                chol.factorize(shifted(augmented(H), s_round))
+                report.converged = True
+                report.message = below + f" at a minimum up to round-off (H + {s_round:.1e} M positive definite)"
                 break
             except NotPositiveDefinite:
                 sigma = 0.0  # a saddle: fall through to the negative-curvature step
