@@ -110,12 +110,14 @@ def test_smallest_eigenvalues_of_a_clustered_spectrum():
     from xshells.solve import smallest_eigenvalues
 
     H, M, lam = _clustered_pencil()
-    np.testing.assert_allclose(smallest_eigenvalues(H, M, k=2), lam[:2], rtol=0, atol=1e-11)  # backward error ~ eps·λmax
-    np.testing.assert_allclose(smallest_eigenvalues(H, M, k=1), lam[:1], rtol=0, atol=1e-11)
+    for dense_size in (0, 10_000):  # shift-invert, then the dense path of small pencils
+        np.testing.assert_allclose(smallest_eigenvalues(H, M, k=2, dense_size=dense_size), lam[:2], rtol=0, atol=1e-11)  # backward error ~ eps·λmax
+        np.testing.assert_allclose(smallest_eigenvalues(H, M, k=1, dense_size=dense_size), lam[:1], rtol=0, atol=1e-11)
 
 
 def test_smallest_eigenvalues_of_an_indefinite_pencil():
     from xshells.solve import smallest_eigenvalues
 
     H, M, lam = _clustered_pencil(low=(-3e-6, 1e-6, 2e-6))
-    np.testing.assert_allclose(smallest_eigenvalues(H, M, k=2), lam[:2], rtol=0, atol=1e-11)  # backward error ~ eps·λmax
+    for dense_size in (0, 10_000):
+        np.testing.assert_allclose(smallest_eigenvalues(H, M, k=2, dense_size=dense_size), lam[:2], rtol=0, atol=1e-11)  # backward error ~ eps·λmax
