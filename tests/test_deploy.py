@@ -1,5 +1,6 @@
 """Deployment: buckling out of plane, direction, compatible grids, torque, bad input."""
 import json
+import os
 
 import numpy as np
 import pytest
@@ -7,6 +8,7 @@ import pytest
 from xshells.cli import main
 from xshells.deploy import DeployOptions, deploy, rest_length_solve
 from xshells.errors import InputError
+from xshells.io import read_design
 from xshells.io.export import write_design_obj
 from xshells.linkage.grids import rhombic_grid
 from xshells.linkage.linkage import Linkage
@@ -309,3 +311,40 @@ def test_start_option_is_checked():
     with pytest.raises(InputError, match="start must be"):
         deploy(Linkage(warped_grid(3), Material.uniform("rectangle", [4.0, 1.5], E=2000, nu=0.3), subdivision=3), 1.0,
                DeployOptions(start="joint"))
+
+
+EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "xshells", "data", "examples")
+
+
+def test_rest_length_solve_keeps_the_rest_lengths_of_segments_that_end_free():
+    # A free end's position and its segment's rest length slide together at zero energy;
+    # left free, a 2-by-3 grid's end segments drifted from 141 to 1.7e7.
+    from xshells.io.design import Design
+
+    V = np.array([[0, 0, 0], [100, 0, 0], [200, 0, 0], [0, 100, 0], [100, 100, 0], [200, 100, 0.0]])
+    E = np.array([[0, 4], [3, 1], [1, 5], [4, 2], [3, 4], [4, 5]])
+    L = Linkage(Design(V, E), FLAT_BEAM, subdivision=6)
+    free_end = np.flatnonzero((L.graph.segment_joints < 0).any(axis=1))
+    assert len(free_end) == 2
+    p0 = L.rest_lengths
+    rest_length_solve(L)
+    assert np.array_equal(L.rest_lengths[free_end], p0[free_end])
+    assert np.abs(L.rods.points).max() < 300.0  # the free ends stay where they are drawn, give or take a rotation
+
+    L = Linkage(read_design(os.path.join(EXAMPLES, "uniform_linkage.obj")),
+                Material.uniform("rectangle", [0.01, 0.005], E=20000, nu=0.3), subdivision=5)
+    free_end = np.flatnonzero((L.graph.segment_joints < 0).any(axis=1))
+    p0 = L.rest_lengths
+    report = rest_length_solve(L)
+    assert np.array_equal(L.rest_lengths[free_end], p0[free_end])
+    assert report.converged and report.saddle_escapes == 0 and report.iterations <= 5
+
+
+def test_a_single_joint_deploys():
+    # one joint has no span: the force scale of the tolerances comes from the rods
+    L = Linkage(read_design(os.path.join(EXAMPLES, "single_linkage.obj")),
+                Material.uniform("rectangle", [0.01, 0.005], E=20000, nu=0.3), subdivision=5)
+    rest_length_solve(L)
+    res = deploy(L, np.radians(60), DeployOptions(steps=5))
+    assert res.converged, res.message
+    assert abs(np.degrees(L.average_angle()) - 60) < 1e-8

@@ -143,7 +143,7 @@ class _RestLengthProblem:
 def _gradient_scale(linkage: Linkage) -> float:
     """A force scale for tolerances: bending stiffness over span squared."""
     B = float(np.max(linkage.rods.bending_stiffness))
-    span = float(np.ptp(linkage.joint_positions(), axis=0).max())
+    span = float(np.ptp(linkage.rods.points, axis=0).max())  # the rods', not the joints': one joint has no span
     return B / span**2
 
 
@@ -162,6 +162,11 @@ def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, mi
     Rest lengths stay above ``min_rest_length`` (default: 1/100 of the
     shortest segment): any that would fall below are fixed at the bound and
     the solve repeats (a simple active set).
+
+    A segment that ends at a free end keeps its rest length: nothing holds
+    that end, so its rest length and the end's position slide together at
+    zero energy (left free, a 2-by-3 grid's end segments drifted from 141 to
+    1.7e7 length units).
     """
     scale = _gradient_scale(linkage)
     opts = options or NewtonOptions(gradient_tolerance=max(1e-8 * scale * np.sqrt(linkage.num_vars), _noise_floor(linkage)),
@@ -169,6 +174,7 @@ def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, mi
     eps = min_rest_length if min_rest_length is not None else 0.01 * float(np.min(linkage.rest_lengths))
     P = _RestLengthProblem(linkage)
     fixed = list((9 * np.arange(linkage.num_joints)[:, None] + np.arange(3)[None, :]).ravel())
+    fixed += [P.nx + int(s) for s in np.flatnonzero((linkage.graph.segment_joints < 0).any(axis=1))]
     active: list[int] = []
     for _ in range(10):
         report = minimize(P, fixed=np.array(fixed + [P.nx + s for s in active], dtype=int), options=opts)

@@ -163,6 +163,6 @@ def _default_newton(linkage) -> NewtonOptions:
     coords = float(np.abs(rods.points).max())
     floor = 10.0 * eps * float(rods.ks.max()) * coords / float(rods.rest_lengths.min()) * np.sqrt(linkage.num_vars)
     B = float(np.max(rods.bending_stiffness))
-    span = float(np.ptp(linkage.joint_positions(), axis=0).max())
+    span = float(np.ptp(rods.points, axis=0).max())
     return NewtonOptions(gradient_tolerance=max(1e-10 * B / span**2 * np.sqrt(linkage.num_vars), floor), max_iterations=100,
                          saddle_gradient_factor=float("inf"))
