@@ -348,3 +348,22 @@ def test_a_single_joint_deploys():
     res = deploy(L, np.radians(60), DeployOptions(steps=5))
     assert res.converged, res.message
     assert abs(np.degrees(L.average_angle()) - 60) < 1e-8
+
+
+def test_deploy_warns_about_a_section_wider_than_the_segments_and_a_design_that_is_not_flat(tmp_path):
+    small = rhombic_grid(3, 3, spacing=1.0, angle=np.radians(30))  # drawn in metres, say
+    write_design_obj(tmp_path / "small.obj", small)
+    assert main(["deploy", str(tmp_path / "small.obj"), "--material", "rectangle:10,7", "--subdivision", "4",
+                 "--steps", "2", "--out", str(tmp_path / "a"), "--no-progress"]) in (0, 1)
+    warnings = json.loads((tmp_path / "a" / "result.json").read_text())["warnings"]
+    assert len(warnings) == 1 and "slender" in warnings[0] and "same units" in warnings[0]
+
+    V = np.array(small.vertices, float)
+    V[:, 2] = 0.01 * V[:, 0] ** 2  # a curved (deployed-looking) input
+    from xshells.io.design import Design
+
+    write_design_obj(tmp_path / "curved.obj", Design(V, np.array(small.edges)))
+    main(["deploy", str(tmp_path / "curved.obj"), "--material", "rectangle:0.01,0.005", "--subdivision", "4",
+          "--steps", "2", "--out", str(tmp_path / "b"), "--no-progress"])
+    warnings = json.loads((tmp_path / "b" / "result.json").read_text())["warnings"]
+    assert len(warnings) == 1 and "not flat" in warnings[0]

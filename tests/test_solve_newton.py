@@ -121,3 +121,28 @@ def test_smallest_eigenvalues_of_an_indefinite_pencil():
     H, M, lam = _clustered_pencil(low=(-3e-6, 1e-6, 2e-6))
     for dense_size in (0, 10_000):
         np.testing.assert_allclose(smallest_eigenvalues(H, M, k=2, dense_size=dense_size), lam[:2], rtol=0, atol=1e-11)  # backward error ~ eps·λmax
+
+
+def test_a_trial_point_outside_the_domain_shortens_the_step():
+    # E = x − log x (minimum at 1): from x = 3 the Newton step lands at −3, where the
+    # problem cannot be evaluated; the line search must back off, not raise
+    from xshells.errors import InvalidState
+
+    class LogBarrier(Quadratic):
+        def set_vars(self, x):
+            if x[0] <= 0:
+                raise InvalidState(f"x = {x[0]} is not positive")
+            self.x = np.asarray(x, float).copy()
+
+        def energy(self):
+            return self.x[0] - np.log(self.x[0])
+
+        def gradient(self):
+            return np.array([1.0 - 1.0 / self.x[0]])
+
+        def hessian(self):
+            return sp.csr_matrix([[1.0 / self.x[0] ** 2]])
+
+    P = LogBarrier(np.eye(1), np.zeros(1), x0=np.array([3.0]))
+    report = minimize(P, options=NewtonOptions(gradient_tolerance=1e-12))
+    assert report.converged and abs(P.x[0] - 1.0) < 1e-10

@@ -68,7 +68,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        # Floating-point warnings (overflow, 0/0 in a collapsing state) are not for the
+        # command line: a run that goes wrong says so in its own one-line message.
+        import numpy as np
+
+        with np.errstate(all="ignore"):
+            return int(args.func(args) or 0)
     except InputError as exc:
         print(f"xshells {args.command}: error: {exc}", file=sys.stderr)
         return 2

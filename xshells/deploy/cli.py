@@ -74,7 +74,7 @@ def _deploy(args) -> int:
     if kw["steps"] < 1:
         raise InputError(f"--steps must be at least 1, got {kw['steps']}")
     result = run_deployment(design, material, out_dir=args.out, direction=args.direction, start=args.start, progress=not args.no_progress, **kw)
-    _print_summary(result, args.out)
+    _print_summary(result, args.out, warned=not args.no_progress)
     return 0 if result["reached"] else 1
 
 
@@ -85,14 +85,17 @@ def _demo(args) -> int:
     material = Material.uniform("rectangle", [10, 7], E=20000, nu=0.3)
     result = run_deployment(DEMO_DESIGN, material, out_dir=args.out, subdivision=8, target_angle=np.radians(93),
                             steps=args.steps, progress=not args.no_progress, name="manta_ray")
-    _print_summary(result, args.out)
+    _print_summary(result, args.out, warned=not args.no_progress)
     return 0 if result["reached"] else 1
 
 
-def _print_summary(result, out) -> None:
+def _print_summary(result, out, warned=False) -> None:
+    """``warned``: the warnings were printed when the run started (with its progress bar)."""
     d, f = result["deployed"], result["flat"]
     print(f"{result['name']}: {result['segments']} segments, {result['joints']} joints, {result['dof']} DoF")
     print(f"  flat:     energy {f['energy']:.6g}, average angle {f['average_angle_deg']:.2f}°")
     print(f"  deployed: energy {d['energy']:.6g}, average angle {d['average_angle_deg']:.2f}°, max |z| {d['max_abs_z']:.4g}, torque {d.get('torque', float('nan')):.4g}")
     print(f"  {result['message']}; {result['newton_iterations']} Newton iterations, {result['timings_s']['total']:.1f} s")
+    for w in [] if warned else result.get("warnings", []):
+        print(f"  warning: {w}")
     print(f"  outputs in {out}/")

@@ -5,6 +5,7 @@ import csv
 import io
 import json
 import os
+import sys
 import time
 from dataclasses import asdict
 
@@ -58,6 +59,15 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     design = read_design(design_path)
     p = read_rest_lengths(rest_lengths_path, design.num_segments) if rest_lengths_path else None
     linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
+    warnings = [w for w in [linkage.slenderness_warning()] if w]
+    if not linkage.graph.is_planar:
+        P = np.asarray(design.vertices, float)
+        off = float(np.abs((P - P.mean(axis=0)) @ linkage.graph.layout_normal).max())
+        warnings.append(f"the design is not flat (up to {off:.4g} off its best-fit plane): it is deployed from the "
+                        f"state as drawn, not from a flat assembly state")
+    if progress:
+        for w in warnings:
+            print(f"warning: {w}", file=sys.stderr)
     t1 = time.perf_counter()
     if p is None:
         rest_length_solve(linkage)
@@ -117,6 +127,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         "steps": steps_out,
         "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy, "total": time.perf_counter() - t0},
         "newton_iterations": res.newton_iterations if res is not None else 0,
+        "warnings": warnings,
     }
     if res is not None:
         # how the assembly state was held when it first relaxed (see DeployOptions.start)

@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError
+from ..errors import InputError, InvalidState
 from ..io.design import Design
 from ..rod import ElasticRods
 from ..rod import frames
@@ -301,7 +301,7 @@ class Linkage:
         if x.shape != (self.num_vars,):
             raise InputError(f"expected {self.num_vars} reduced variables, got shape {x.shape}")
         if not np.isfinite(x).all():
-            raise InputError(f"reduced variable {int(np.flatnonzero(~np.isfinite(x))[0])} is not finite")
+            raise InvalidState(f"reduced variable {int(np.flatnonzero(~np.isfinite(x))[0])} is not finite")
         self.rods.set_vars(self.rod_vars(x))
         self._x = x.copy()
 
@@ -317,7 +317,7 @@ class Linkage:
         edge = self.rest_length_map @ p
         if not (np.isfinite(edge).all() and (edge > 0).all()):
             s = int(np.flatnonzero(~(edge > 0))[0]) // self.subdivision
-            raise InputError(f"rest lengths: segment {s} would get a non-positive edge rest length")
+            raise InvalidState(f"rest lengths: segment {s} would get a non-positive edge rest length")
         self.rods.set_rest_lengths(edge)
         self._p = p.copy()
 
@@ -558,6 +558,30 @@ class Linkage:
 
     def min_arc_length(self) -> float:
         return float(np.min(self._p))
+
+    def slenderness_warning(self) -> str:
+        """A one-line warning when a beam's cross-section is wider than its shortest segment, else "".
+
+        Rods are slender by assumption; a section as wide as the segments
+        between joints usually means the design and the section are in
+        different units (the bundled data is in mm), and the equilibria are
+        then meaningless (a 10 × 7 section on a design drawn in metres
+        collapses its edges in the rest-length solve).
+        """
+        widths = {}
+        for m in self.materials:
+            if id(m) not in widths:
+                ext = np.asarray(m.fibre_extents)
+                widths[id(m)] = float((ext[:, 1] - ext[:, 0]).max())
+        size = np.array([widths[id(m)] for m in self.materials])
+        size = np.broadcast_to(size, (self.num_segments,)) if len(size) == 1 else size
+        ratio = size / self._p
+        s = int(np.argmax(ratio))
+        if ratio[s] <= 1.0:
+            return ""
+        ratio, size, seg = float(ratio[s]), float(size[s]), self._p
+        return (f"the cross-section ({size:.4g} across) is {ratio:.3g}x as wide as segment {s} ({seg[s]:.4g} long): "
+                f"beams must be slender; are the design and the section in the same units (the bundled data: mm)?")
 
     def summary(self) -> dict:
         return {"segments": self.num_segments, "joints": self.num_joints, "dof": self.num_vars, "subdivision": self.subdivision}

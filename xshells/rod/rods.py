@@ -22,7 +22,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import InputError
+from ..errors import InputError, InvalidState
 from ..sparse import BlockAssembler, VectorAssembler
 from . import autodiff, frames, stencils
 
@@ -242,14 +242,14 @@ class ElasticRods:
         if not np.isfinite(points).all():
             bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
             r = np.searchsorted(self.vertex_offsets, bad[0], side="right") - 1
-            raise InputError(f"{what}: vertex {bad[0] - self.vertex_offsets[r]} of rod {r} is not finite: {points[bad[0]]}")
+            raise InvalidState(f"{what}: vertex {bad[0] - self.vertex_offsets[r]} of rod {r} is not finite: {points[bad[0]]}")
         d = points[self.edges[:, 1]] - points[self.edges[:, 0]]
         scale = max(float(np.abs(points).max(initial=0.0)), 1.0)
         # squared lengths: this runs on every move of the state (a third of set_vars with norms)
         bad = np.flatnonzero(np.einsum("ij,ij->i", d, d) <= (1e-14 * scale) ** 2)
         if len(bad):
             r = np.searchsorted(self.edge_offsets, bad[0], side="right") - 1
-            raise InputError(f"{what}: edge {bad[0] - self.edge_offsets[r]} of rod {r} has zero length")
+            raise InvalidState(f"{what}: edge {bad[0] - self.edge_offsets[r]} of rod {r} has zero length")
 
     def _edge_array(self, name, value, allow_any=False):
         arr = np.asarray(value, dtype=float)

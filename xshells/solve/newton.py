@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..errors import InvalidState
 from ..sparse import PatternSum, PrincipalSubmatrix
 from .cholesky import NotPositiveDefinite, SparseCholesky
 
@@ -403,7 +404,11 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         if constraint is not None and abs(residual) > options.gradient_tolerance * np.sqrt(aa):
             resolvable = False  # a step restoring the constraint is taken in full
         for _ in range(options.max_backtracks):
-            problem.set_vars(x + alpha * full_d)
+            try:
+                problem.set_vars(x + alpha * full_d)
+            except InvalidState:  # the trial point is outside the model's domain (a rest length ≤ 0)
+                alpha *= 0.5
+                continue
             if not resolvable or objective() <= e0 + options.armijo * alpha * min(slope, 0.0):
                 break
             alpha *= 0.5
