@@ -9,7 +9,9 @@ positions are the targets. Sparsification solves eq. 8,
     min_{0 ≤ t ≤ (τ_max/τ_ref)^p}  f(t) = T(x̃(τ(t))) / l₀² + η/n Σ t_i,   τ_i = τ_ref t_i^{1/p},
 
 where ``T(x) = ½ Σ_j w_j |P_j(x) − P_j^tgt|²`` (equal weights summing to 1,
-no surface term), ``l₀`` is the bounding-box diagonal of the targets and
+no surface term; in the code ``f`` also has the fold penalty
+``⅓ Σ e_j³`` on each joint angle's excess ``e_j`` beyond FOLD_MARGIN from 0
+or π, zero at valid answers), ``l₀`` is the bounding-box diagonal of the targets and
 ``n`` the number of joints. Scaling by ``l₀²`` and by ``τ_ref`` makes ``η``
 dimensionless: at ``t = 1`` (dense actuation) the regularizer is ``η`` and
 the fit is exact.
@@ -44,6 +46,14 @@ from ..linkage.derivatives import third_derivative_product
 from ..linkage.state import restore, snapshot
 from ..solve import NewtonOptions, NotPositiveDefinite, SparseCholesky, minimize
 from ..solve.trust_region import steihaug
+
+
+FOLD_MARGIN = np.radians(5.0)
+"""Joint angles within this of 0 or π (or beyond the dense deployment's own) are penalized."""
+FOLD_WEIGHT = 1.0
+"""Weight of the fold penalty ``⅓ Σ |excess|³`` (radians) in ``f``: an excess of 5° costs 2.2e-4,
+more than the fit term of a typical sparse answer (``T/l₀²`` about 1e-6…1e-5). Cubic, so that
+``f`` stays C² (a quadratic penalty's kink collapsed the trust region)."""
 
 
 @dataclass(frozen=True)
@@ -161,6 +171,10 @@ class TorqueFit:
         self.newton = _equilibrium_options(linkage, self.tau_ref)
         self._t = None
         self.equilibrium_iterations = 0
+        # Joint angles are penalized outside [lo, hi]: FOLD_MARGIN inside (0, π), widened to
+        # the dense deployment's own angles, so the penalty is zero wherever that is.
+        alpha = linkage.joint_angles()
+        self.angle_window = (min(FOLD_MARGIN, float(alpha.min())), max(np.pi - FOLD_MARGIN, float(alpha.max())))
 
     # ---------------------------------------------------------------- maps
     def torques(self, t) -> np.ndarray:
@@ -180,6 +194,12 @@ class TorqueFit:
         """``T(x)`` and the joint deviations ``P − P_tgt`` (n, 3) at the linkage's state."""
         dev = self.L.joint_positions() - self.targets
         return 0.5 * float(np.sum(self.weights[:, None] * dev**2)), dev
+
+    def fold_excess(self) -> np.ndarray:
+        """How far (radians) each joint angle lies outside the angle window, signed (n,): the fold penalty is ``½ FOLD_WEIGHT Σ excess²``."""
+        alpha = self.L.joint_angles()
+        lo, hi = self.angle_window
+        return np.where(alpha > hi, alpha - hi, np.where(alpha < lo, alpha - lo, 0.0))
 
     # ----------------------------------------------------------- evaluation
     def _solve_equilibrium(self, t) -> None:
@@ -211,14 +231,18 @@ class TorqueFit:
             self._solve_equilibrium(t)
         T, dev = self.fit_terms()
         self._dev = dev
+        excess = self._excess = self.fold_excess()
+        # the objective's gradient in x, scaled by l₀² (the fit's own scale)
         gT = np.zeros(self.L.num_vars)
         gT[self.pos_rows] = self.weights[:, None] * dev
+        gT[self.angle_rows] += FOLD_WEIGHT * self.l0**2 * excess * np.abs(excess)
         self._lam = np.zeros(self.L.num_vars)
         self._lam[self.free] = self.chol.solve(gT[self.free])
-        return T / self.l0**2 + self.eta / len(t) * float(np.sum(t))
+        fold = FOLD_WEIGHT / 3.0 * float(np.sum(np.abs(excess) ** 3))
+        return T / self.l0**2 + fold + self.eta / len(t) * float(np.sum(t))
 
     def parts(self, t) -> tuple[float, float]:
-        """(fit term ``T/l₀²``, regularizer) at ``t``."""
+        """(fit term ``T/l₀²`` plus the fold penalty, regularizer) at ``t``."""
         f = self.evaluate(t)
         reg = self.eta / len(t) * float(np.sum(t))
         return f - reg, reg
@@ -240,6 +264,7 @@ class TorqueFit:
         dx[self.free] = self.chol.solve(rhs[self.free])
         r = np.zeros(self.L.num_vars)
         r[self.pos_rows] = self.weights[:, None] * dx[self.pos_rows]
+        r[self.angle_rows] += 2.0 * FOLD_WEIGHT * self.l0**2 * np.abs(self._excess) * dx[self.angle_rows]
         if np.any(self._lam) and np.any(dx):
             r -= third_derivative_product(self.L, dx, self._lam)
         dlam = np.zeros(self.L.num_vars)
@@ -369,9 +394,9 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
     _, dev = fit.fit_terms()
     dist = np.linalg.norm(dev, axis=1)
     span = fit.l0
-    # Iterates may pass through folded states (the energy does not forbid a joint crossing
-    # 180°; rejecting such trials left the pointy wings with 9 actuators at the CLI defaults,
-    # against at most 6 without); the answer may not.
+    # Iterates may pass through folded states (rejecting such trials left the pointy wings
+    # with 9 actuators); the fold penalty keeps the answer out of them, and this says so
+    # if it did not.
     folded = folded_joint(linkage)
     if folded:
         converged = False
