@@ -239,6 +239,22 @@ def test_tradeoff_plot_from_the_column_names(tmp_path):
         del REGISTRY["fake_sparsify"]
 
 
+def test_a_real_sparsify_sweep_draws_the_tradeoff_with_default_p_and_yaml_exponents(tmp_path):
+    # YAML 1.1 (PyYAML) reads 1e-4 as a string; η is naturally written that way
+    small_grid(tmp_path / "grid.obj")
+    (tmp_path / "s.yaml").write_text(
+        "task: sparsify\nbase:\n  file: grid.obj\n  subdivision: 3\n  steps: 4\n  angle_deg: 60\n"
+        "  material: {type: rectangle, E: 2e3, nu: 0.3, params: [4.0, 1.5]}\naxes:\n  eta: [1e-4, 1E-3]\n")
+    spec = load_spec(tmp_path / "s.yaml")
+    assert [t.params["eta"] for t in spec.tasks] == [1e-4, 1e-3]
+    assert spec.tasks[0].params["material"]["E"] == 2000.0
+    rep = run_sweep(spec, str(tmp_path / "out"), SweepSettings(workers=0))
+    assert not rep.failed, [r["error"] for r in rep.records]
+    plots = write_summary(str(tmp_path / "out"), spec, {r["id"]: r for r in rep.records})
+    assert "tradeoff.png" in [os.path.basename(p) for p in plots]  # p is the default, not in the spec
+    assert all(r["result"]["p"] == 0.5 for r in rep.records)
+
+
 def test_bundled_example_spec_is_valid():
     spec = load_spec(EXAMPLES / "sweep_example.yaml")
     assert spec.task == "deploy" and len(spec.tasks) == 8

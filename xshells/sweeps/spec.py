@@ -107,7 +107,7 @@ def load_spec(path) -> SweepSpec:
         import yaml
 
         try:
-            data = yaml.safe_load(raw)
+            data = yaml.load(raw, Loader=_yaml_loader())
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             where = f":{mark.line + 1}" if mark is not None else ""
@@ -119,6 +119,30 @@ def load_spec(path) -> SweepSpec:
             raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
     name = os.path.splitext(os.path.basename(path))[0]
     return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name)
+
+
+def _yaml_loader():
+    """PyYAML's safe loader with YAML 1.2 floats: ``1e-4`` is a number, not the string '1e-4'.
+
+    (YAML 1.1, which PyYAML follows, needs a dot in the mantissa: ``1.0e-4``;
+    η and E are naturally written without one.)
+    """
+    import re
+
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    Loader.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)
+                       |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                       |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                       |[-+]?\.(?:inf|Inf|INF)
+                       |\.(?:nan|NaN|NAN))$""", re.X),
+        list("-+0123456789."))
+    return Loader
 
 
 def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> SweepSpec:

@@ -226,7 +226,8 @@ def sparsify_task(params: dict, out_dir: str) -> dict:
     r = run_sparsify(case, out_dir, opts, progress=False)
     keys = ("converged", "message", "num_actuators", "fit_mean", "fit_max", "work", "dense_work", "dense_torque",
             "objective", "iterations", "time_s", "dense_deployment_time_s")
-    return {k: r[k] for k in keys}
+    # η and p as used (defaults included), so that the trade-off plot has them without the spec naming them
+    return {"eta": opts.eta, "p": opts.p, **{k: r[k] for k in keys}}
 
 
 def optimize_task(params: dict, out_dir: str) -> dict:
