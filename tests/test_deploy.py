@@ -86,6 +86,11 @@ def test_cli_deploy_case_file(tmp_path):
         assert key in result
     assert len(result["deployed"]["joint_positions"]) == result["joints"]
     assert (out / "deployment.csv").read_text().count("\n") == 7
+    # fabrication drawings of the flat layout with the solved rest lengths
+    svg = (out / "flat_layout.svg").read_text()
+    assert svg.count('class="beam"') == result["segments"]
+    assert f'data-rest-length="{result["rest_lengths"][0]:.4f}"' in svg
+    assert (out / "flat_layout.dxf").stat().st_size > 0
     # holding the angle adds a positive semi-definite term: it can only raise the lowest eigenvalue
     dep = result["deployed"]
     assert dep["min_eigenvalue_at_fixed_angle"] > 0

@@ -1,5 +1,6 @@
 """``xshells optimize``: outputs, resume, bad input."""
 import json
+import re
 
 import numpy as np
 import pytest
@@ -34,6 +35,11 @@ def test_optimize_writes_its_outputs_and_resumes(small_case, tmp_path):
     for name in ("flat_before.png", "deployed_before.png", "flat.png", "deployed.png", "convergence.png", "deployed.obj", "flat.ply"):
         assert (out / name).stat().st_size > 0, name
     assert r["bfgs_history"] and len(r["history"]) >= 1
+    # fabrication drawings carry the optimized rest lengths
+    svg = (out / "flat_layout.svg").read_text()
+    drawn = [float(v) for v in re.findall(r'data-rest-length="([0-9.eE+-]+)"', svg)]
+    assert np.allclose(drawn, p, rtol=1e-4)
+    assert (out / "flat_layout.dxf").read_text().count("REST_LENGTHS") > len(p)
     # resume from the written rest lengths, at another angle
     assert main(args + ["--resume", "--angle", "55", "--no-baseline"]) == 0
     r2 = json.loads((out / "result.json").read_text())

@@ -66,12 +66,9 @@ def layout_from_design(design) -> Layout:
 
     A design drawn off the z = 0 plane is projected onto its best-fit plane.
     """
-    V = np.asarray(design.vertices, float)
-    if np.ptp(V[:, 2]) == 0:
-        return Layout(V[:, :2], design.edges)
-    c = V.mean(axis=0)
-    _, _, vt = np.linalg.svd(V - c, full_matrices=False)
-    return Layout((V - c) @ vt[:2].T, design.edges)
+    from ..io.fabrication import flat_coordinates
+
+    return Layout(flat_coordinates(design.vertices), design.edges)
 
 
 def layout_to_design(layout: Layout, source: str | None = None):

@@ -8,94 +8,35 @@ in the destination folder, then :func:`os.replace`).
 """
 from __future__ import annotations
 
-import io
 import json
 import os
-from xml.sax.saxutils import escape
 
 import numpy as np
 
 from ..errors import InputError
+from ..io import fabrication
 from ..io.export import atomic_write_bytes, atomic_write_text
 from .core import Layout
 
 MESH_FORMATS = (".obj", ".ply", ".gltf", ".glb")
 
 
-def _rest(layout: Layout, rest_lengths) -> np.ndarray:
-    p = layout.segment_lengths() if rest_lengths is None else np.asarray(rest_lengths, float)
-    if p.shape != (layout.num_segments,):
-        raise InputError(f"rest lengths: expected {layout.num_segments} values, got {p.size}")
-    return p
-
-
-def _joint_vertices(layout: Layout) -> np.ndarray:
-    return np.unique(layout.edges)
-
-
 def svg_text(layout: Layout, rest_lengths=None, units_to_mm: float = 1.0, margin_mm: float = 20.0) -> str:
-    """The flat layout as an SVG drawing at 1:1 in mm (y up in the design, so flipped for SVG).
-
-    Beams are ``<line class="beam">`` with ``data-segment`` and
-    ``data-rest-length`` (mm); joints are ``<circle class="joint">`` with a
-    ``<text class="joint-label">``; rest lengths are ``<text class="rest-length">``.
-    """
-    V = layout.vertices * units_to_mm
-    p = _rest(layout, rest_lengths) * units_to_mm
-    lo, hi = V.min(axis=0) - margin_mm, V.max(axis=0) + margin_mm
-    w, h = hi - lo
-    X = lambda q: (q[0] - lo[0], hi[1] - q[1])  # noqa: E731  (SVG y points down)
-    fs = max(2.0, 0.12 * float(np.median(layout.segment_lengths())) * units_to_mm)
-    out = [f'<?xml version="1.0" encoding="UTF-8"?>\n'
-           f'<svg xmlns="http://www.w3.org/2000/svg" width="{w:.3f}mm" height="{h:.3f}mm" viewBox="0 0 {w:.3f} {h:.3f}">\n'
-           f'<title>X-shell flat layout, 1:1, mm</title>\n<g id="beams" stroke="black" stroke-width="0.3" fill="none">\n']
-    for s, (a, b) in enumerate(layout.edges.tolist()):
-        (x1, y1), (x2, y2) = X(V[a]), X(V[b])
-        out.append(f'<line class="beam" data-segment="{s}" data-rest-length="{p[s]:.4f}" '
-                   f'x1="{x1:.4f}" y1="{y1:.4f}" x2="{x2:.4f}" y2="{y2:.4f}"/>\n')
-    out.append(f'</g>\n<g id="rest-lengths" fill="blue" font-size="{fs * 0.8:.3f}" text-anchor="middle" font-family="sans-serif">\n')
-    for s, (a, b) in enumerate(layout.edges.tolist()):
-        x, y = X(0.5 * (V[a] + V[b]))
-        out.append(f'<text class="rest-length" data-segment="{s}" x="{x:.4f}" y="{y:.4f}">{p[s]:.2f}</text>\n')
-    out.append(f'</g>\n<g id="joints" font-size="{fs:.3f}" font-family="sans-serif">\n')
-    for v in _joint_vertices(layout).tolist():
-        x, y = X(V[v])
-        out.append(f'<circle class="joint" data-joint="{v}" cx="{x:.4f}" cy="{y:.4f}" r="{fs / 3:.3f}" fill="red"/>'
-                   f'<text class="joint-label" x="{x + fs / 2:.4f}" y="{y - fs / 2:.4f}">{escape(str(v))}</text>\n')
-    out.append("</g>\n</svg>\n")
-    return "".join(out)
+    """The layout as an SVG drawing at 1:1 in mm (:func:`xshells.io.fabrication.svg_text`)."""
+    return fabrication.svg_text(layout.vertices, layout.edges, rest_lengths, units_to_mm, margin_mm)
 
 
 def write_svg(path, layout: Layout, rest_lengths=None, units_to_mm: float = 1.0) -> None:
-    atomic_write_text(path, svg_text(layout, rest_lengths, units_to_mm))
+    fabrication.write_svg(path, layout.vertices, layout.edges, rest_lengths, units_to_mm)
 
 
 def dxf_bytes(layout: Layout, rest_lengths=None, units_to_mm: float = 1.0) -> bytes:
-    """The flat layout as DXF (mm): layer BEAMS (LINE per segment), JOINTS (CIRCLE), LABELS and REST_LENGTHS (TEXT)."""
-    import ezdxf
-
-    V = layout.vertices * units_to_mm
-    p = _rest(layout, rest_lengths) * units_to_mm
-    fs = max(2.0, 0.12 * float(np.median(layout.segment_lengths())) * units_to_mm)
-    doc = ezdxf.new("R2010")
-    doc.units = ezdxf.units.MM
-    for name, color in (("BEAMS", 7), ("JOINTS", 1), ("LABELS", 3), ("REST_LENGTHS", 5)):
-        doc.layers.add(name, color=color)
-    msp = doc.modelspace()
-    for s, (a, b) in enumerate(layout.edges.tolist()):
-        msp.add_line(tuple(V[a]), tuple(V[b]), dxfattribs={"layer": "BEAMS"})
-        mid = 0.5 * (V[a] + V[b])
-        msp.add_text(f"{p[s]:.2f}", height=0.8 * fs, dxfattribs={"layer": "REST_LENGTHS", "insert": tuple(mid)})
-    for v in _joint_vertices(layout).tolist():
-        msp.add_circle(tuple(V[v]), radius=fs / 3, dxfattribs={"layer": "JOINTS"})
-        msp.add_text(str(v), height=fs, dxfattribs={"layer": "LABELS", "insert": tuple(V[v] + fs / 2)})
-    buf = io.StringIO()
-    doc.write(buf)
-    return buf.getvalue().encode("utf-8")
+    """The layout as DXF in mm (:func:`xshells.io.fabrication.dxf_bytes`)."""
+    return fabrication.dxf_bytes(layout.vertices, layout.edges, rest_lengths, units_to_mm)
 
 
 def write_dxf(path, layout: Layout, rest_lengths=None, units_to_mm: float = 1.0) -> None:
-    atomic_write_bytes(path, dxf_bytes(layout, rest_lengths, units_to_mm))
+    fabrication.write_dxf(path, layout.vertices, layout.edges, rest_lengths, units_to_mm)
 
 
 def field_colors(values: np.ndarray, cmap: str = "viridis") -> np.ndarray:

@@ -78,6 +78,10 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     t_rest = time.perf_counter() - t1
     flat = _state_summary(linkage)
     _write_outputs(out_dir, "flat", linkage)
+    if linkage.graph.is_planar:  # fabrication drawings of the flat layout with its rest lengths
+        from ..io.fabrication import write_drawings
+
+        write_drawings(out_dir, "flat_layout", design, linkage.rest_lengths)
     if target_angle is None:
         target_angle = linkage.average_angle() + (open_by if open_by is not None else np.radians(60.0))
 

@@ -112,6 +112,9 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     final = _summary(problem, res.q)
     p = res.rest_lengths
     atomic_write_text(os.path.join(out_dir, "design_parameters.txt"), "".join(f"{v:.17g}\n" for v in p))
+    from ..io.fabrication import write_drawings
+
+    write_drawings(out_dir, "flat_layout", problem.flat.L.graph.design, p)  # what to build: the optimized rest lengths
     for state, L in (("flat", problem.flat.L), ("deployed", problem.deployed.L)):
         vmax = max(scale[state], float(bending_field(L).max()))
         _write_outputs(out_dir, f"{state}_before", before[state], vmax=vmax)
