@@ -50,8 +50,36 @@ def test_optimize_writes_its_outputs_and_resumes(small_case, tmp_path):
     (["--gamma", "1.5"], "gamma must lie in"), (["--beta", "-2"], "beta must be"),
     (["--target-surface", "missing.obj"], "missing.obj"), (["--resume"], "does not exist"),
     (["--min-angle", "170", "--no-baseline"], "is infeasible"),
+    (["--material", "rectangle:1,1"], "--material contradicts the case file"),
 ])
 def test_bad_input_is_one_line(small_case, tmp_path, capsys, argv, match):
     assert main(["optimize", str(small_case), "--out", str(tmp_path / "o"), "--no-progress", *argv]) == 2
     err = capsys.readouterr().err.strip()
     assert match in err and len(err.splitlines()) == 1, err
+
+
+def test_a_design_file_is_optimized_with_its_options_and_the_case_is_kept(small_case, tmp_path):
+    out = tmp_path / "out"
+    args = ["optimize", str(small_case.parent / "grid.obj"), "--material", "rectangle:4,1.5", "--young", "2000",
+            "--subdivision", "4", "--steps", "6", "--angle", "60", "--max-iters", "1", "--no-baseline",
+            "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    case = json.loads((out / "case.json").read_text())
+    assert case["material"] == {"type": "rectangle", "params": [4.0, 1.5], "E": 2000.0, "nu": 0.3}
+    assert case["subdivision"] == 4 and case["steps"] == 6
+    r = json.loads((out / "result.json").read_text())
+    # the same problem as the case file's
+    assert main(["optimize", str(small_case), "--max-iters", "1", "--no-baseline", "--out", str(tmp_path / "ref"),
+                 "--no-progress"]) == 0
+    ref = json.loads((tmp_path / "ref" / "result.json").read_text())
+    assert r["initial"]["J"] == pytest.approx(ref["initial"]["J"], rel=1e-9)
+
+
+def test_a_design_whose_flat_state_folds_a_joint_is_refused_naming_the_joint(tmp_path, capsys):
+    # the manta ray's drawn layout folds joint 36 (3.6° drawn) in its flat equilibrium at 16.01°
+    from data_paths import EXAMPLES
+
+    assert main(["optimize", str(EXAMPLES / "manta_ray.obj"), "--subdivision", "4", "--angle", "90",
+                 "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "manta_ray.obj: the flat equilibrium" in err and "joint 36" in err and len(err.splitlines()) == 1, err

@@ -64,6 +64,33 @@ def load_case(path) -> Case:
     )
 
 
+def material_spec_from_option(option: str | None, young: float | None = None, poisson: float | None = None) -> dict:
+    """A case's material object from a ``--material`` option: ``TYPE:P1,P2,...`` or a cross-section JSON file."""
+    E = 20000.0 if young is None else float(young)
+    nu = 0.3 if poisson is None else float(poisson)
+    option = option or "rectangle:10,7"
+    if option.endswith(".json"):
+        return {"type": "contour", "contour_file": os.path.abspath(option), "E": E, "nu": nu}
+    kind, _, params = option.partition(":")
+    try:
+        values = [float(v) for v in params.split(",")] if params else []
+    except ValueError:
+        raise InputError(f"--material {option}: parameters must be numbers, as in rectangle:10,7") from None
+    return {"type": kind, "params": values, "E": E, "nu": nu}
+
+
+def case_for_design(design_path: str, material: dict, *, subdivision: int = 10, steps: int = 40,
+                    angle_deg: float | None = None, rest_lengths_path: str | None = None) -> dict:
+    """A case object (as in a case file) for a bare design file, with absolute paths."""
+    case = {"name": os.path.splitext(os.path.basename(design_path))[0], "file": os.path.abspath(design_path),
+            "material": material, "subdivision": int(subdivision), "steps": int(steps)}
+    if angle_deg is not None:
+        case["angle_deg"] = float(angle_deg)
+    if rest_lengths_path:
+        case["rest_lengths"] = os.path.abspath(rest_lengths_path)
+    return case
+
+
 def material_from_spec(spec: dict):
     """A :class:`xshells.section.Material` from a case's material object."""
     from ..section import Material

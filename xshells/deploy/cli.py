@@ -37,19 +37,9 @@ def register(subparsers) -> None:
 
 
 def _material_from_args(args):
-    from ..section import Material
+    from .case import material_from_spec, material_spec_from_option
 
-    E = args.young if args.young is not None else 20000.0
-    nu = args.poisson if args.poisson is not None else 0.3
-    spec = args.material or "rectangle:10,7"
-    if spec.endswith(".json"):
-        return Material.from_file(spec, young=args.young, poisson=args.poisson)
-    kind, _, params = spec.partition(":")
-    try:
-        values = [float(v) for v in params.split(",")] if params else []
-    except ValueError:
-        raise InputError(f"--material {spec}: parameters must be numbers, as in rectangle:10,7") from None
-    return Material.uniform(kind, values, E=E, nu=nu)
+    return material_from_spec(material_spec_from_option(args.material, args.young, args.poisson))
 
 
 def _deploy(args) -> int:

@@ -9,7 +9,7 @@ def register(subparsers) -> None:
         "optimize", help="optimize a case's rest lengths for low flat and deployed energy near the target shape",
         description="Design optimization (paper §5): minimizes γ/E₀·E_flat + (1−γ)/E₀·E_deployed + β/(2l₀²)·T over the "
                     "per-segment rest lengths, keeping the flat state planar and its joint angles open. Units follow the input.")
-    p.add_argument("case", help="a case file (.json)")
+    p.add_argument("case", help="a case file (.json), or a design (.obj, .msh) with --material etc.")
     p.add_argument("--gamma", type=float, default=0.5, help="share of the flat energy, in [0, 1] (default 0.5)")
     p.add_argument("--beta", type=float, default=5000.0, help="weight of the fitting term (default 5000)")
     p.add_argument("--target-surface", help="a triangle mesh (OBJ, PLY, STL) to fit (default: the deployed design's quads, Loop-subdivided twice)")
@@ -20,6 +20,11 @@ def register(subparsers) -> None:
     p.add_argument("--min-angle", type=float, help="smallest flat joint angle ε, degrees (default: the initial KS minimum less 0.5°)")
     p.add_argument("--resume", action="store_true", help="start from OUT/design_parameters.txt of an earlier run")
     p.add_argument("--no-baseline", action="store_true", help="skip the BFGS comparison run")
+    p.add_argument("--material", help="for a design file: TYPE:P1,P2,... (e.g. rectangle:10,7, the default) or a cross-section JSON file")
+    p.add_argument("--young", type=float, help="for a design file: Young's modulus (default 20000, MPa)")
+    p.add_argument("--poisson", type=float, help="for a design file: Poisson's ratio (default 0.3)")
+    p.add_argument("--subdivision", type=int, help="for a design file: edges per segment (default 10)")
+    p.add_argument("--steps", type=int, help="for a design file: deployment increments of the initial design (default 20)")
     p.add_argument("--out", default="optimize_out", help="output folder")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_optimize)
@@ -30,19 +35,48 @@ def _optimize(args) -> int:
 
     from .objective import DesignWeights
     from .optimize import OptimizeOptions
-    from .run import run_optimize
 
-    if not args.case.endswith(".json"):
-        raise InputError(f"{args.case}: optimize takes a case file (.json) naming the design, material and angle")
+    case_path = args.case
+    design_only = ("material", "young", "poisson", "subdivision", "steps")
+    if case_path.endswith(".json"):
+        given = [f"--{k}" for k in design_only if getattr(args, k) is not None]
+        if given:
+            raise InputError(f"{', '.join(given)} contradict{'s' if len(given) == 1 else ''} the case file; edit the case file instead")
+    elif case_path.endswith((".obj", ".msh")):
+        # a bare design: its case (material, subdivision, steps) is written beside the outputs, for --resume and records
+        import json
+        import os
+
+        from ..deploy.case import case_for_design, material_spec_from_option
+        from ..io.export import atomic_write_text
+
+        if not os.path.exists(case_path):
+            raise InputError(f"{case_path}: no such file")
+        case = case_for_design(case_path, material_spec_from_option(args.material, args.young, args.poisson),
+                               subdivision=args.subdivision or 10, steps=args.steps or 20)
+        os.makedirs(args.out, exist_ok=True)
+        case_path = os.path.join(args.out, "case.json")
+        atomic_write_text(case_path, json.dumps(case, indent=1))
+    else:
+        raise InputError(f"{args.case}: optimize takes a case file (.json) or a design (.obj, .msh)")
     weights = DesignWeights(gamma=args.gamma, beta=args.beta)
     opts = OptimizeOptions(method=args.method, max_iterations=args.max_iters,
                            min_angle=np.radians(args.min_angle) if args.min_angle is not None else None)
-    r = run_optimize(args.case, args.out, weights=weights, options=opts, angle_deg=args.angle,
-                     target_surface=args.target_surface, resume=args.resume, baseline=not args.no_baseline,
-                     progress=not args.no_progress)
+    try:
+        r = _run(case_path, args, weights, opts)
+    except InputError as exc:  # name what the user gave, not the case file written for it
+        raise InputError(str(exc).replace(case_path, args.case)) from None
     i = r["initial"]
     print(f"{r['name']}: J {i['J']:.5g} -> {r['J']:.5g} in {r['iterations']} iterations ({r['time_s']:.1f} s)")
     print(f"  flat energy {i['energy_flat']:.5g} -> {r['energy_flat']:.5g}; deployed energy {i['energy_deployed']:.5g} -> {r['energy_deployed']:.5g}")
     print(f"  planarity {r['constraints']['planarity']:.3g}, min flat angle {r['constraints']['min_angle_deg']:.3g}°; {r['message']}")
     print(f"  outputs in {args.out}/")
     return 0
+
+
+def _run(case_path, args, weights, opts) -> dict:
+    from .run import run_optimize
+
+    return run_optimize(case_path, args.out, weights=weights, options=opts, angle_deg=args.angle,
+                        target_surface=args.target_surface, resume=args.resume, baseline=not args.no_baseline,
+                        progress=not args.no_progress)

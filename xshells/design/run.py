@@ -39,6 +39,13 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
 
     D = copy.deepcopy(L)
     ConstrainedEquilibrium(D, D.average_angle()).solve()
+    from ..deploy.simulate import folded_joint
+
+    folded = folded_joint(D)
+    if folded:
+        # ᾱ₀ stays at the drawn angle (docs/design.md), so such a design has no valid flat state to optimize
+        raise InputError(f"{case_path}: the flat equilibrium at the design's average angle {np.degrees(D.average_angle()):.2f}° "
+                         f"is not valid ({folded.replace('the linkage inverts: ', '')}); open that joint in the drawing")
     steps = deploy_steps or case.steps
     bar = None
     if progress:
