@@ -178,3 +178,16 @@ def test_pointy_wings_need_few_actuators(tmp_path):
     assert all(0 <= v < 157 for v in r["actuated_joints"])
     assert (out / "actuators.png").stat().st_size > 10_000
     assert len((out / "torques.txt").read_text().split()) == 157
+
+
+def test_cli_takes_a_bare_design_with_its_options(tmp_path):
+    from xshells.io.export import write_design_obj
+
+    write_design_obj(tmp_path / "grid.obj", warped_grid(4))
+    out = tmp_path / "out"
+    assert main(["sparsify", str(tmp_path / "grid.obj"), "--material", "rectangle:4,1.5", "--young", "2000",
+                 "--subdivision", "3", "--steps", "4", "--angle", "60", "--eta", "1e-3", "--out", str(out), "--no-progress"]) == 0
+    assert json.loads((out / "case.json").read_text())["material"]["params"] == [4.0, 1.5]
+    r = json.loads((out / "result.json").read_text())
+    assert r["num_actuators"] >= 1 and "not valid" not in r["message"]
+    assert main(["sparsify", str(tmp_path / "grid.txt"), "--out", str(out)]) == 2

@@ -111,3 +111,40 @@ def target_angle(case: Case, linkage, angle_deg=None) -> float:
     if case.angle_rad is not None:
         return float(case.angle_rad)
     return linkage.average_angle() + (case.open_by_rad if case.open_by_rad is not None else np.radians(60.0))
+
+
+DESIGN_OPTIONS = ("material", "young", "poisson", "subdivision", "steps")
+
+
+def add_design_options(parser, steps_default: int) -> None:
+    """The options that make a case of a bare design file (``xshells optimize`` and ``xshells sparsify``)."""
+    parser.add_argument("--material", help="for a design file: TYPE:P1,P2,... (e.g. rectangle:10,7, the default) or a cross-section JSON file")
+    parser.add_argument("--young", type=float, help="for a design file: Young's modulus (default 20000, MPa)")
+    parser.add_argument("--poisson", type=float, help="for a design file: Poisson's ratio (default 0.3)")
+    parser.add_argument("--subdivision", type=int, help="for a design file: edges per segment (default 10)")
+    parser.add_argument("--steps", type=int, help=f"for a design file: deployment increments (default {steps_default})")
+
+
+def case_path_from_args(args, command: str, steps_default: int) -> str:
+    """``args.case`` if it is a case file, else the case of the design it names, written to ``args.out/case.json``.
+
+    A case file with any of :data:`DESIGN_OPTIONS` is refused (they would contradict it).
+    """
+    path = args.case
+    if path.endswith(".json"):
+        given = [f"--{k}" for k in DESIGN_OPTIONS if getattr(args, k) is not None]
+        if given:
+            raise InputError(f"{', '.join(given)} contradict{'s' if len(given) == 1 else ''} the case file; edit the case file instead")
+        return path
+    if not path.endswith((".obj", ".msh")):
+        raise InputError(f"{path}: {command} takes a case file (.json) or a design (.obj, .msh)")
+    if not os.path.exists(path):
+        raise InputError(f"{path}: no such file")
+    from ..io.export import atomic_write_text
+
+    case = case_for_design(path, material_spec_from_option(args.material, args.young, args.poisson),
+                           subdivision=args.subdivision or 10, steps=args.steps or steps_default)
+    os.makedirs(args.out, exist_ok=True)
+    out = os.path.join(args.out, "case.json")
+    atomic_write_text(out, json.dumps(case, indent=1))
+    return out

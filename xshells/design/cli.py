@@ -1,6 +1,7 @@
 """``xshells optimize``: low-stress rest lengths that keep the deployed shape (paper §5)."""
 from __future__ import annotations
 
+from ..deploy.case import add_design_options, case_path_from_args
 from ..errors import InputError
 
 
@@ -20,11 +21,7 @@ def register(subparsers) -> None:
     p.add_argument("--min-angle", type=float, help="smallest flat joint angle ε, degrees (default: the initial KS minimum less 0.5°)")
     p.add_argument("--resume", action="store_true", help="start from OUT/design_parameters.txt of an earlier run")
     p.add_argument("--no-baseline", action="store_true", help="skip the BFGS comparison run")
-    p.add_argument("--material", help="for a design file: TYPE:P1,P2,... (e.g. rectangle:10,7, the default) or a cross-section JSON file")
-    p.add_argument("--young", type=float, help="for a design file: Young's modulus (default 20000, MPa)")
-    p.add_argument("--poisson", type=float, help="for a design file: Poisson's ratio (default 0.3)")
-    p.add_argument("--subdivision", type=int, help="for a design file: edges per segment (default 10)")
-    p.add_argument("--steps", type=int, help="for a design file: deployment increments of the initial design (default 20)")
+    add_design_options(p, steps_default=20)
     p.add_argument("--out", default="optimize_out", help="output folder")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_optimize)
@@ -36,29 +33,7 @@ def _optimize(args) -> int:
     from .objective import DesignWeights
     from .optimize import OptimizeOptions
 
-    case_path = args.case
-    design_only = ("material", "young", "poisson", "subdivision", "steps")
-    if case_path.endswith(".json"):
-        given = [f"--{k}" for k in design_only if getattr(args, k) is not None]
-        if given:
-            raise InputError(f"{', '.join(given)} contradict{'s' if len(given) == 1 else ''} the case file; edit the case file instead")
-    elif case_path.endswith((".obj", ".msh")):
-        # a bare design: its case (material, subdivision, steps) is written beside the outputs, for --resume and records
-        import json
-        import os
-
-        from ..deploy.case import case_for_design, material_spec_from_option
-        from ..io.export import atomic_write_text
-
-        if not os.path.exists(case_path):
-            raise InputError(f"{case_path}: no such file")
-        case = case_for_design(case_path, material_spec_from_option(args.material, args.young, args.poisson),
-                               subdivision=args.subdivision or 10, steps=args.steps or 20)
-        os.makedirs(args.out, exist_ok=True)
-        case_path = os.path.join(args.out, "case.json")
-        atomic_write_text(case_path, json.dumps(case, indent=1))
-    else:
-        raise InputError(f"{args.case}: optimize takes a case file (.json) or a design (.obj, .msh)")
+    case_path = case_path_from_args(args, "optimize", steps_default=20)
     weights = DesignWeights(gamma=args.gamma, beta=args.beta)
     opts = OptimizeOptions(method=args.method, max_iterations=args.max_iters,
                            min_angle=np.radians(args.min_angle) if args.min_angle is not None else None)
