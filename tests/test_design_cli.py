@@ -75,11 +75,19 @@ def test_a_design_file_is_optimized_with_its_options_and_the_case_is_kept(small_
     assert r["initial"]["J"] == pytest.approx(ref["initial"]["J"], rel=1e-9)
 
 
-def test_a_design_whose_flat_state_folds_a_joint_is_refused_naming_the_joint(tmp_path, capsys):
+def test_a_flat_state_that_folds_a_joint_is_opened_just_enough(tmp_path, capsys, monkeypatch):
     # the manta ray's drawn layout folds joint 36 (3.6° drawn) in its flat equilibrium at 16.01°
+    import xshells.design.run as design_run
     from data_paths import EXAMPLES
 
-    assert main(["optimize", str(EXAMPLES / "manta_ray.obj"), "--subdivision", "4", "--angle", "90",
-                 "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    argv = ["optimize", str(EXAMPLES / "manta_ray.obj"), "--subdivision", "4", "--angle", "90", "--max-iters", "1",
+            "--no-baseline", "--out", str(tmp_path / "o"), "--no-progress"]
+    monkeypatch.setattr(design_run, "OPEN_LIMIT", 0.0)  # nothing to try: refused, naming the joint
+    assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert "manta_ray.obj: the flat equilibrium" in err and "joint 36" in err and len(err.splitlines()) == 1, err
+    monkeypatch.undo()
+    assert main(argv) == 0
+    r = json.loads((tmp_path / "o" / "result.json").read_text())
+    assert r["flat_angle_deg"] > 16.01 and "joint 36" in r["flat_angle_note"]
+    assert r["constraints"]["planarity"] <= 1e-12

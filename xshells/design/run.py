@@ -38,14 +38,22 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     from .equilibrium import ConstrainedEquilibrium
 
     D = copy.deepcopy(L)
-    ConstrainedEquilibrium(D, D.average_angle()).solve()
+    drawn = D.average_angle()
+    ConstrainedEquilibrium(D, drawn).solve()
     from ..deploy.simulate import folded_joint
 
+    flat_angle, flat_note = None, ""
     folded = folded_joint(D)
     if folded:
-        # ᾱ₀ stays at the drawn angle (docs/design.md), so such a design has no valid flat state to optimize
-        raise InputError(f"{case_path}: the flat equilibrium at the design's average angle {np.degrees(D.average_angle()):.2f}° "
-                         f"is not valid ({folded.replace('the linkage inverts: ', '')}); open that joint in the drawing")
+        # The drawn assembly state folds a joint once the joints may move: open it just enough
+        # (paper §5: ᾱ₀ "just large enough"), as the smallest valid, planar flat state.
+        flat_angle, D = _open_just_enough(L, drawn)
+        if flat_angle is None:
+            raise InputError(f"{case_path}: the flat equilibrium at the design's average angle {np.degrees(drawn):.2f}° "
+                             f"is not valid ({folded.replace('the linkage inverts: ', '')}), nor is it within "
+                             f"{np.degrees(OPEN_LIMIT):.0f}° above it; open that joint in the drawing")
+        flat_note = (f"flat state opened from the drawn {np.degrees(drawn):.2f}° to {np.degrees(flat_angle):.2f}°: at the "
+                     f"drawn angle {folded.replace('the linkage inverts: ', '')}")
     steps = deploy_steps or case.steps
     bar = None
     if progress:
@@ -63,7 +71,32 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
 
     surface = read_surface(target_surface) if target_surface else None
     fitting = FittingTerm.paper_defaults(D, surface=surface)
-    return DesignProblem(L, target, weights, fitting=fitting, deployed=D), case.name
+    problem = DesignProblem(L, target, weights, fitting=fitting, deployed=D, flat_angle=flat_angle)
+    problem.flat_note = flat_note
+    return problem, case.name
+
+
+OPEN_STEP = np.radians(0.25)
+OPEN_LIMIT = np.radians(10.0)
+
+
+def _open_just_enough(L, drawn: float):
+    """The smallest average angle above ``drawn`` (in steps of OPEN_STEP, up to OPEN_LIMIT) whose flat
+    equilibrium folds no joint and stays planar, with that equilibrium (a copy of ``L``); (None, None) if none."""
+    from ..deploy.simulate import folded_joint
+    from .equilibrium import ConstrainedEquilibrium
+
+    span = float(np.ptp(L.rods.points, axis=0).max())
+    for k in range(1, int(round(OPEN_LIMIT / OPEN_STEP)) + 1):
+        E = copy.deepcopy(L)
+        try:
+            ConstrainedEquilibrium(E, drawn + k * OPEN_STEP).solve()
+        except ArithmeticError:
+            continue
+        planar = np.abs(E.height_selector() @ E.get_vars()).max() <= 1e-6 * span
+        if planar and not folded_joint(E):
+            return drawn + k * OPEN_STEP, E
+    return None, None
 
 
 def _summary(problem, q) -> dict:
@@ -151,6 +184,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         "weights": asdict(weights),
         "target_angle_deg": float(np.degrees(problem.deployed.angle)),
         "flat_angle_deg": float(np.degrees(problem.flat.angle)),
+        "flat_angle_note": getattr(problem, "flat_note", ""),
         "iterations": res.iterations,
         "time_s": res.time_s,
         "time_per_iteration_s": res.time_s / iters,
