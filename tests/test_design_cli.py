@@ -68,6 +68,7 @@ def test_a_design_file_is_optimized_with_its_options_and_the_case_is_kept(small_
     assert case["material"] == {"type": "rectangle", "params": [4.0, 1.5], "E": 2000.0, "nu": 0.3}
     assert case["subdivision"] == 4 and case["steps"] == 6
     r = json.loads((out / "result.json").read_text())
+    assert r["warnings"] == []
     # the same problem as the case file's
     assert main(["optimize", str(small_case), "--max-iters", "1", "--no-baseline", "--out", str(tmp_path / "ref"),
                  "--no-progress"]) == 0

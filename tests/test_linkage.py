@@ -224,3 +224,22 @@ def test_state_cache_sees_changes_that_bypass_set_vars():
     assert abs(L.hessian() - H0).max() <= 1e-10 * abs(H0).max()
     L.rods.t_src = L.rods.t_src + 1e-3  # a direct edit of the frames alone
     assert not np.array_equal(L.gradient(), g0)
+
+
+def test_input_warnings_name_a_units_mismatch_and_a_design_that_is_not_flat():
+    import numpy as np
+
+    from xshells.io.design import Design
+    from xshells.linkage.grids import rhombic_grid
+    from xshells.linkage.linkage import Linkage
+    from xshells.section import Material
+
+    grid = rhombic_grid(3, 3, spacing=1.0, angle=np.radians(30))
+    thin = Material.uniform("rectangle", [0.01, 0.005], E=20000, nu=0.3)
+    assert Linkage(grid, thin, subdivision=3).input_warnings() == []
+    wide = Linkage(grid, Material.uniform("rectangle", [10, 7], E=20000, nu=0.3), subdivision=3).input_warnings()
+    assert len(wide) == 1 and "x as wide" in wide[0] and "same units" in wide[0]
+    V = np.array(grid.vertices, float)
+    V[:, 2] = 0.1 * V[:, 0] ** 2
+    curved = Linkage(Design(V, np.array(grid.edges)), thin, subdivision=3).input_warnings()
+    assert len(curved) == 1 and "not flat" in curved[0]

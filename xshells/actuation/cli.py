@@ -70,5 +70,7 @@ def _run(args, case_path) -> int:
     print(f"  distance to the dense deployment: mean {100 * r['fit_mean']:.3f}%, max {100 * r['fit_max']:.3f}% of the span")
     print(f"  work {r['work']:.6g} (dense {r['dense_work']:.6g}); {r['message']}; {r['time_s']:.1f} s "
           f"(+ {r['dense_deployment_time_s']:.1f} s dense deployment)")
+    for w in r.get("warnings", []):
+        print(f"  warning: {w}")
     print(f"  outputs in {args.out}/")
     return 0

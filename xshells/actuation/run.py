@@ -10,7 +10,7 @@ import io
 import json
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -36,6 +36,7 @@ class DenseDeployment:
     dense_energy: float
     time_s: float
     name: str
+    warnings: list = field(default_factory=list)
 
 
 def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeployment:
@@ -45,6 +46,8 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
     design = read_design(case.design_path)
     p = read_rest_lengths(case.rest_lengths_path, design.num_segments) if case.rest_lengths_path else None
     L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
+    warnings = L.input_warnings()
+    why = "".join(f"; {w}" for w in warnings)  # a failure below is most likely explained by these
     if p is None:
         rest_length_solve(L)
     else:
@@ -62,11 +65,11 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
         if bar is not None:
             bar.close()
     if not res.converged:
-        raise InputError(f"{case_path}: the dense deployment did not reach its target ({res.message})")
+        raise InputError(f"{case_path}: the dense deployment did not reach its target ({res.message}){why}")
     if not res.torque > 0:
         raise InputError(f"{case_path}: the dense deployment needs a closing torque ({res.torque:.4g}); sparse actuation assumes opening torques")
     return DenseDeployment(L, snapshot(L), float(res.torque), float(flat_energy), float(L.energy()),
-                           time.perf_counter() - t0, case.name)
+                           time.perf_counter() - t0, case.name, warnings)
 
 
 def _allowed_from_vertices(L: Linkage, candidates) -> np.ndarray | None:
@@ -105,6 +108,7 @@ def _result_dict(dense: DenseDeployment, res, options: SparsifyOptions) -> dict:
         "iterations": res.iterations,
         "converged": res.converged,
         "message": res.message,
+        "warnings": dense.warnings,
         "time_s": res.time_s,
         "dense_deployment_time_s": dense.time_s,
         "joint_vertices": jv.tolist(),

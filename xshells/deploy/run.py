@@ -59,12 +59,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     design = read_design(design_path)
     p = read_rest_lengths(rest_lengths_path, design.num_segments) if rest_lengths_path else None
     linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
-    warnings = [w for w in [linkage.slenderness_warning()] if w]
-    if not linkage.graph.is_planar:
-        P = np.asarray(design.vertices, float)
-        off = float(np.abs((P - P.mean(axis=0)) @ linkage.graph.layout_normal).max())
-        warnings.append(f"the design is not flat (up to {off:.4g} off its best-fit plane): it is deployed from the "
-                        f"state as drawn, not from a flat assembly state")
+    warnings = linkage.input_warnings()
     if progress:
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)

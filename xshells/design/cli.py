@@ -45,6 +45,8 @@ def _optimize(args) -> int:
     print(f"{r['name']}: J {i['J']:.5g} -> {r['J']:.5g} in {r['iterations']} iterations ({r['time_s']:.1f} s)")
     print(f"  flat energy {i['energy_flat']:.5g} -> {r['energy_flat']:.5g}; deployed energy {i['energy_deployed']:.5g} -> {r['energy_deployed']:.5g}")
     print(f"  planarity {r['constraints']['planarity']:.3g}, min flat angle {r['constraints']['min_angle_deg']:.3g}°; {r['message']}")
+    for w in r.get("warnings", []):
+        print(f"  warning: {w}")
     if r.get("flat_angle_note"):
         print(f"  note: {r['flat_angle_note']}")
     print(f"  outputs in {args.out}/")

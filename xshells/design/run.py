@@ -28,6 +28,8 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     rl_path = rest_lengths_path or case.rest_lengths_path
     p = read_rest_lengths(rl_path, design.num_segments) if rl_path else None
     L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
+    warnings = L.input_warnings()
+    why = "".join(f"; {w}" for w in warnings)  # a failure below is most likely explained by these
     if p is None:
         rest_length_solve(L)
     target = target_angle(case, L, angle_deg)
@@ -51,7 +53,7 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
         if flat_angle is None:
             raise InputError(f"{case_path}: the flat equilibrium at the design's average angle {np.degrees(drawn):.2f}° "
                              f"is not valid ({folded.replace('the linkage inverts: ', '')}), nor is it within "
-                             f"{np.degrees(OPEN_LIMIT):.0f}° above it; open that joint in the drawing")
+                             f"{np.degrees(OPEN_LIMIT):.0f}° above it; open that joint in the drawing{why}")
         flat_note = (f"flat state opened from the drawn {np.degrees(drawn):.2f}° to {np.degrees(flat_angle):.2f}°: at the "
                      f"drawn angle {folded.replace('the linkage inverts: ', '')}")
     steps = deploy_steps or case.steps
@@ -66,13 +68,14 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
         if bar is not None:
             bar.close()
     if not res.converged:
-        raise InputError(f"{case_path}: the initial design does not deploy to {np.degrees(target):.2f}° ({res.message})")
+        raise InputError(f"{case_path}: the initial design does not deploy to {np.degrees(target):.2f}° ({res.message}){why}")
     from .fitting import FittingTerm, read_surface
 
     surface = read_surface(target_surface) if target_surface else None
     fitting = FittingTerm.paper_defaults(D, surface=surface)
     problem = DesignProblem(L, target, weights, fitting=fitting, deployed=D, flat_angle=flat_angle)
     problem.flat_note = flat_note
+    problem.input_warnings = warnings
     return problem, case.name
 
 
@@ -185,6 +188,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         "target_angle_deg": float(np.degrees(problem.deployed.angle)),
         "flat_angle_deg": float(np.degrees(problem.flat.angle)),
         "flat_angle_note": getattr(problem, "flat_note", ""),
+        "warnings": getattr(problem, "input_warnings", []),
         "iterations": res.iterations,
         "time_s": res.time_s,
         "time_per_iteration_s": res.time_s / iters,

@@ -559,6 +559,17 @@ class Linkage:
     def min_arc_length(self) -> float:
         return float(np.min(self._p))
 
+    def input_warnings(self) -> list:
+        """One-line warnings about the input that explain a bad result: :meth:`slenderness_warning`
+        and a design that is not flat (then simulated from the state as drawn)."""
+        out = [w for w in [self.slenderness_warning()] if w]
+        if not self.graph.is_planar:
+            P = np.asarray(self.graph.design.vertices, float)
+            off = float(np.abs((P - P.mean(axis=0)) @ self.graph.layout_normal).max())
+            out.append(f"the design is not flat (up to {off:.4g} off its best-fit plane): it is deployed from the "
+                       f"state as drawn, not from a flat assembly state")
+        return out
+
     def slenderness_warning(self) -> str:
         """A one-line warning when a beam's cross-section is wider than its shortest segment, else "".
 
