@@ -372,3 +372,18 @@ def test_deploy_warns_about_a_section_wider_than_the_segments_and_a_design_that_
           "--steps", "2", "--out", str(tmp_path / "b"), "--no-progress"])
     warnings = json.loads((tmp_path / "b" / "result.json").read_text())["warnings"]
     assert len(warnings) == 1 and "not flat" in warnings[0]
+
+
+def test_material_option_keeps_a_section_files_own_moduli(tmp_path):
+    # --material section.json without --young must not replace the file's E with the default
+    from xshells.deploy.case import material_from_spec, material_spec_from_option
+
+    section = json.loads(open(os.path.join(EXAMPLES, "cross_sections", "IBeam.json")).read())
+    section["young"], section["poisson"] = 1234.0, 0.25
+    (tmp_path / "s.json").write_text(json.dumps(section))
+    m = material_from_spec(material_spec_from_option(str(tmp_path / "s.json")))
+    assert (m.E, m.nu) == (1234.0, 0.25)
+    m = material_from_spec(material_spec_from_option(str(tmp_path / "s.json"), young=5000.0))
+    assert (m.E, m.nu) == (5000.0, 0.25)
+    m = material_from_spec(material_spec_from_option("rectangle:10,7"))
+    assert (m.E, m.nu) == (20000.0, 0.3)

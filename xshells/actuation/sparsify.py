@@ -196,7 +196,7 @@ class TorqueFit:
         return 0.5 * float(np.sum(self.weights[:, None] * dev**2)), dev
 
     def fold_excess(self) -> np.ndarray:
-        """How far (radians) each joint angle lies outside the angle window, signed (n,): the fold penalty is ``½ FOLD_WEIGHT Σ excess²``."""
+        """How far (radians) each joint angle lies outside the angle window, signed (n,): the fold penalty is ``⅓ FOLD_WEIGHT Σ |excess|³``."""
         alpha = self.L.joint_angles()
         lo, hi = self.angle_window
         return np.where(alpha > hi, alpha - hi, np.where(alpha < lo, alpha - lo, 0.0))

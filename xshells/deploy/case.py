@@ -66,11 +66,13 @@ def load_case(path) -> Case:
 
 def material_spec_from_option(option: str | None, young: float | None = None, poisson: float | None = None) -> dict:
     """A case's material object from a ``--material`` option: ``TYPE:P1,P2,...`` or a cross-section JSON file."""
+    option = option or "rectangle:10,7"
+    if option.endswith(".json"):  # the section file has its own E and ν: override only what is given
+        spec = {"type": "contour", "contour_file": os.path.abspath(option)}
+        spec.update({k: float(v) for k, v in (("E", young), ("nu", poisson)) if v is not None})
+        return spec
     E = 20000.0 if young is None else float(young)
     nu = 0.3 if poisson is None else float(poisson)
-    option = option or "rectangle:10,7"
-    if option.endswith(".json"):
-        return {"type": "contour", "contour_file": os.path.abspath(option), "E": E, "nu": nu}
     kind, _, params = option.partition(":")
     try:
         values = [float(v) for v in params.split(",")] if params else []
@@ -96,8 +98,10 @@ def material_from_spec(spec: dict):
     from ..section import Material
 
     kind = spec.get("type", "rectangle")
-    E, nu = float(spec.get("E", 20000.0)), float(spec.get("nu", 0.3))
     axis = spec.get("stiff_axis")
+    if kind == "contour" and str(spec["contour_file"]).endswith(".json"):  # E and ν from the file unless given
+        return Material.from_file(spec["contour_file"], young=spec.get("E"), poisson=spec.get("nu"), stiff_axis=axis)
+    E, nu = float(spec.get("E", 20000.0)), float(spec.get("nu", 0.3))
     if kind == "contour":
         return Material.from_file(spec["contour_file"], young=E, poisson=nu, stiff_axis=axis)
     return Material.uniform(kind, spec.get("params", []), E=E, nu=nu, stiff_axis=axis)

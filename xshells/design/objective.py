@@ -120,7 +120,14 @@ class DesignProblem:
         the deployment).
     deploy_steps : int
         Angle increments for the initial deployment.
+
+    Attributes ``flat_note`` (why ᾱ₀ differs from the drawn angle, or "") and
+    ``input_warnings`` (:meth:`Linkage.input_warnings`) are set by whoever
+    built the problem from a file (:func:`xshells.design.run.build_problem`).
     """
+
+    flat_note: str = ""
+    input_warnings: tuple = ()
 
     def __init__(self, linkage, target_angle: float, weights: DesignWeights = DesignWeights(), fitting=None,
                  flat_angle: float | None = None, deployed=None, deploy_steps: int = 20, direction: str = "up"):

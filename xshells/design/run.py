@@ -45,17 +45,17 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     from ..deploy.simulate import folded_joint
 
     flat_angle, flat_note = None, ""
-    folded = folded_joint(D)
+    folded = folded_joint(D).replace("the linkage inverts: ", "")
     if folded:
         # The drawn assembly state folds a joint once the joints may move: open it just enough
         # (paper §5: ᾱ₀ "just large enough"), as the smallest valid, planar flat state.
         flat_angle, D = _open_just_enough(L, drawn)
         if flat_angle is None:
             raise InputError(f"{case_path}: the flat equilibrium at the design's average angle {np.degrees(drawn):.2f}° "
-                             f"is not valid ({folded.replace('the linkage inverts: ', '')}), nor is it within "
+                             f"is not valid ({folded}), nor is it within "
                              f"{np.degrees(OPEN_LIMIT):.0f}° above it; open that joint in the drawing{why}")
         flat_note = (f"flat state opened from the drawn {np.degrees(drawn):.2f}° to {np.degrees(flat_angle):.2f}°: at the "
-                     f"drawn angle {folded.replace('the linkage inverts: ', '')}")
+                     f"drawn angle {folded}")
     steps = deploy_steps or case.steps
     bar = None
     if progress:
@@ -187,8 +187,8 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         "weights": asdict(weights),
         "target_angle_deg": float(np.degrees(problem.deployed.angle)),
         "flat_angle_deg": float(np.degrees(problem.flat.angle)),
-        "flat_angle_note": getattr(problem, "flat_note", ""),
-        "warnings": getattr(problem, "input_warnings", []),
+        "flat_angle_note": problem.flat_note,
+        "warnings": list(problem.input_warnings),
         "iterations": res.iterations,
         "time_s": res.time_s,
         "time_per_iteration_s": res.time_s / iters,

@@ -584,14 +584,12 @@ class Linkage:
             if id(m) not in widths:
                 ext = np.asarray(m.fibre_extents)
                 widths[id(m)] = float((ext[:, 1] - ext[:, 0]).max())
-        size = np.array([widths[id(m)] for m in self.materials])
-        size = np.broadcast_to(size, (self.num_segments,)) if len(size) == 1 else size
+        size = np.broadcast_to([widths[id(m)] for m in self.materials], (self.num_segments,))
         ratio = size / self._p
         s = int(np.argmax(ratio))
         if ratio[s] <= 1.0:
             return ""
-        ratio, size, seg = float(ratio[s]), float(size[s]), self._p
-        return (f"the cross-section ({size:.4g} across) is {ratio:.3g}x as wide as segment {s} ({seg[s]:.4g} long): "
+        return (f"the cross-section ({size[s]:.4g} across) is {ratio[s]:.3g}x as wide as segment {s} ({self._p[s]:.4g} long): "
                 f"beams must be slender; are the design and the section in the same units (the bundled data: mm)?")
 
     def summary(self) -> dict:

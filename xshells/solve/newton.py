@@ -278,6 +278,14 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     def shifted(H, sigma):
         return ws.combine("shift", [H, mass()], [1.0, sigma])
 
+    def first_shift(H) -> float:
+        """σ0 = sigma_factor·λmax(H)/λmax(M), computed once per call."""
+        nonlocal sigma0, lam_M
+        if sigma0 is None:
+            lam_M = lam_M or _largest_eigenvalue(mass())
+            sigma0 = options.sigma_factor * _largest_eigenvalue(H) / lam_M
+        return sigma0
+
     stalled = False  # the last step was below round-off: accept a gradient up to 4× the tolerance
     for it in range(options.max_iterations + 1):
         tolerance = options.gradient_tolerance * (4.0 if stalled else 1.0)
@@ -312,10 +320,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             # lengths) need not factor: its zero eigenvalues come out of the rounding as
             # ±ε·λmax. Curvature that small is not a saddle to escape (the uniform grid's
             # rest-length solve spent 92 escapes on eigenvalues of −2e-16·λmax).
-            if sigma0 is None:
-                lam_M = lam_M or _largest_eigenvalue(mass())
-                sigma0 = options.sigma_factor * _largest_eigenvalue(augmented(H)) / lam_M
-            s_round = ROUND_OFF_CURVATURE / options.sigma_factor * sigma0
+            s_round = ROUND_OFF_CURVATURE / options.sigma_factor * first_shift(augmented(H))
             try:
                 chol.factorize(shifted(augmented(H), s_round))
                 report.converged = True
@@ -343,10 +348,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             indefinite = True
             H = augmented(H) if sigma == 0 else H
             rho = aug if constraint is not None else 0.0
-            if sigma0 is None:
-                lam_M = lam_M or _largest_eigenvalue(mass())
-                sigma0 = options.sigma_factor * _largest_eigenvalue(H) / lam_M
-            sigma = sigma0 if sigma == 0 else 4 * sigma
+            sigma = first_shift(H) if sigma == 0 else 4 * sigma
             while True:
                 try:
                     chol.factorize(shifted(H, sigma))
