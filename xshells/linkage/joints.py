@@ -34,13 +34,11 @@ Outputs per instance: the edge's start point (3), end point (3) and ``θ``.
 """
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
+import functools
+
 import numpy as np
 
-from .. import _jaxconfig  # noqa: F401
 from ..rod import vec
-from ..rod.autodiff import bucket
 
 NUM_JOINT_VARS = 9
 NUM_INSTANCE_PARAMS = 16
@@ -50,11 +48,12 @@ NUM_OUTPUTS = 7
 def rotate(w, v):
     """``exp([ω]×) v`` by Rodrigues' formula, smooth (and Taylor-expanded) at ``ω = 0``."""
     th2 = vec.dot(w, w)
+    xp = vec.array_module(th2)
     small = th2 < 1e-8
-    safe = jnp.where(small, 1.0, th2)
-    th = jnp.sqrt(safe)
-    a = jnp.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, jnp.sin(th) / th)
-    b = jnp.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - jnp.cos(th)) / safe)
+    safe = xp.where(small, 1.0, th2)
+    th = xp.sqrt(safe)
+    a = xp.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, xp.sin(th) / th)
+    b = xp.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - xp.cos(th)) / safe)
     wv = vec.cross(w, v)
     wwv = vec.cross(w, wv)
     return tuple(v[i] + a * wv[i] + b * wwv[i] for i in range(3))
@@ -66,7 +65,8 @@ def joint_frame(q, b0, n0):
     b = rotate(w, b0)
     n = rotate(w, n0)
     u = vec.cross(n, b)
-    c, s = jnp.cos(0.5 * q[6]), jnp.sin(0.5 * q[6])
+    xp = vec.array_module(q[6])
+    c, s = xp.cos(0.5 * q[6]), xp.sin(0.5 * q[6])
     return vec.combine(c, b, -s, u), vec.combine(c, b, s, u), n
 
 
@@ -84,22 +84,27 @@ def instance_outputs(q, prm):
     d1 = vec.parallel_transport((prm[8], prm[9], prm[10]), te, (prm[11], prm[12], prm[13]))
     d2 = vec.cross(te, d1)
     phi = prm[15]
-    m1 = vec.combine(jnp.cos(phi), vec.cross(n, te), -jnp.sin(phi), n)
-    raw = jnp.arctan2(vec.dot(m1, d2), vec.dot(m1, d1))
-    theta = raw + 2.0 * jnp.pi * jnp.round((prm[14] - raw) / (2.0 * jnp.pi))
+    xp = vec.array_module(te[0])
+    m1 = vec.combine(xp.cos(phi), vec.cross(n, te), -xp.sin(phi), n)
+    raw = xp.arctan2(vec.dot(m1, d2), vec.dot(m1, d1))
+    theta = raw + 2.0 * np.pi * xp.round((prm[14] - raw) / (2.0 * np.pi))
     return (*start, *end, theta)
 
 
-def _outputs(q, prm):
-    return jnp.stack(instance_outputs(tuple(q), tuple(prm)))
+@functools.cache
+def _evaluate():
+    """The jitted map (JAX loads on first use: the solver uses the NumPy twin in :mod:`.joint_kernels`)."""
+    from .. import _jaxconfig  # noqa: F401
 
+    import jax
+    import jax.numpy as jnp
 
-@jax.jit
-def _evaluate(q, prm):
-    return _outputs(q, prm)
+    return jax.jit(lambda q, prm: jnp.stack(instance_outputs(tuple(q), tuple(prm))))
 
 
 def _pad(arrays, n):
+    from ..rod.autodiff import bucket
+
     m = bucket(n)
     out = []
     for a in arrays:
@@ -114,4 +119,4 @@ def outputs(q: np.ndarray, prm: np.ndarray) -> np.ndarray:
     """Instance outputs, (7, N)."""
     n = q.shape[1]
     qp, pp = _pad([q, prm], n)
-    return np.asarray(_evaluate(qp, pp))[:, :n]
+    return np.asarray(_evaluate()(qp, pp))[:, :n]

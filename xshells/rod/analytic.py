@@ -211,6 +211,12 @@ def vertex_energy_and_gradient(q, prm, variant="2008"):
     return s.bend, s.twist, s.gradient()
 
 
+def vertex_energies(q, prm, variant="2008"):
+    """Bending and twisting energy of each vertex stencil, stacked as (2, N)."""
+    s = _Stencil(q, prm, variant)
+    return np.stack([s.bend, s.twist])
+
+
 def vertex_gradient(q, prm, variant="2008"):
     """Gradient (13, N) of each vertex stencil's bending + twisting energy; exact for any source frame."""
     return _Stencil(q, prm, variant).gradient()

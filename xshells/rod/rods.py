@@ -24,7 +24,7 @@ import scipy.sparse as sp
 
 from ..errors import InputError, InvalidState
 from ..sparse import BlockAssembler, VectorAssembler
-from . import autodiff, frames, stencils
+from . import frames, stencils
 
 # The fast analytic kernels; tests set this to None to compare with autodiff.
 from . import analytic as _analytic
@@ -393,7 +393,12 @@ class ElasticRods:
         return self.energy_parts().total
 
     def _vertex_energies(self) -> np.ndarray:
-        return autodiff.vertex_energies(self._vertex_q(), self._vertex_params(), self.bending_energy)
+        q, p = self._vertex_q(), self._vertex_params()
+        if _analytic is not None:
+            return _analytic.vertex_energies(q, p, self.bending_energy)
+        from . import autodiff  # JAX, loaded only where the analytic kernels are switched off
+
+        return autodiff.vertex_energies(q, p, self.bending_energy)
 
     def _size(self, with_rest_lengths: bool) -> int:
         return self.num_vars + (self.num_edges if with_rest_lengths else 0)
@@ -412,12 +417,16 @@ class ElasticRods:
         q, p = self._vertex_q(), self._vertex_params()
         if _analytic is not None:
             return _analytic.vertex_gradient(q, p, self.bending_energy)
+        from . import autodiff  # JAX, loaded only where the analytic kernels are switched off
+
         return autodiff.vertex_gradient(q, p, self.bending_energy)
 
     def _vertex_hessian(self) -> np.ndarray:
         q, p = self._vertex_q(), self._vertex_params()
         if _analytic is not None:
             return _analytic.vertex_hessian(q, p, self.bending_energy)
+        from . import autodiff  # JAX, loaded only where the analytic kernels are switched off
+
         return autodiff.vertex_hessian(q, p, self.bending_energy)
 
     def hessian(self, with_rest_lengths: bool = False, triangle: str = "full") -> sp.csr_matrix:

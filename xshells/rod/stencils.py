@@ -63,11 +63,10 @@ Stretching: ``ks L (|e|/L − 1)² / 2``.
 """
 from __future__ import annotations
 
-from .. import _jaxconfig  # noqa: F401  (float64) before JAX is used
-
-import jax.numpy as jnp  # noqa: E402
+import numpy as np
 
 from . import vec
+from .vec import array_module as _xp
 
 NUM_VERTEX_VARS = 13
 NUM_VERTEX_PARAMS = 23
@@ -86,7 +85,8 @@ def reference_directors(t_src, d1_src, t):
 
 
 def material_directors(d1, d2, theta):
-    c, s = jnp.cos(theta), jnp.sin(theta)
+    xp = _xp(theta)
+    c, s = xp.cos(theta), xp.sin(theta)
     return vec.combine(c, d1, s, d2), vec.combine(-s, d1, c, d2)
 
 
@@ -97,8 +97,10 @@ def curvature_binormal(t0, t1):
 def reference_twist(t0, d1_0, t1, d1_1, stored):
     """Signed angle about ``t1`` from ``P(t0 → t1) d1_0`` to ``d1_1``, on the branch nearest ``stored``."""
     u = vec.parallel_transport(t0, t1, d1_0)
-    raw = jnp.arctan2(vec.dot(vec.cross(u, d1_1), t1), vec.dot(u, d1_1))
-    return raw + 2.0 * jnp.pi * jnp.round((stored - raw) / (2.0 * jnp.pi))
+    raw = vec.dot(vec.cross(u, d1_1), t1)
+    xp = _xp(raw)
+    raw = xp.arctan2(raw, vec.dot(u, d1_1))
+    return raw + 2.0 * np.pi * xp.round((stored - raw) / (2.0 * np.pi))
 
 
 def vertex_strains(q, prm, variant="2008"):
@@ -117,8 +119,9 @@ def vertex_strains(q, prm, variant="2008"):
     x0, x1, x2 = unpack3(q, 0), unpack3(q, 3), unpack3(q, 6)
     th0, th1, L0, L1 = q[9], q[10], q[11], q[12]
     e0, e1 = vec.sub(x1, x0), vec.sub(x2, x1)
-    t0 = vec.scale(1.0 / jnp.sqrt(vec.dot(e0, e0)), e0)
-    t1 = vec.scale(1.0 / jnp.sqrt(vec.dot(e1, e1)), e1)
+    xp = _xp(e0[0])
+    t0 = vec.scale(1.0 / xp.sqrt(vec.dot(e0, e0)), e0)
+    t1 = vec.scale(1.0 / xp.sqrt(vec.dot(e1, e1)), e1)
     r0, s0 = reference_directors(unpack3(prm, 0), unpack3(prm, 3), t0)
     r1, s1 = reference_directors(unpack3(prm, 6), unpack3(prm, 9), t1)
     m1_0, m2_0 = material_directors(r0, s0, th0)
@@ -129,7 +132,7 @@ def vertex_strains(q, prm, variant="2008"):
     elif variant == "2010":
         m1 = vec.scale(0.5, vec.add(m1_0, m1_1))
         m2 = vec.scale(0.5, vec.add(m2_0, m2_1))
-        zero = jnp.zeros_like(th0)
+        zero = xp.zeros_like(th0)
         kappa = (vec.dot(kb, m2), -vec.dot(kb, m1), zero, zero)
     else:
         raise ValueError(f"unknown bending variant {variant!r}; expected one of {BENDING_VARIANTS}")
@@ -154,7 +157,7 @@ def vertex_energies(q, prm, variant="2008"):
 def vertex_energy(q, prm, variant="2008"):
     """Total (bending + twisting) energy of all vertex stencils, a scalar."""
     bend, twist = vertex_energies(q, prm, variant)
-    return jnp.sum(bend + twist)
+    return _xp(bend).sum(bend + twist)
 
 
 def edge_energies(q, ks):
@@ -163,6 +166,6 @@ def edge_energies(q, ks):
     ``q`` packs ``x0 (0:3), x1 (3:6), L (6)``.
     """
     e = vec.sub(unpack3(q, 3), unpack3(q, 0))
-    n = jnp.sqrt(vec.dot(e, e))
+    n = _xp(e[0]).sqrt(vec.dot(e, e))
     L = q[6]
     return 0.5 * ks * (n - L) ** 2 / L

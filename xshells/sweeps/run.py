@@ -28,6 +28,7 @@ from typing import Callable
 
 from ..errors import InputError
 from ..io.export import atomic_write_text
+from .order import DispatchOrder
 from .spec import PATH_KEYS, SweepSpec, Task
 from .tasks import get_task
 
@@ -214,32 +215,51 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
             # scattered once, each worker fetches a file once however many tasks use it
             ship = {p: client.scatter(_read_bytes(p), hash=True) for p in paths}
         run_id = uuid.uuid4().hex[:8]  # keys unique per run: several sweeps may share one scheduler
-        futures = {}
         designs = {}
-        size = {task.id: estimated_size(task.params, designs) for task in todo}
-        # largest first (a big design started last leaves the other workers idle at the end):
-        # submitted in that order, since the first tasks go to idle workers as they arrive
-        for task in sorted(todo, key=lambda t: -size[t.id]):
+        order = DispatchOrder(todo, {task.id: estimated_size(task.params, designs) for task in todo})
+        running = {}
+        ac = as_completed()
+
+        def submit_next() -> None:
+            task = order.next()
             files = {p: ship[p] for p in _paths(task.params)} if ship else None
             f = client.submit(execute_task, spec.task, fn, task.id, task.params, task_dir(out_dir, task), files,
-                              key=f"xshells-sweep-{task.id}-{run_id}", pure=False, priority=size[task.id])
-            futures[f.key] = (f, task)
-        for f in as_completed([f for f, _ in futures.values()]):
-            task = futures.pop(f.key)[1]
+                              key=f"xshells-sweep-{task.id}-{run_id}", pure=False)
+            running[f.key] = (f, task)
+            ac.add(f)
+
+        # one task per worker thread at a time, the next chosen when one finishes (DispatchOrder: dearest
+        # first, costs learnt as tasks finish): submitted all at once, the order would be fixed before
+        # anything is known of what the tasks cost
+        for _ in range(min(_worker_threads(client), len(order))):
+            submit_next()
+        for f in ac:
+            task = running.pop(f.key)[1]
             try:
                 rec = f.result()
             except Exception as exc:  # the worker died (KilledWorker, out of memory, ...)
                 rec = _record(spec.task, task.id, task.params, "failed", _one_line(exc), {}, 0.0, time.time())
             f.release()  # the cluster may drop the result (and shipped outputs) now
+            order.finished(task, rec.get("elapsed_s"))
             if finish(task, rec):
                 stopped = True
-                client.cancel([g for g, _ in futures.values() if not g.done()])
+                client.cancel([g for g, _ in running.values() if not g.done()])
                 break
+            for _ in range(min(_worker_threads(client) - len(running), len(order))):
+                submit_next()
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
     return stopped
+
+
+def _worker_threads(client) -> int:
+    """Task slots of the cluster now (workers may join or leave a shared cluster during the sweep)."""
+    try:
+        return max(sum(client.nthreads().values()), 1)
+    except Exception:  # a scheduler that cannot answer now: keep one task in flight
+        return 1
 
 
 def estimated_size(params: dict, cache: dict | None = None) -> int:
