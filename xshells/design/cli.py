@@ -11,8 +11,8 @@ def register(subparsers) -> None:
         description="Design optimization (paper §5): minimizes γ/E₀·E_flat + (1−γ)/E₀·E_deployed + β/(2l₀²)·T over the "
                     "per-segment rest lengths, keeping the flat state planar and its joint angles open. Units follow the input.")
     p.add_argument("case", help="a case file (.json), or a design (.obj, .msh) with --material etc.")
-    p.add_argument("--gamma", type=float, default=0.5, help="share of the flat energy, in [0, 1] (default 0.5)")
-    p.add_argument("--beta", type=float, default=5000.0, help="weight of the fitting term (default 5000)")
+    p.add_argument("--gamma", type=float, help="share of the flat energy, in [0, 1] (default 0.9)")
+    p.add_argument("--beta", type=float, help="weight of the fitting term (default 1000)")
     p.add_argument("--target-surface", help="a triangle mesh (OBJ, PLY, STL) to fit (default: the deployed design's quads, Loop-subdivided twice)")
     p.add_argument("--angle", type=float, help="target average opening angle, degrees (default: the case's)")
     p.add_argument("--max-iters", type=int, default=20)
@@ -34,7 +34,7 @@ def _optimize(args) -> int:
     from .optimize import OptimizeOptions
 
     case_path = case_path_from_args(args, "optimize", steps_default=20)
-    weights = DesignWeights(gamma=args.gamma, beta=args.beta)
+    weights = DesignWeights(**{k: v for k, v in (("gamma", args.gamma), ("beta", args.beta)) if v is not None})
     opts = OptimizeOptions(method=args.method, max_iterations=args.max_iters,
                            min_angle=np.radians(args.min_angle) if args.min_angle is not None else None)
     try:
