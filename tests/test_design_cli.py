@@ -92,3 +92,6 @@ def test_a_flat_state_that_folds_a_joint_is_opened_just_enough(tmp_path, capsys,
     r = json.loads((tmp_path / "o" / "result.json").read_text())
     assert r["flat_angle_deg"] > 16.01 and "joint 36" in r["flat_angle_note"]
     assert r["constraints"]["planarity"] <= 1e-12
+    # opened until the smooth minimum angle leaves room for a positive bound (KS ≤ every angle):
+    # opened only until nothing folded (KS −0.10°), the optimization could fold a joint
+    assert r["constraints"]["min_angle_deg"] > 0

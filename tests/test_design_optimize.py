@@ -65,6 +65,12 @@ def test_infeasible_minimum_angle_is_refused():
         optimize(prob, OptimizeOptions(min_angle=np.radians(30.0), max_iterations=1))
 
 
+def test_a_bound_that_lets_joints_fold_is_refused():
+    prob = banana_problem()
+    with pytest.raises(InputError, match="must be positive"):
+        optimize(prob, OptimizeOptions(min_angle=np.radians(-0.1), max_iterations=1))
+
+
 @pytest.mark.skipif(not (EXAMPLES_DIR / "wiggly_banana_preopt" / "case.json").exists(), reason="bundled example missing")
 def test_an_active_minimum_angle_bound_is_followed_not_stalled_on():
     """k = 10, ε only 0.2° below the initial KS minimum: the bound is active from iteration 3 on. With

@@ -54,8 +54,9 @@ class OptimizeOptions:
         equilibrium has about 1e-26). (An exact ``= 0`` has a vanishing
         gradient, which trust-constr cannot handle.)
     min_angle : float or None
-        ε of the minimum-angle constraint (radians); default: the initial
-        flat state's KS minimum angle less 0.5°.
+        ε of the minimum-angle constraint (radians), positive; default: the
+        initial flat state's KS minimum angle less 0.5°, but at least half
+        of it.
     initial_radius : float
         First trust radius: for the trust-region methods, this fraction of
         the first preconditioned gradient's length (1 would be a full
@@ -176,8 +177,14 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
     q0 = problem._q.copy() if q0 is None else np.asarray(q0, float)
     # X-shells are assembled nearly closed, so the KS minimum is small (or
     # even negative: KS lies below the true minimum by up to s·log n)
-    eps = options.min_angle if options.min_angle is not None else problem.min_angle(q0) - np.radians(0.5)
-    if problem.min_angle(q0) < eps:
+    ks0 = problem.min_angle(q0)
+    # KS ≤ the true minimum, so a positive ε keeps every joint open; at most half of KS₀ below it
+    eps = options.min_angle if options.min_angle is not None else max(ks0 - np.radians(0.5), 0.5 * ks0)
+    if not eps > 0:
+        raise InputError(f"the minimum-angle bound ε = {np.degrees(eps):.4g}° must be positive (the starting design's "
+                         f"KS minimum angle is {np.degrees(ks0):.4g}°): a bound at or below 0° lets joints fold; "
+                         "open the flat state further")
+    if ks0 < eps:
         raise InputError(f"the minimum-angle bound ε = {np.degrees(eps):.4g}° is infeasible: the starting design's "
                          f"KS minimum angle is {np.degrees(problem.min_angle(q0)):.4g}°")
     history: list[OptimizeRecord] = []

@@ -16,7 +16,7 @@ from ..errors import InputError
 from ..io import read_design, read_rest_lengths
 from ..io.export import atomic_write_text
 from ..linkage.linkage import Linkage
-from .objective import DesignProblem, DesignWeights
+from .objective import DesignProblem, DesignWeights, ks_min
 from .optimize import OptimizeOptions, optimize
 
 
@@ -42,14 +42,13 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     D = copy.deepcopy(L)
     drawn = D.average_angle()
     ConstrainedEquilibrium(D, drawn).solve()
-    from ..deploy.simulate import folded_joint
-
     flat_angle, flat_note = None, ""
-    folded = folded_joint(D).replace("the linkage inverts: ", "")
+    folded = _flat_state_problem(D, weights.ks_sharpness)
     if folded:
-        # The drawn assembly state folds a joint once the joints may move: open it just enough
-        # (paper §5: ᾱ₀ "just large enough"), as the smallest valid, planar flat state.
-        flat_angle, D = _open_just_enough(L, drawn)
+        # The drawn assembly state folds a joint once the joints may move, or leaves no room for a
+        # positive bound on its smooth minimum angle: open it just enough (paper §5: ᾱ₀ "just large
+        # enough"), as the smallest valid, planar flat state.
+        flat_angle, D = _open_just_enough(L, drawn, weights.ks_sharpness)
         if flat_angle is None:
             raise InputError(f"{case_path}: the flat equilibrium at the design's average angle {np.degrees(drawn):.2f}° "
                              f"is not valid ({folded}), nor is it within "
@@ -81,12 +80,31 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
 
 OPEN_STEP = np.radians(0.25)
 OPEN_LIMIT = np.radians(10.0)
+# The smallest flat KS minimum angle to start from. KS lies below the true minimum by up to s·log n
+# (3.7° for s = 0.01 and 600 joints), so only a positive bound ε on it keeps every joint open; a start
+# with KS ≤ 0 leaves no positive ε feasible (the manta ray opened just enough to fold no joint had
+# KS = −0.10°: with ε = KS − 0.5° its optimization folded joint 49 to −0.5°).
+MIN_START_KS = np.radians(0.25)
 
 
-def _open_just_enough(L, drawn: float):
-    """The smallest average angle above ``drawn`` (in steps of OPEN_STEP, up to OPEN_LIMIT) whose flat
-    equilibrium folds no joint and stays planar, with that equilibrium (a copy of ``L``); (None, None) if none."""
+def _flat_state_problem(E, ks_sharpness: float) -> str:
+    """Why the flat equilibrium ``E`` cannot start a design optimization ("" if it can)."""
     from ..deploy.simulate import folded_joint
+
+    folded = folded_joint(E).replace("the linkage inverts: ", "")
+    if folded:
+        return folded
+    ks = ks_min(E.joint_angles(), ks_sharpness)[0]
+    if ks < MIN_START_KS:
+        return (f"its smooth minimum joint angle (KS, s = {ks_sharpness:g}) is {np.degrees(ks):.2f}°, below "
+                f"{np.degrees(MIN_START_KS):.2f}°: no positive bound on it is feasible")
+    return ""
+
+
+def _open_just_enough(L, drawn: float, ks_sharpness: float):
+    """The smallest average angle above ``drawn`` (in steps of OPEN_STEP, up to OPEN_LIMIT) whose flat
+    equilibrium folds no joint, keeps its KS minimum angle at MIN_START_KS or more and stays planar, with
+    that equilibrium (a copy of ``L``); (None, None) if none."""
     from .equilibrium import ConstrainedEquilibrium
 
     span = float(np.ptp(L.rods.points, axis=0).max())
@@ -97,7 +115,7 @@ def _open_just_enough(L, drawn: float):
         except ArithmeticError:
             continue
         planar = np.abs(E.height_selector() @ E.get_vars()).max() <= 1e-6 * span
-        if planar and not folded_joint(E):
+        if planar and not _flat_state_problem(E, ks_sharpness):
             return drawn + k * OPEN_STEP, E
     return None, None
 

@@ -461,6 +461,25 @@ class Linkage:
     def _vertex_hessian_blocks(self) -> np.ndarray:
         return self.rods._vertex_hessian() if self.rods.num_stencils else np.zeros((13, 13, 0))
 
+    def _rod_hessian_blocks(self):
+        """Vertex (13, 13, S) and edge (7, 7, E) Hessian blocks at the current state.
+
+        At a state whose rod terms are not cached yet (a Newton step's new
+        state), energies, gradients and Hessians come from one evaluation of
+        each stencil's geometry and fill the cache for the gradient too.
+        """
+        r = self.rods
+        c = self._cached()
+        an = _rods_module._analytic
+        if "rod" in c or an is None or not r.num_stencils:
+            _, _, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
+            return self._vertex_hessian_blocks(), he
+        es, ge, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
+        bend, twist, gv, hv = an.vertex_energy_gradient_hessian(r._vertex_q(), r._vertex_params(), r.bending_energy)
+        c["rod"] = {"stretch": float(np.sum(es)) if r.num_edges else 0.0, "ge": ge,
+                    "bend": float(np.sum(bend)), "twist": float(np.sum(twist)), "gv": gv}
+        return hv, he
+
     def hessian(self, with_rest_lengths: bool = False) -> sp.csr_matrix:
         """Sparse symmetric Hessian in ``x`` (and ``p`` appended, if asked).
 
@@ -478,9 +497,9 @@ class Linkage:
             asm = getattr(self, "_hess_asm", None)
             if asm is None:
                 asm = self._hess_asm = _ReducedHessianAssembler(self)
-            _, _, he = _rods_module.stretch_kernel(self.rods._edge_q(), self.rods.ks)
+            hv, he = self._rod_hessian_blocks()
             _, jac = self._instance_jacobian()
-            H = asm.assemble(self._vertex_hessian_blocks(), he, jac, self._joint_hessian_blocks())
+            H = asm.assemble(hv, he, jac, self._joint_hessian_blocks())
             c[key] = H
             return H
         H = self.rods.hessian(with_rest_lengths)

@@ -425,7 +425,22 @@ def vertex_hessian(q, prm, variant="2008"):
     every ``|t_src × t| ≤ SOURCE_TOLERANCE``, i.e. at the source frame, as the
     solver calls it.
     """
+    return _hessian(_Stencil(q, prm, variant))[0]
+
+
+def vertex_energy_gradient_hessian(q, prm, variant="2008"):
+    """Bending and twisting energies (N,) each, gradient (13, N) and Hessian (13, 13, N) of each vertex stencil.
+
+    One evaluation of the stencils' geometry for all four (what a Newton
+    step needs at a new state); the same values as the separate functions.
+    """
     s = _Stencil(q, prm, variant)
+    H, g = _hessian(s)
+    return s.bend, s.twist, g, H
+
+
+def _hessian(s):
+    """Hessian (13, 13, N) and gradient (13, N) of the stencils ``s``."""
     H00, H01, H11, he0, he1, hth = _hessian_blocks(s)
     if np.abs(s.C).max(initial=0.0) > SOURCE_TOLERANCE:
         H00, H01, H10, H11, he0, he1 = _leave_source_frame(s, H00, H01, H11, he0, he1, hth)
@@ -455,7 +470,7 @@ def vertex_hessian(q, prm, variant="2008"):
     out[0:11, 12] = out[0:11, 11]
     out[11:13, 0:11] = out[0:11, 11]
     out[11:13, 11:13] = (s.bend + s.twist) / (2.0 * s.ell * s.ell)
-    return out
+    return out, g
 
 
 # --------------------------------------------------------------------------- stretching
