@@ -183,6 +183,15 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
     import logging
     import warnings
 
+    forkserver = False
+    if not settings.scheduler:
+        env = worker_env()
+        # numeric libraries on one thread (set before the fork server imports NumPy); the fork server
+        # imports Dask and the solvers while this process imports Dask and starts the scheduler
+        with _environ(env):
+            forkserver = _start_forkserver(["distributed", "xshells.sweeps.run", _module_of(fn), *preload])
+
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -193,15 +202,11 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
             raise InputError(f"--scheduler {settings.scheduler}: cannot connect ({_one_line(exc)})") from None
     else:
         n = settings.workers or _cores()
-        import dask
-
-        env = worker_env()
-        # numeric libraries on one thread (set before the fork server imports NumPy); no statistical
-        # profiler (it samples the task thread's stack every 10 ms, taking the GIL from the solver: it
-        # doubled the worker's own CPU time, to about 4% of a core beside the task); glibc's malloc as
-        # in a serial run (WORKER_CONFIG)
-        with warnings.catch_warnings(), _environ(env), dask.config.set(WORKER_CONFIG), \
-                _forkserver_with(["xshells.sweeps.run", _module_of(fn), *preload]):
+        # no statistical profiler (it samples the task thread's stack every 10 ms, taking the GIL from the
+        # solver: it doubled the worker's own CPU time, to about 4% of a core beside the task); glibc's
+        # malloc as in a serial run (WORKER_CONFIG)
+        config = dict(WORKER_CONFIG, **({"distributed.worker.multiprocessing-method": "forkserver"} if forkserver else {}))
+        with warnings.catch_warnings(), _environ(env), dask.config.set(config):
             warnings.simplefilter("ignore", UserWarning)  # "port 8787 in use" when another cluster runs here
             # processes, one thread each: the solvers hold the GIL and JAX/BLAS threads would oversubscribe
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
@@ -301,6 +306,11 @@ WORKER_CONFIG = {
     # adaptive mmap threshold, so every NumPy temporary above 128 KiB is mapped and zeroed anew: 35x
     # the page faults and 1.5x the CPU time of a deploy task (sys time 0.3 -> 4.4 s). Leave it unset.
     "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    # a worker runs one task of seconds at a time: its event loop need not wake every 20 ms to time
+    # itself, nor poll its memory every 100 ms (each wake-up takes the GIL from the solver)
+    "distributed.admin.tick.interval": "500ms",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
 }
 
 
@@ -338,26 +348,25 @@ def _module_of(fn) -> str:
     return fn.partition(":")[0] if isinstance(fn, str) else getattr(fn, "__module__", "xshells")
 
 
-@contextlib.contextmanager
-def _forkserver_with(modules: list):
-    """Start local workers from a fork server that has imported ``modules`` once.
+def _start_forkserver(modules: list) -> bool:
+    """Start the fork server that local workers are forked from, importing ``modules`` once; False if none.
 
-    Spawned workers would each import JAX and the solvers (seconds apiece, all
-    at once on a busy machine); forking from a server that imported them
-    (but never ran JAX, so no threads exist yet) shares that cost.
+    Spawned workers would each import Dask and the solvers (about 1.5 s
+    apiece, all at once); forking from a server that imported them (but
+    never ran JAX, so no threads exist yet) shares that cost. The server is
+    started here, before this process imports Dask itself, so that the two
+    imports overlap (0.7 s for Dask alone). A server already running (an
+    earlier sweep in this process) is reused as it is.
     """
     import multiprocessing
 
-    import dask
-
     if "forkserver" not in multiprocessing.get_all_start_methods():
-        yield
-        return
-    from distributed.utils import get_mp_context
+        return False
+    from multiprocessing import forkserver
 
-    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
-        get_mp_context().set_forkserver_preload(["distributed"] + [m for m in modules if m])
-        yield
+    multiprocessing.get_context("forkserver").set_forkserver_preload([m for m in modules if m])
+    forkserver.ensure_running()
+    return True
 
 
 def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, files: dict | None) -> dict:
