@@ -65,10 +65,18 @@ def test_infeasible_minimum_angle_is_refused():
         optimize(prob, OptimizeOptions(min_angle=np.radians(30.0), max_iterations=1))
 
 
-def test_a_bound_that_lets_joints_fold_is_refused():
+def test_a_trial_design_that_folds_a_flat_joint_is_rejected(monkeypatch):
+    """KS lies below every angle by up to s·log n, so with KS₀ ≤ 0 no positive bound is feasible and
+    the KS constraint cannot keep joints open: a trial whose flat state folds a joint is rejected."""
+    import xshells.design.optimize as opt
+
     prob = banana_problem()
-    with pytest.raises(InputError, match="must be positive"):
-        optimize(prob, OptimizeOptions(min_angle=np.radians(-0.1), max_iterations=1))
+    q0 = prob._q.copy()
+    # every state but the start counts as folded: nothing may be accepted
+    monkeypatch.setattr(opt, "folded_joint", lambda L: "" if np.array_equal(prob._q, q0) else "joint 3 folds")
+    res = optimize(prob, OptimizeOptions(min_angle=np.radians(-30.0), max_iterations=2))
+    assert res.iterations == 0 and np.array_equal(res.q, q0)  # no trial accepted
+    assert "trial designs rejected" in res.message
 
 
 @pytest.mark.skipif(not (EXAMPLES_DIR / "wiggly_banana_preopt" / "case.json").exists(), reason="bundled example missing")

@@ -18,7 +18,7 @@ def register(subparsers) -> None:
     p.add_argument("--max-iters", type=int, default=20)
     p.add_argument("--method", choices=("newton-cg", "bfgs", "trust-constr"), default="newton-cg",
                    help="trust-region Newton-CG (default), the same with BFGS, or scipy's trust-constr")
-    p.add_argument("--min-angle", type=float, help="smallest flat joint angle ε, degrees (default: the initial KS minimum less 0.5°, at least half of it)")
+    p.add_argument("--min-angle", type=float, help="smallest flat joint angle ε, degrees (default: the initial KS minimum less 0.5°, at least half of a positive one)")
     p.add_argument("--resume", action="store_true", help="start from OUT/design_parameters.txt of an earlier run")
     p.add_argument("--no-baseline", action="store_true", help="skip the BFGS comparison run")
     add_design_options(p, steps_default=20)

@@ -54,9 +54,11 @@ class OptimizeOptions:
         equilibrium has about 1e-26). (An exact ``= 0`` has a vanishing
         gradient, which trust-constr cannot handle.)
     min_angle : float or None
-        ε of the minimum-angle constraint (radians), positive; default: the
-        initial flat state's KS minimum angle less 0.5°, but at least half
-        of it.
+        ε of the minimum-angle constraint (radians); default: the initial
+        flat state's KS minimum angle less 0.5°, but at least half of it
+        when it is positive. KS lies below every angle, so ``KS ≥ ε > 0``
+        keeps all joints open; whatever ε, a trial design whose flat state
+        folds a joint (an angle at or beyond 0° or 180°) is rejected.
     initial_radius : float
         First trust radius: for the trust-region methods, this fraction of
         the first preconditioned gradient's length (1 would be a full
@@ -178,12 +180,11 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
     # X-shells are assembled nearly closed, so the KS minimum is small (or
     # even negative: KS lies below the true minimum by up to s·log n)
     ks0 = problem.min_angle(q0)
-    # KS ≤ the true minimum, so a positive ε keeps every joint open; at most half of KS₀ below it
-    eps = options.min_angle if options.min_angle is not None else max(ks0 - np.radians(0.5), 0.5 * ks0)
-    if not eps > 0:
-        raise InputError(f"the minimum-angle bound ε = {np.degrees(eps):.4g}° must be positive (the starting design's "
-                         f"KS minimum angle is {np.degrees(ks0):.4g}°): a bound at or below 0° lets joints fold; "
-                         "open the flat state further")
+    # KS ≤ the true minimum: a positive ε keeps every joint open, so at most half of KS₀ below it. Where
+    # KS₀ ≤ 0 (many small angles) no positive ε is feasible; trial designs that fold a joint are then
+    # rejected outright (below), as KS cannot tell.
+    eps = options.min_angle if options.min_angle is not None else (
+        max(ks0 - np.radians(0.5), 0.5 * ks0) if ks0 > 0 else ks0 - np.radians(0.5))
     if ks0 < eps:
         raise InputError(f"the minimum-angle bound ε = {np.degrees(eps):.4g}° is infeasible: the starting design's "
                          f"KS minimum angle is {np.degrees(problem.min_angle(q0)):.4g}°")
@@ -191,7 +192,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
     best = {"J": np.inf, "q": q0.copy(), "states": None}
 
     def feasible(plan, ang):
-        return plan <= options.planarity_tolerance * 1.01 and ang >= eps - 1e-9
+        return plan <= options.planarity_tolerance * 1.01 and ang >= eps - 1e-9 and not folded_joint(problem.flat.L)
 
     def record(q, it):
         t = problem.terms(q)
@@ -354,6 +355,8 @@ def _trust_region(problem, q0, options, eps, record, failures):
                 plan = problem.planarity(q_trial)
                 if plan > options.planarity_tolerance * 1.01:
                     reason = f"flat state left the plane (c = {plan:.2e})"
+                elif folded_joint(problem.flat.L):
+                    reason = f"flat state: {folded_joint(problem.flat.L)}"
                 elif not np.isfinite(f_trial):
                     reason = "minimum angle or flat stability out of bounds"
             except (ArithmeticError, InputError) as exc:
