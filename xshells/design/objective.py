@@ -133,6 +133,7 @@ class DesignProblem:
 
     flat_note: str = ""
     input_warnings: tuple = ()
+    fresh_copy = None  # set by design.run.build_problem(keep_copy=True): a callable giving the same problem anew
 
     def __init__(self, linkage, target_angle: float, weights: DesignWeights = DesignWeights(), fitting=None,
                  flat_angle: float | None = None, deployed=None, deploy_steps: int = 20, direction: str = "up"):

@@ -21,8 +21,13 @@ from .optimize import OptimizeOptions, optimize
 
 
 def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_surface=None, rest_lengths_path=None,
-                  deploy_steps=None, progress=False):
-    """The design problem of a case: flat state at the design's average angle, deployed state at the target."""
+                  deploy_steps=None, progress=False, keep_copy=False):
+    """The design problem of a case: flat state at the design's average angle, deployed state at the target.
+
+    With ``keep_copy``, ``problem.fresh_copy()`` builds the same problem again
+    from copies of its inputs (the flat linkage, the initial deployment and
+    the fitting term) without repeating the deployment.
+    """
     case = load_case(case_path)
     design = read_design(case.design_path)
     rl_path = rest_lengths_path or case.rest_lengths_path
@@ -72,9 +77,17 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
 
     surface = read_surface(target_surface) if target_surface else None
     fitting = FittingTerm.paper_defaults(D, surface=surface)
-    problem = DesignProblem(L, target, weights, fitting=fitting, deployed=D, flat_angle=flat_angle)
-    problem.flat_note = flat_note
-    problem.input_warnings = warnings
+    spare = copy.deepcopy((L, D, fitting)) if keep_copy else None
+
+    def make(L, D, fitting):
+        problem = DesignProblem(L, target, weights, fitting=fitting, deployed=D, flat_angle=flat_angle)
+        problem.flat_note = flat_note
+        problem.input_warnings = warnings
+        return problem
+
+    problem = make(L, D, fitting)
+    if spare is not None:
+        problem.fresh_copy = lambda: make(*copy.deepcopy(spare))
     return problem, case.name
 
 
@@ -143,8 +156,9 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         rl = os.path.join(out_dir, "design_parameters.txt")
         if not os.path.exists(rl):
             raise InputError(f"--resume: {rl} does not exist (no earlier run in {out_dir})")
+    with_baseline = baseline and options.method != "bfgs"
     problem, name = build_problem(case_path, weights=weights, angle_deg=angle_deg, target_surface=target_surface,
-                                  rest_lengths_path=rl, progress=progress)
+                                  rest_lengths_path=rl, progress=progress, keep_copy=with_baseline)
     q0 = np.ones(len(problem.p0))
     initial = _summary(problem, q0)
     # before and after share one colour scale per state (Fig. 6): the larger of the two maxima
@@ -181,9 +195,8 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         _write_outputs(out_dir, f"{state}_before", before[state], vmax=vmax)
         _write_outputs(out_dir, state, L, vmax=vmax)
     bfgs = None
-    if baseline and not interrupted and options.method != "bfgs":
-        base_problem, _ = build_problem(case_path, weights=weights, angle_deg=angle_deg, target_surface=target_surface,
-                                        rest_lengths_path=rl, progress=False)
+    if with_baseline and not interrupted:
+        base_problem = problem.fresh_copy()  # the same starting problem, without deploying again
         b = optimize(base_problem, OptimizeOptions(**{**options.__dict__, "method": "bfgs"}))
         bfgs = [asdict(r) for r in b.history]
     from ..viz.render import plot_convergence
