@@ -179,7 +179,7 @@ def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSett
 
 
 def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
-    """Submit every task to Dask, record them as they complete; True when stopped early."""
+    """Run the tasks on Dask, one per worker slot at a time, recording them as they complete; True when stopped early."""
     import logging
     import warnings
 
