@@ -19,6 +19,7 @@ a sweep over subdivision or steps of one design is ordered too.
 """
 from __future__ import annotations
 
+import collections
 import time
 
 
@@ -38,39 +39,47 @@ class DispatchOrder:
     def __init__(self, tasks, size: dict, clock=time.perf_counter):
         self._clock = clock
         self._size = {t.id: max(float(size.get(t.id, 0)), 1.0) for t in tasks}
-        # stable: equal keys keep the sweep's own order
-        self._pending = sorted(tasks, key=lambda t: -self._size[t.id])
+        self._rank = {t.id: i for i, t in enumerate(tasks)}  # the sweep's own order breaks ties
+        # per design, its pending tasks largest first: the best task of a design is always its first,
+        # so a choice costs O(designs + running), not O(pending)
+        self._pending = {}
+        for t in sorted(tasks, key=lambda t: -self._size[t.id]):  # stable
+            self._pending.setdefault(self.design(t), collections.deque()).append(t)
+        self._count = len(tasks)
         self._running = {}   # task id -> (design, start)
         self._rate = {}      # design -> [seconds, size] summed over finished tasks
 
     def __len__(self) -> int:
-        return len(self._pending)
+        return self._count
 
     @staticmethod
     def design(task) -> str:
         f = task.params.get("file")
         return f if isinstance(f, str) else ""
 
-    def _key(self, task, now):
-        """Larger first: (design not started yet, estimated seconds, still unmeasured)."""
-        d, s = self.design(task), self._size[task.id]
+    def _key(self, d, task, running_rate):
+        """Larger first: (design not started yet, estimated seconds, still unmeasured, earlier in the sweep)."""
+        s, rank = self._size[task.id], -self._rank[task.id]
         if d in self._rate:
             seconds, units = self._rate[d]
-            return (False, s * seconds / units, False)
+            return (False, s * seconds / units, False, rank)
         # at least as dear as its running tasks so far (ties go to it: it may well be dearer)
-        rates = [(now - t0) / self._size[i] for i, (dd, t0) in self._running.items() if dd == d]
-        if rates:
-            return (False, s * max(rates), True)
-        return (True, s, True)
+        if d in running_rate:
+            return (False, s * running_rate[d], True, rank)
+        return (True, s, True, rank)
 
     def next(self):
         """Remove and return the task to start now (None when none is left)."""
-        if not self._pending:
+        if not self._count:
             return None
         now = self._clock()
-        best = max(range(len(self._pending)), key=lambda i: (self._key(self._pending[i], now), -i))
-        task = self._pending.pop(best)
-        self._running[task.id] = (self.design(task), now)
+        running_rate = {}
+        for i, (d, t0) in self._running.items():
+            running_rate[d] = max(running_rate.get(d, 0.0), (now - t0) / self._size[i])
+        d = max((d for d, q in self._pending.items() if q), key=lambda d: self._key(d, self._pending[d][0], running_rate))
+        task = self._pending[d].popleft()
+        self._count -= 1
+        self._running[task.id] = (d, now)
         return task
 
     def finished(self, task, seconds: float | None = None) -> None:
