@@ -246,12 +246,13 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
                 rec = _record(spec.task, task.id, task.params, "failed", _one_line(exc), {}, 0.0, time.time())
             f.release()  # the cluster may drop the result (and shipped outputs) now
             order.finished(task, rec.get("elapsed_s"))
+            # the next task first: the freed worker need not wait for this task's files and table
+            for _ in range(min(_worker_threads(client) - len(running), len(order))):
+                submit_next()
             if finish(task, rec):
                 stopped = True
                 client.cancel([g for g, _ in running.values() if not g.done()])
                 break
-            for _ in range(min(_worker_threads(client) - len(running), len(order))):
-                submit_next()
     finally:
         client.close()
         if cluster is not None:
