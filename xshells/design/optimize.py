@@ -187,7 +187,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
         max(ks0 - np.radians(0.5), 0.5 * ks0) if ks0 > 0 else ks0 - np.radians(0.5))
     if ks0 < eps:
         raise InputError(f"the minimum-angle bound ε = {np.degrees(eps):.4g}° is infeasible: the starting design's "
-                         f"KS minimum angle is {np.degrees(problem.min_angle(q0)):.4g}°")
+                         f"KS minimum angle is {np.degrees(ks0):.4g}°")
     history: list[OptimizeRecord] = []
     best = {"J": np.inf, "q": q0.copy(), "states": None}
 
@@ -355,8 +355,8 @@ def _trust_region(problem, q0, options, eps, record, failures):
                 plan = problem.planarity(q_trial)
                 if plan > options.planarity_tolerance * 1.01:
                     reason = f"flat state left the plane (c = {plan:.2e})"
-                elif folded_joint(problem.flat.L):
-                    reason = f"flat state: {folded_joint(problem.flat.L)}"
+                elif folded := folded_joint(problem.flat.L):
+                    reason = f"flat state: {folded}"
                 elif not np.isfinite(f_trial):
                     reason = "minimum angle or flat stability out of bounds"
             except (ArithmeticError, InputError) as exc:

@@ -379,18 +379,20 @@ class Linkage:
         if "rod" not in c:
             r = self.rods
             es, ge, _ = _rods_module.stretch_kernel(r._edge_q(), r.ks, hessian=False)
-            out = {"stretch": float(np.sum(es)) if r.num_edges else 0.0, "ge": ge}
             an = _rods_module._analytic
             if r.num_stencils and an is not None:
                 bend, twist, gv = an.vertex_energy_and_gradient(r._vertex_q(), r._vertex_params(), r.bending_energy)
-                out.update(bend=float(np.sum(bend)), twist=float(np.sum(twist)), gv=gv)
             elif r.num_stencils:
-                eb = r._vertex_energies()
-                out.update(bend=float(np.sum(eb[0])), twist=float(np.sum(eb[1])), gv=None)
+                (bend, twist), gv = r._vertex_energies(), None
             else:
-                out.update(bend=0.0, twist=0.0, gv=np.zeros((13, 0)))
-            c["rod"] = out
+                bend, twist, gv = np.zeros(0), np.zeros(0), np.zeros((13, 0))
+            self._store_rod_terms(c, es, ge, bend, twist, gv)
         return c["rod"]
+
+    def _store_rod_terms(self, c, es, ge, bend, twist, gv) -> None:
+        """Cache the rods' per-stencil energies (summed) and gradients for the state of cache ``c``."""
+        c["rod"] = {"stretch": float(np.sum(es)), "ge": ge, "bend": float(np.sum(bend)),
+                    "twist": float(np.sum(twist)), "gv": gv}
 
     def _rod_gradient(self, with_rest_lengths: bool = False) -> np.ndarray:
         c = self._cached()
@@ -476,8 +478,7 @@ class Linkage:
             return self._vertex_hessian_blocks(), he
         es, ge, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
         bend, twist, gv, hv = an.vertex_energy_gradient_hessian(r._vertex_q(), r._vertex_params(), r.bending_energy)
-        c["rod"] = {"stretch": float(np.sum(es)) if r.num_edges else 0.0, "ge": ge,
-                    "bend": float(np.sum(bend)), "twist": float(np.sum(twist)), "gv": gv}
+        self._store_rod_terms(c, es, ge, bend, twist, gv)
         return hv, he
 
     def hessian(self, with_rest_lengths: bool = False) -> sp.csr_matrix:
