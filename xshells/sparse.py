@@ -86,6 +86,15 @@ class VectorAssembler:
         flat = np.concatenate([np.ascontiguousarray(v).ravel() for v in values])
         return np.bincount(self._index, weights=flat[self._take], minlength=self.size)
 
+    def assemble_many(self, value_sets: Sequence[Sequence[np.ndarray]]) -> np.ndarray:
+        """Several global vectors at once, ``(len(value_sets), size)``: one pass instead of one per vector."""
+        m = len(value_sets)
+        if not hasattr(self, "_index_many") or self._index_many[0] != m:
+            self._index_many = (m, (self._index[None, :] + self.size * np.arange(m)[:, None]).ravel())
+        flat = np.concatenate([np.concatenate([np.ascontiguousarray(v).ravel() for v in values])[self._take]
+                               for values in value_sets])
+        return np.bincount(self._index_many[1], weights=flat, minlength=m * self.size).reshape(m, self.size)
+
 
 def _canonical(A: sp.spmatrix) -> sp.csr_matrix:
     A = A.tocsr() if A.format != "csr" else A

@@ -5,8 +5,13 @@ direction ``(δx, δp)``, the matrix
 
     dH[δx, δp] = d/dt ∇²E(x + t δx, p + t δp) |_{t=0},
 
-and mostly only its product with one vector. Here it is computed from the
-*exact* Hessian by differencing along the direction:
+and mostly only its product with one vector. The product
+(:func:`hessian_derivative_product`, what the reference implementation calls
+the directional derivative of ``applyHessian``) is computed without
+assembling a Hessian, term by term of the chain rule with the stencil kernels
+(relative error about 1e-7 to 1e-6, about 0.7–0.85 of one Hessian's time,
+``benchmarks/linkage.py``). The matrix itself is computed from the *exact*
+Hessian by differencing along the direction:
 
 * ``scheme="central"`` (default): ``(H(+h) − H(−h)) / 2h``, two Hessians,
   relative error about 3e-7 (Frobenius norm, manta ray at k = 10 in a
@@ -38,8 +43,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError
+from ..rod import rods as _rods_module
+from ..sparse import VectorAssembler
+from . import joint_kernels as jk
 
 _RELATIVE_STEP = {"central": 1e-5, "forward": 1e-7}
+_PRODUCT_STEP = 2e-5  # mixed second differences of the stencil gradients
+_JOINT_STEP = 1e-5  # central differences of the joint map's derivatives
 
 
 def _angle_mask(linkage) -> np.ndarray:
@@ -140,38 +150,220 @@ def _difference(A, B, scale) -> sp.csr_matrix:
     return ((A - B) * scale).tocsr()
 
 
-def hessian_derivative_product(linkage, dx, dp, u, **kwargs) -> np.ndarray:
-    """``dH[δx, δp] · u``: the third derivative contracted with two vectors.
+def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_lengths: bool = False) -> np.ndarray:
+    """``dH[δx, δp] · w``: the Hessian's directional derivative applied to a vector.
 
-    ``u`` has the Hessian's size (``num_vars``, or ``num_vars + S`` with
-    ``with_rest_lengths=True``).
+    This is what the design optimization (Appendix B) and the sparse
+    actuation (§6) consume; the matrix itself (:func:`hessian_derivative`) is
+    never needed. It is computed without assembling any Hessian, term by term
+    of the chain rule through the reduced-to-rod map ``z = φ(x)`` (rod
+    variables) and ``R p`` (edge rest lengths)::
+
+        dH·w = Jᵀ ∇³E[a, b] + Jᵀ ∇²E c + J'ᵀ ∇²E b
+               + Σ_o (∇²E a)_o ∇²φ_o w + Σ_o (∇E)_o ∇³φ_o[δx, w]
+
+    with ``a = J(δx, δp)``, ``b = J w``, ``c = ∇²φ[δx, w]`` and ``J' = ∇²φ[δx]``:
+
+    * every rod term comes from the stencil kernels at a few perturbed
+      stencil states, evaluated in one batch: the bending and twisting
+      stencils from six gradient evaluations (a mixed central difference in
+      ``a`` and ``b`` for ``∇³E[a, b]``, whose same four points give
+      ``∇²E a`` and ``∇²E b``, and two more for ``∇²E c``), the stretching
+      stencils from exact Hessians at the state and at ``±a``;
+    * the joint map's terms from central differences of its exact Jacobian
+      and of its weighted Hessian (small, well-scaled 9-variable kernels).
+
+    Nothing is differenced across the whole assembled linkage, so the large
+    internal forces of a deployed state do not cancel in a difference:
+    relative error about 1e-7 (see the tests), at about half the cost of one
+    Hessian (``benchmarks/linkage.py``).
+
+    Parameters
+    ----------
+    linkage : Linkage
+        Evaluated at its current state, which is left untouched.
+    dx : (num_vars,) array
+    dp : (num_segments,) array, optional
+    w : (num_vars,) or (num_vars + num_segments,) array
+        The second size with ``with_rest_lengths=True``.
+    with_rest_lengths : bool
+        Apply the derivative of the joint Hessian in ``(x, p)``.
+
+    Returns
+    -------
+    (num_vars,) or (num_vars + num_segments,) array
     """
-    return hessian_derivative(linkage, dx, dp, **kwargs) @ np.asarray(u, float)
+    L = linkage
+    nx, S = L.num_vars, L.num_segments
+    dx = np.asarray(dx, float)
+    if dx.shape != (nx,):
+        raise InputError(f"dx: expected {nx} values, got shape {dx.shape}")
+    if dp is not None:
+        dp = np.asarray(dp, float)
+        if dp.shape != (S,):
+            raise InputError(f"dp: expected {S} values, got shape {dp.shape}")
+    size = nx + (S if with_rest_lengths else 0)
+    w = np.asarray(w, float)
+    if w.shape != (size,):
+        raise InputError(f"w: expected {size} values, got shape {w.shape}")
+    wx, wp = w[:nx], (w[nx:] if with_rest_lengths else None)
+    rods = L.rods
+    if _rods_module._analytic is None or rods.num_stencils == 0:
+        return hessian_derivative(L, dx, dp, with_rest_lengths=with_rest_lengths) @ w
+    nv, ne = rods.num_vars, rods.num_edges
+    length = L.min_arc_length()
+    is_angle = np.zeros(nv + ne, bool)
+    is_angle[3 * rods.num_vertices : nv] = True
+
+    def step(z):  # relative step of a rod-space direction: angles in radians, lengths over the shortest segment
+        size_ = max(np.abs(z[is_angle]).max(initial=0.0), np.abs(z[~is_angle]).max(initial=0.0) / length)
+        return 0.0 if size_ == 0.0 else _PRODUCT_STEP / size_
+
+    _, jac = L._instance_jacobian()
+    prm_j = L._inst_prm
+    n_inst = jac.shape[2]
+    nj = L.num_joint_vars
+
+    def per_instance(v):  # joint variables of each instance, (9, N)
+        return np.ascontiguousarray(v[:nj].reshape(-1, 9)[L._inst_joint].T)
+
+    def to_rod(J, v, vp):  # (J v, R vp) in rod space (rod variables, then edge rest lengths)
+        z = np.zeros(nv + ne)
+        z[L._free_rod] = v[L._free_reduced]
+        z[L._inst_rows] = np.einsum("oin,in->on", J, per_instance(v))
+        if vp is not None:
+            z[nv:] = L.rest_length_map @ vp
+        return z
+
+    a = to_rod(jac, dx, dp)
+    b = to_rod(jac, wx, wp)
+    s, r = step(a), step(b)
+    if s == 0.0 or r == 0.0:
+        return np.zeros(size)
+
+    # joint map: Jacobian and weighted Hessian at x ± h δx (joint variables only)
+    di, wi = per_instance(dx), per_instance(wx)
+    dscale = max(np.abs(di[3:7]).max(initial=0.0), np.abs(np.r_[di[:3].ravel(), di[7:].ravel()]).max(initial=0.0) / length)
+    q0 = L._instance_q(L._x)
+    c = np.zeros(nv + ne)
+    dJ = None
+    if dscale > 0.0:
+        hj = _JOINT_STEP / dscale
+        qpm = np.concatenate([q0 + hj * di, q0 - hj * di], axis=1)
+        _, jpm = jk.outputs_and_jacobian(qpm, np.concatenate([prm_j, prm_j], axis=1))
+        dJ = (jpm[:, :, :n_inst] - jpm[:, :, n_inst:]) / (2.0 * hj)
+        c[L._inst_rows] = np.einsum("oin,in->on", dJ, wi)
+
+    # rod stencils at perturbed states, one batch: four points for a and b, and two for c, which is
+    # nonzero only next to the joints (the stencils it touches)
+    vi, ei = rods.vertex_index, rods.edge_index
+    Aq, Bq = a[vi], b[vi]
+    vq = rods._vertex_q()
+    rc = step(c)
+    points = [vq + s * Aq + r * Bq, vq + s * Aq - r * Bq, vq - s * Aq + r * Bq, vq - s * Aq - r * Bq]
+    prm_v = rods._vertex_params()
+    n_st = vq.shape[1]
+    if rc:
+        near = np.flatnonzero(c[vi].any(axis=0))
+        Cq = c[vi[:, near]]
+        points += [vq[:, near] + rc * Cq, vq[:, near] - rc * Cq]
+        prm_v = np.concatenate([np.tile(prm_v, (1, 4)), prm_v[:, near], prm_v[:, near]], axis=1)
+    else:
+        prm_v = np.tile(prm_v, (1, 4))
+    G = _rods_module._analytic.vertex_gradient(np.concatenate(points, axis=1), prm_v, rods.bending_energy)
+    G0 = G[:, : 4 * n_st].reshape(13, 4, n_st)
+    y1_v = (G0[:, 0] - G0[:, 1] - G0[:, 2] + G0[:, 3]) / (4.0 * s * r)
+    ba_v = (G0[:, 0] + G0[:, 1] - G0[:, 2] - G0[:, 3]) / (4.0 * s)
+    bb_v = (G0[:, 0] - G0[:, 1] + G0[:, 2] - G0[:, 3]) / (4.0 * r)
+    if rc:
+        m = len(near)
+        y1_v[:, near] += (G[:, 4 * n_st : 4 * n_st + m] - G[:, 4 * n_st + m :]) / (2.0 * rc)
+
+    y1_e, ba_e, bb_e = _stretch_terms(rods._edge_q(), rods.ks, a[ei], b[ei], c[ei])
+
+    asm = _vector_assembler(L, nv + ne)
+    y1, Ba, Bb = asm.assemble_many([[y1_v, y1_e], [ba_v, ba_e], [bb_v, bb_e]])
+
+    # back to the reduced variables
+    out = np.zeros(size)
+    out[L._free_reduced] = y1[L._free_rod]
+    rows = L._inst_rows
+    joint = np.einsum("oin,on->in", jac, y1[rows])
+    g = L._rod_gradient()[rows]
+    if dJ is not None:
+        joint += np.einsum("oin,on->in", dJ, Bb[rows])
+        # Σ g·∇³φ[δx] (a difference of weighted Hessians at x ± h δx) plus Σ (∇²E a)·∇²φ at x, which
+        # the mean of the two points gives to O(h²): the weighted Hessian is linear in its weights
+        wpm = np.concatenate([g / (2.0 * hj) + 0.5 * Ba[rows], -g / (2.0 * hj) + 0.5 * Ba[rows]], axis=1)
+        wh = jk.weighted_hessian(qpm, np.concatenate([prm_j, prm_j], axis=1), wpm)
+        d3 = wh[:, :, :n_inst] + wh[:, :, n_inst:]
+    else:
+        d3 = jk.weighted_hessian(q0, prm_j, Ba[rows])
+    joint += np.einsum("ijn,jn->in", d3, wi)
+    out[:nj] = np.bincount(((9 * L._inst_joint)[None, :] + np.arange(9)[:, None]).ravel(), weights=joint.ravel(),
+                           minlength=nj)
+    if with_rest_lengths:
+        out[nx:] = L.rest_length_map.T @ y1[nv:]
+    return out
+
+
+def _stretch_terms(q, ks, A, B, C):
+    """Per edge stencil: ``∇³E[A, B] + ∇²E C``, ``∇²E A`` and ``∇²E B`` (each (7, N)).
+
+    The stretching energy ``E = ks/(2L) (|e| − L)²`` of an edge ``e = x1 − x0``
+    with rest length ``L``, differentiated by hand in ``(e, L)``: with
+    ``n = |e|``, ``t = e/n``, its Hessian applied to ``v = (v_e, v_L)`` is::
+
+        (∇²E v)_e = ks [ (t·v_e) t / n + (1/L − 1/n) v_e − n v_L t / L² ]
+        (∇²E v)_L = ks [ −n (t·v_e) / L² + n² v_L / L³ ]
+
+    and ``∇³E[A, B]`` is its derivative along ``A`` with ``v = B`` fixed,
+    using ``δn = t·A_e`` and ``δt = (A_e − (t·A_e) t)/n``. Checked against
+    central differences of the stretch kernel's Hessian in the tests.
+    """
+    e = q[3:6] - q[0:3]
+    n = np.sqrt(np.einsum("in,in->n", e, e))
+    t = e / n
+    L = q[6]
+
+    def apply(v):
+        ve = v[3:6] - v[0:3]
+        tv = np.einsum("in,in->n", t, ve)
+        he = ks * ((tv / n) * t + (1.0 / L - 1.0 / n) * ve - (n * v[6] / L**2) * t)
+        hL = ks * (-n * tv / L**2 + n**2 * v[6] / L**3)
+        return ve, tv, he, hL
+
+    def to_nodes(he, hL):
+        out = np.empty((7, he.shape[1]))
+        np.negative(he, out=out[0:3])
+        out[3:6] = he
+        out[6] = hL
+        return out
+
+    ae, ta, he_a, hL_a = apply(A)
+    be, tb, he_b, hL_b = apply(B)
+    _, _, he_c, hL_c = apply(C)
+    aL, bL = A[6], B[6]
+    dt_b = (np.einsum("in,in->n", ae, be) - ta * tb) / n  # δt·B_e
+    dt = (ae - ta * t) / n  # δt, (3, N)
+    d_he = ks * ((-ta * tb / n**2 + dt_b / n) * t + (tb / n) * dt + (-aL / L**2 + ta / n**2) * be
+                 - bL * ((ta / L**2 - 2.0 * n * aL / L**3) * t + (n / L**2) * dt))
+    d_hL = ks * (-(ta * tb / L**2 + n * dt_b / L**2 - 2.0 * n * tb * aL / L**3)
+                 + bL * (2.0 * n * ta / L**3 - 3.0 * n**2 * aL / L**4))
+    return to_nodes(d_he + he_c, d_hL + hL_c), to_nodes(he_a, hL_a), to_nodes(he_b, hL_b)
+
+
+def _vector_assembler(L, size):
+    cache = L.__dict__.setdefault("_vector_assemblers", {})
+    asm = cache.get(size)
+    if asm is None:
+        asm = cache[size] = VectorAssembler([L.rods.vertex_index, L.rods.edge_index], size)
+    return asm
 
 
 def third_derivative_product(linkage, dx, u) -> np.ndarray:
-    """``dH[δx] · u = ∂³E[δx, u, ·]`` in the state variables, from four gradients.
+    """``dH[δx] · u = ∂³E[δx, u, ·]`` in the state variables (rest lengths fixed).
 
-    The mixed central difference ``∂²/∂s∂r ∇E(x + s δx + r u)`` costs four
-    gradients (about one Hessian, see ``benchmarks/linkage.py``) instead of
-    the two Hessians of :func:`hessian_derivative`; steps of about ``2e-4`` of
-    the variables' scales balance truncation against the round-off of the
-    stretching gradients: relative error 4e-5 (banana, k = 4) to 6e-5 (manta
-    ray, k = 10), measured in perturbed 3D states, enough for Newton-CG Hessian-vector products.
+    :func:`hessian_derivative_product` with ``δp = 0``.
     """
-    dx = np.asarray(dx, float)
-    u = np.asarray(u, float)
-    hs = _step(linkage, dx, None, "central") * 20.0
-    hr = _step(linkage, u, None, "central") * 20.0
-    if hs == 0.0 or hr == 0.0:
-        return np.zeros(linkage.num_vars)
-    x0 = linkage.get_vars()
-    out = np.zeros(linkage.num_vars)
-    saved = linkage.move_checkpoint()
-    try:
-        for s, r, sign in ((1, 1, 1.0), (1, -1, -1.0), (-1, 1, -1.0), (-1, -1, 1.0)):
-            linkage.set_vars(x0 + s * hs * dx + r * hr * u)
-            out += sign * linkage.gradient()
-    finally:
-        linkage.move_rollback(saved)
-    return out / (4.0 * hs * hr)
+    return hessian_derivative_product(linkage, dx, None, u)
