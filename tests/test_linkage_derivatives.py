@@ -60,8 +60,11 @@ def test_matches_mixed_gradient_differences(make, with_p, at_source):
     # the matrix-free product (a second, independent method) and the forward scheme agree
     got = hessian_derivative_product(L, dx, dp, u, with_rest_lengths=with_p)
     assert np.array_equal(L.get_vars(), x0)
-    assert np.linalg.norm(got - ref) / np.linalg.norm(ref) < 3e-6  # measured 3e-8 to 8e-7
-    assert np.linalg.norm(got - richardson) / np.linalg.norm(ref) < 3e-6
+    # measured 5e-8 to 2e-5: these states are strongly twisted (material angles perturbed by up to
+    # about 1 rad per edge), where the differences' truncation error is large; 2e-8 to 5e-7 at
+    # equilibria (test_product_at_a_deployed_equilibrium, test_design_objective)
+    assert np.linalg.norm(got - ref) / np.linalg.norm(ref) < 5e-5
+    assert np.linalg.norm(got - richardson) / np.linalg.norm(ref) < 5e-5
     fwd = hessian_derivative(L, dx, dp, with_rest_lengths=with_p, scheme="forward") @ u
     assert np.linalg.norm(fwd - ref) / np.linalg.norm(ref) < 1e-5
 
@@ -111,7 +114,7 @@ def test_third_derivative_product_agrees_with_the_hessian_derivative():
     ref = hessian_derivative(L, dx) @ u
     got = third_derivative_product(L, dx, u)
     assert np.array_equal(L.get_vars(), x0)
-    assert np.linalg.norm(got - ref) / np.linalg.norm(ref) < 3e-6
+    assert np.linalg.norm(got - ref) / np.linalg.norm(ref) < 1e-5
     assert not third_derivative_product(L, np.zeros(L.num_vars), u).any()
     assert not third_derivative_product(L, dx, np.zeros(L.num_vars)).any()
 
@@ -133,6 +136,24 @@ def test_product_is_linear_in_the_vector_and_direction():
     ab = f(d1, p1, w1)
     ba = f(w1[: L.num_vars], w1[L.num_vars:], a)
     assert np.linalg.norm(ab - ba) < 3e-6 * np.linalg.norm(ab)
+
+
+def test_product_converges_at_second_order_in_its_step(monkeypatch):
+    """The product's only approximation is the differences' step: halving it quarters the error
+    (the most twisted state of the tests, where truncation dominates)."""
+    import xshells.linkage.derivatives as D
+
+    L = perturbed(banana(k=4), seed=3)
+    rng = np.random.default_rng(1)
+    dx, dp = scaled_direction(L, rng, True)
+    u = np.concatenate(scaled_direction(L, rng, True))
+    ref = hessian_derivative(L, dx, dp, with_rest_lengths=True) @ u
+    errs = []
+    for step in (2e-4, 1e-4, 5e-5):
+        monkeypatch.setattr(D, "_PRODUCT_STEP", step)
+        got = hessian_derivative_product(L, dx, dp, u, with_rest_lengths=True)
+        errs.append(np.linalg.norm(got - ref) / np.linalg.norm(ref))
+    assert errs[0] / errs[1] > 3.5 and errs[1] / errs[2] > 3.5, errs
 
 
 def test_product_bad_input():

@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.sparse as sp
 
-from ..linkage.derivatives import hessian_derivative
+from ..linkage.derivatives import hessian_derivative_product
 from ..solve import NewtonOptions, NotPositiveDefinite, SparseCholesky, minimize
 
 
@@ -139,14 +139,13 @@ class ConstrainedEquilibrium:
         """``∂E/∂p`` at the state (equal to ``dE(x*(p), p)/dp``: the angle is held)."""
         return self.L.gradient(with_rest_lengths=True)[self.nx:]
 
-    def hessian_derivative(self, dx, dp) -> sp.csr_matrix:
-        """Directional derivative of the (x, p) Hessian along ``(δx, δp)``."""
-        return hessian_derivative(self.L, dx, dp, with_rest_lengths=True)
+    def hessian_derivative_product(self, dx, dp, v) -> np.ndarray:
+        """Directional derivative of the (x, p) Hessian along ``(δx, δp)``, applied to ``v`` (nx + S,)."""
+        return hessian_derivative_product(self.L, dx, dp, v, with_rest_lengths=True)
 
-    def second_order_change(self, dx, dp, D=None) -> np.ndarray:
+    def second_order_change(self, dx, dp) -> np.ndarray:
         """``δpᵀ ∂²x*/∂p² δp`` (Appendix A), given ``δx`` for ``δp``."""
-        D = self.hessian_derivative(dx, dp) if D is None else D
-        z = D @ np.concatenate([dx, dp])
+        z = self.hessian_derivative_product(dx, dp, np.concatenate([dx, dp]))
         return self.kkt_solve(-z[: self.nx])
 
     def predict(self, dp) -> np.ndarray:

@@ -256,8 +256,7 @@ class DesignProblem:
         k = ("dx", key, dp.tobytes())
         if k not in self._cache:
             self._cache = {kk: v for kk, v in self._cache.items() if kk[0] != "dx" or kk[1] != key}
-            dx = eq.state_derivative(dp)
-            self._cache[k] = (dx, eq.hessian_derivative(dx, dp))
+            self._cache[k] = eq.state_derivative(dp)
         return self._cache[k]
 
     def _state_gradient_p(self, eq, term, name):
@@ -267,9 +266,9 @@ class DesignProblem:
 
     def _state_hessp_p(self, eq, term, name, dp, key):
         w = self._adjoint(name, eq, term)
-        dx, D = self._sensitivity(eq, dp, key)
+        dx = self._sensitivity(eq, dp, key)
         nx = eq.nx
-        Dw = D @ np.concatenate([w, np.zeros(len(dp))])
+        Dw = eq.hessian_derivative_product(dx, dp, np.concatenate([w, np.zeros(len(dp))]))
         dw = eq.kkt_solve(term.hessian_vector(dx) - Dw[:nx])
         return -(eq.Hpx @ dw + Dw[nx:])
 
@@ -305,7 +304,7 @@ class DesignProblem:
         if w.gamma:
             dx2 = self._flat_dx(dp)
             out += w.gamma / self.E0 * self._energy_hessp_p(self.flat, dx2, dp)
-        dx3, _ = self._sensitivity(self.deployed, dp, "3d")
+        dx3 = self._sensitivity(self.deployed, dp, "3d")
         out += (1 - w.gamma) / self.E0 * self._energy_hessp_p(self.deployed, dx3, dp)
         if w.beta:
             out += 0.5 * w.beta / self.l0**2 * self._state_hessp_p(self.deployed, self._fit_term(), "fit", dp, "3d")

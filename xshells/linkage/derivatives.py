@@ -9,8 +9,8 @@ and mostly only its product with one vector. The product
 (:func:`hessian_derivative_product`, what the reference implementation calls
 the directional derivative of ``applyHessian``) is computed without
 assembling a Hessian, term by term of the chain rule with the stencil kernels
-(relative error about 1e-7 to 1e-6, about 0.7–0.85 of one Hessian's time,
-``benchmarks/linkage.py``). The matrix itself is computed from the *exact*
+(relative error 2e-8 to 6e-7 at equilibria, 0.73–0.75 of one Hessian's
+time, ``benchmarks/linkage.py``). The matrix itself is computed from the *exact*
 Hessian by differencing along the direction:
 
 * ``scheme="central"`` (default): ``(H(+h) − H(−h)) / 2h``, two Hessians,
@@ -48,7 +48,7 @@ from ..sparse import VectorAssembler
 from . import joint_kernels as jk
 
 _RELATIVE_STEP = {"central": 1e-5, "forward": 1e-7}
-_PRODUCT_STEP = 2e-5  # mixed second differences of the stencil gradients
+_PRODUCT_STEP = 5e-5  # relative step of the mixed differences of the stencil gradients (per stencil)
 _JOINT_STEP = 1e-5  # central differences of the joint map's derivatives
 
 
@@ -173,10 +173,14 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
     * the joint map's terms from central differences of its exact Jacobian
       and of its weighted Hessian (small, well-scaled 9-variable kernels).
 
-    Nothing is differenced across the whole assembled linkage, so the large
-    internal forces of a deployed state do not cancel in a difference:
-    relative error about 1e-7 (see the tests), at about half the cost of one
-    Hessian (``benchmarks/linkage.py``).
+    Nothing is differenced across the whole assembled linkage, and each
+    stencil takes its own step (``_PRODUCT_STEP`` relative to its own
+    perturbation and edge length), so the large internal forces of a deployed
+    state do not swamp the small stencils. Relative error 2e-8 (manta ray
+    deployed) to 6e-7 (wiggly banana at 80°, the design optimization's
+    vectors); up to 2e-5 in the tests' strongly twisted random states, where
+    the differences' truncation dominates. Cost: 0.73–0.75 of one Hessian
+    (``benchmarks/linkage.py``).
 
     Parameters
     ----------
@@ -259,25 +263,29 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
     vi, ei = rods.vertex_index, rods.edge_index
     Aq, Bq = a[vi], b[vi]
     vq = rods._vertex_q()
-    rc = step(c)
-    points = [vq + s * Aq + r * Bq, vq + s * Aq - r * Bq, vq - s * Aq + r * Bq, vq - s * Aq - r * Bq]
+    # a step per stencil, relative to its own perturbation and edge lengths: every stencil's
+    # difference then balances its own truncation and round-off errors
+    s_k, r_k = _stencil_steps(vq, Aq), _stencil_steps(vq, Bq)
+    sA, rB = s_k * Aq, r_k * Bq
+    points = [vq + sA + rB, vq + sA - rB, vq - sA + rB, vq - sA - rB]
     prm_v = rods._vertex_params()
     n_st = vq.shape[1]
-    if rc:
-        near = np.flatnonzero(c[vi].any(axis=0))
+    near = np.flatnonzero(c[vi].any(axis=0))
+    if len(near):
         Cq = c[vi[:, near]]
-        points += [vq[:, near] + rc * Cq, vq[:, near] - rc * Cq]
+        c_k = _stencil_steps(vq[:, near], Cq)
+        points += [vq[:, near] + c_k * Cq, vq[:, near] - c_k * Cq]
         prm_v = np.concatenate([np.tile(prm_v, (1, 4)), prm_v[:, near], prm_v[:, near]], axis=1)
     else:
         prm_v = np.tile(prm_v, (1, 4))
     G = _rods_module._analytic.vertex_gradient(np.concatenate(points, axis=1), prm_v, rods.bending_energy)
     G0 = G[:, : 4 * n_st].reshape(13, 4, n_st)
-    y1_v = (G0[:, 0] - G0[:, 1] - G0[:, 2] + G0[:, 3]) / (4.0 * s * r)
-    ba_v = (G0[:, 0] + G0[:, 1] - G0[:, 2] - G0[:, 3]) / (4.0 * s)
-    bb_v = (G0[:, 0] - G0[:, 1] + G0[:, 2] - G0[:, 3]) / (4.0 * r)
-    if rc:
+    y1_v = (G0[:, 0] - G0[:, 1] - G0[:, 2] + G0[:, 3]) / (4.0 * s_k * r_k)
+    ba_v = (G0[:, 0] + G0[:, 1] - G0[:, 2] - G0[:, 3]) / (4.0 * s_k)
+    bb_v = (G0[:, 0] - G0[:, 1] + G0[:, 2] - G0[:, 3]) / (4.0 * r_k)
+    if len(near):
         m = len(near)
-        y1_v[:, near] += (G[:, 4 * n_st : 4 * n_st + m] - G[:, 4 * n_st + m :]) / (2.0 * rc)
+        y1_v[:, near] += (G[:, 4 * n_st : 4 * n_st + m] - G[:, 4 * n_st + m :]) / (2.0 * c_k)
 
     y1_e, ba_e, bb_e = _stretch_terms(rods._edge_q(), rods.ks, a[ei], b[ei], c[ei])
 
@@ -305,6 +313,15 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
     if with_rest_lengths:
         out[nx:] = L.rest_length_map.T @ y1[nv:]
     return out
+
+
+def _stencil_steps(q, A):
+    """Step of each vertex stencil along its direction ``A`` (13, N): ``_PRODUCT_STEP`` over the
+    largest of its angle changes and its position and rest-length changes over its shorter edge; 1
+    where ``A`` is zero (its differences are exactly zero then)."""
+    ell = np.minimum(np.abs(q[11]), np.abs(q[12]))
+    size_ = np.maximum(np.abs(A[9:11]).max(axis=0), np.maximum(np.abs(A[0:9]).max(axis=0), np.abs(A[11:13]).max(axis=0)) / ell)
+    return np.where(size_ > 0.0, _PRODUCT_STEP / np.where(size_ > 0.0, size_, 1.0), 1.0)
 
 
 def _stretch_terms(q, ks, A, B, C):
