@@ -156,6 +156,19 @@ def test_product_converges_at_second_order_in_its_step(monkeypatch):
     assert errs[0] / errs[1] > 3.5 and errs[1] / errs[2] > 3.5, errs
 
 
+def test_product_at_a_new_state_equals_the_product_after_a_gradient():
+    """At a state not evaluated yet the rods' gradient comes from the product's own points."""
+    L = perturbed(nonuniform(k=4), seed=8)
+    rng = np.random.default_rng(6)
+    dx, dp = scaled_direction(L, rng, True)
+    u = np.concatenate(scaled_direction(L, rng, True))
+    L.set_vars(L.get_vars() + 1e-3 * dx)  # nothing cached here
+    fresh = hessian_derivative_product(L, dx, dp, u, with_rest_lengths=True)
+    L.gradient()
+    cached = hessian_derivative_product(L, dx, dp, u, with_rest_lengths=True)
+    assert np.linalg.norm(fresh - cached) < 1e-8 * np.linalg.norm(cached)
+
+
 def test_product_bad_input():
     L = nonuniform(k=3)
     n = L.num_vars

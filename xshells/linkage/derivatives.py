@@ -9,7 +9,7 @@ and mostly only its product with one vector. The product
 (:func:`hessian_derivative_product`, what the reference implementation calls
 the directional derivative of ``applyHessian``) is computed without
 assembling a Hessian, term by term of the chain rule with the stencil kernels
-(relative error 2e-8 to 6e-7 at equilibria, 0.73–0.75 of one Hessian's
+(relative error 2e-8 to 6e-7 at equilibria, 0.72–0.81 of one Hessian's
 time, ``benchmarks/linkage.py``). The matrix itself is computed from the *exact*
 Hessian by differencing along the direction:
 
@@ -179,7 +179,7 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
     state do not swamp the small stencils. Relative error 2e-8 (manta ray
     deployed) to 6e-7 (wiggly banana at 80°, the design optimization's
     vectors); up to 2e-5 in the tests' strongly twisted random states, where
-    the differences' truncation dominates. Cost: 0.73–0.75 of one Hessian
+    the differences' truncation dominates. Cost: 0.72–0.81 of one Hessian
     (``benchmarks/linkage.py``).
 
     Parameters
@@ -290,14 +290,19 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
     y1_e, ba_e, bb_e = _stretch_terms(rods._edge_q(), rods.ks, a[ei], b[ei], c[ei])
 
     asm = _vector_assembler(L, nv + ne)
-    y1, Ba, Bb = asm.assemble_many([[y1_v, y1_e], [ba_v, ba_e], [bb_v, bb_e]])
+    if ("rod_grad", False) in L._cached():
+        y1, Ba, Bb = asm.assemble_many([[y1_v, y1_e], [ba_v, ba_e], [bb_v, bb_e]])
+        g_rod = L._rod_gradient()
+    else:  # a state not evaluated yet: the rods' gradient from the same points (their mean, to O(step²))
+        _, ge, _ = _rods_module.stretch_kernel(rods._edge_q(), rods.ks, hessian=False)
+        y1, Ba, Bb, g_rod = asm.assemble_many([[y1_v, y1_e], [ba_v, ba_e], [bb_v, bb_e], [G0.mean(axis=1), ge]])
 
     # back to the reduced variables
     out = np.zeros(size)
     out[L._free_reduced] = y1[L._free_rod]
     rows = L._inst_rows
     joint = np.einsum("oin,on->in", jac, y1[rows])
-    g = L._rod_gradient()[rows]
+    g = g_rod[rows]
     if dJ is not None:
         joint += np.einsum("oin,on->in", dJ, Bb[rows])
         # Σ g·∇³φ[δx] (a difference of weighted Hessians at x ± h δx) plus Σ (∇²E a)·∇²φ at x, which
