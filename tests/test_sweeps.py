@@ -1,6 +1,7 @@
 """Design-space sweeps: Dask cluster vs serial, failures recorded, resume, spec errors."""
 import csv
 import json
+import math
 import os
 
 import numpy as np
@@ -269,3 +270,7 @@ def test_dispatch_size_ranks_larger_designs_first(tmp_path):
     sizes = [estimated_size(t.params) for t in spec.tasks]
     assert sizes[0] > 0 and sizes[1] == 2 * sizes[0] and sizes[2] == 4 * sizes[0]
     assert estimated_size({"file": str(tmp_path / "missing.obj")}) == 0  # the task itself reports the file
+    # within a design, a wider deployment ranks first
+    base = {"file": str(tmp_path / "grid.obj"), "subdivision": 4, "steps": 5}
+    assert estimated_size({**base, "angle_deg": 75}) == 1.25 * estimated_size({**base, "angle_deg": 60})
+    assert estimated_size({**base, "angle_rad": math.pi / 2}) == pytest.approx(estimated_size({**base, "angle_deg": 90}))

@@ -14,7 +14,7 @@ decided one task at a time, as workers free up:
    has finished, the time its running tasks have taken so far (a lower
    bound, preferred on a tie: it may well be dearer).
 
-``size`` is the task's rod edges × angle steps (:func:`estimated_size`), so
+``size`` is the task's rod edges × angle steps × angle (:func:`estimated_size`), so
 a sweep over subdivision or steps of one design is ordered too.
 """
 from __future__ import annotations
