@@ -132,7 +132,6 @@ def test_product_is_linear_in_the_vector_and_direction():
     assert np.linalg.norm(f(2 * d1 - d2, 2 * p1 - p2, w1) - (2 * f(d1, p1, w1) - f(d2, p2, w1))) < 1e-5 * ref
     # symmetry of the third derivative: dH[a]·b = dH[b]·a
     a = np.concatenate([d1, p1])
-    assert np.linalg.norm(f(d1, p1, w1) @ np.zeros_like(w1) - 0.0) == 0.0
     ab = f(d1, p1, w1)
     ba = f(w1[: L.num_vars], w1[L.num_vars:], a)
     assert np.linalg.norm(ab - ba) < 3e-6 * np.linalg.norm(ab)

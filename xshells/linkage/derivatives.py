@@ -150,7 +150,7 @@ def _difference(A, B, scale) -> sp.csr_matrix:
     return ((A - B) * scale).tocsr()
 
 
-def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_lengths: bool = False) -> np.ndarray:
+def hessian_derivative_product(linkage, dx, dp, w, *, with_rest_lengths: bool = False) -> np.ndarray:
     """``dH[δx, δp] · w``: the Hessian's directional derivative applied to a vector.
 
     This is what the design optimization (Appendix B) and the sparse
@@ -164,12 +164,14 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
 
     with ``a = J(δx, δp)``, ``b = J w``, ``c = ∇²φ[δx, w]`` and ``J' = ∇²φ[δx]``:
 
-    * every rod term comes from the stencil kernels at a few perturbed
-      stencil states, evaluated in one batch: the bending and twisting
-      stencils from six gradient evaluations (a mixed central difference in
-      ``a`` and ``b`` for ``∇³E[a, b]``, whose same four points give
-      ``∇²E a`` and ``∇²E b``, and two more for ``∇²E c``), the stretching
-      stencils from exact Hessians at the state and at ``±a``;
+    * the bending and twisting stencils from their analytic gradients at a
+      few perturbed stencil states, evaluated in one batch: a mixed central
+      difference in ``a`` and ``b`` for ``∇³E[a, b]`` (four points, which
+      also give ``∇²E a`` and ``∇²E b``, and the gradient itself at a state
+      not evaluated yet), and two more points for ``∇²E c`` on the stencils
+      next to a joint, the only ones ``c`` touches;
+    * the stretching stencils exactly, from their third derivative by hand
+      (:func:`_stretch_terms`);
     * the joint map's terms from central differences of its exact Jacobian
       and of its weighted Hessian (small, well-scaled 9-variable kernels).
 
@@ -187,7 +189,7 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
     linkage : Linkage
         Evaluated at its current state, which is left untouched.
     dx : (num_vars,) array
-    dp : (num_segments,) array, optional
+    dp : (num_segments,) array or None
     w : (num_vars,) or (num_vars + num_segments,) array
         The second size with ``with_rest_lengths=True``.
     with_rest_lengths : bool
@@ -216,13 +218,6 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
         return hessian_derivative(L, dx, dp, with_rest_lengths=with_rest_lengths) @ w
     nv, ne = rods.num_vars, rods.num_edges
     length = L.min_arc_length()
-    is_angle = np.zeros(nv + ne, bool)
-    is_angle[3 * rods.num_vertices : nv] = True
-
-    def step(z):  # relative step of a rod-space direction: angles in radians, lengths over the shortest segment
-        size_ = max(np.abs(z[is_angle]).max(initial=0.0), np.abs(z[~is_angle]).max(initial=0.0) / length)
-        return 0.0 if size_ == 0.0 else _PRODUCT_STEP / size_
-
     _, jac = L._instance_jacobian()
     prm_j = L._inst_prm
     n_inst = jac.shape[2]
@@ -241,8 +236,7 @@ def hessian_derivative_product(linkage, dx, dp=None, w=None, *, with_rest_length
 
     a = to_rod(jac, dx, dp)
     b = to_rod(jac, wx, wp)
-    s, r = step(a), step(b)
-    if s == 0.0 or r == 0.0:
+    if not a.any() or not b.any():
         return np.zeros(size)
 
     # joint map: Jacobian and weighted Hessian at x ± h δx (joint variables only)
