@@ -85,18 +85,21 @@ def main(argv=None):
 
         H0 = L.hessian()
         dhf = median_ms(forward, args.repeats) - t_move
-        # the ratio that the target is about, from interleaved pairs (a Hessian after a move,
-        # then a forward dH from there): separate medians drift with the machine's load by ±10 %
-        ratios = []
-        for _ in range(max(args.repeats, 20)):
-            move()
-            t = time.perf_counter()
-            H0 = L.hessian()
-            t_h = time.perf_counter() - t
-            t = time.perf_counter()
-            hessian_derivative(L, d, scheme="forward", hessian=H0)
-            ratios.append((time.perf_counter() - t) / t_h)
-        ratio = float(np.median(ratios))
+        # the ratios that the target is about, from interleaved pairs (a Hessian after a move,
+        # then the derivative from there): separate medians drift with the machine's load by ±10 %
+        def ratio_to_hessian(derivative):
+            ratios = []
+            for _ in range(max(args.repeats, 20)):
+                move()
+                t = time.perf_counter()
+                H = L.hessian()
+                t_h = time.perf_counter() - t
+                t = time.perf_counter()
+                derivative(H)
+                ratios.append((time.perf_counter() - t) / t_h)
+            return float(np.median(ratios))
+
+        ratio = ratio_to_hessian(lambda H: hessian_derivative(L, d, scheme="forward", hessian=H))
         w = rng.standard_normal(L.num_vars) * 1e-2
         dp = rng.standard_normal(L.num_segments) * 1e-2
         wp = np.concatenate([w, rng.standard_normal(L.num_segments) * 1e-2])
@@ -104,16 +107,7 @@ def main(argv=None):
         dhu = median_ms(lambda: (move(), hessian_derivative_product(L, d, None, w)), args.repeats) - t_move
         dhp = median_ms(lambda: (move(), hessian_derivative_product(L, d, dp, wp, with_rest_lengths=True)),
                         args.repeats) - t_move
-        ratios_u = []
-        for _ in range(max(args.repeats, 20)):
-            move()
-            t = time.perf_counter()
-            L.hessian()
-            t_h = time.perf_counter() - t
-            t = time.perf_counter()
-            hessian_derivative_product(L, d, None, w)
-            ratios_u.append((time.perf_counter() - t) / t_h)
-        ratio_u = float(np.median(ratios_u))
+        ratio_u = ratio_to_hessian(lambda H: hessian_derivative_product(L, d, None, w))
         L.set_vars(x0 + 1e-9 * rng.standard_normal(L.num_vars))  # a state never seen: nothing cached
         tracemalloc.start()
         L.hessian()

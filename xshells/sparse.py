@@ -80,6 +80,7 @@ class VectorAssembler:
         self.size = int(size)
         self._take = np.flatnonzero((idx >= 0) & (idx < size))
         self._index = idx[self._take]
+        self._index_many = {}  # count of vectors -> their stacked indices (assemble_many)
 
     def assemble(self, values: Sequence[np.ndarray]) -> np.ndarray:
         """Global vector (size,) from per-stencil values (each (k_i, N_i))."""
@@ -89,11 +90,11 @@ class VectorAssembler:
     def assemble_many(self, value_sets: Sequence[Sequence[np.ndarray]]) -> np.ndarray:
         """Several global vectors at once, ``(len(value_sets), size)``: one pass instead of one per vector."""
         m = len(value_sets)
-        if not hasattr(self, "_index_many") or self._index_many[0] != m:
-            self._index_many = (m, (self._index[None, :] + self.size * np.arange(m)[:, None]).ravel())
+        if m not in self._index_many:
+            self._index_many[m] = (self._index[None, :] + self.size * np.arange(m)[:, None]).ravel()
         flat = np.concatenate([np.concatenate([np.ascontiguousarray(v).ravel() for v in values])[self._take]
                                for values in value_sets])
-        return np.bincount(self._index_many[1], weights=flat, minlength=m * self.size).reshape(m, self.size)
+        return np.bincount(self._index_many[m], weights=flat, minlength=m * self.size).reshape(m, self.size)
 
 
 def _canonical(A: sp.spmatrix) -> sp.csr_matrix:

@@ -44,7 +44,6 @@ import scipy.sparse as sp
 
 from ..errors import InputError
 from ..rod import rods as _rods_module
-from ..sparse import VectorAssembler
 from . import joint_kernels as jk
 
 _RELATIVE_STEP = {"central": 1e-5, "forward": 1e-7}
@@ -283,7 +282,7 @@ def hessian_derivative_product(linkage, dx, dp, w, *, with_rest_lengths: bool = 
 
     y1_e, ba_e, bb_e = _stretch_terms(rods._edge_q(), rods.ks, a[ei], b[ei], c[ei])
 
-    asm = _vector_assembler(L, nv + ne)
+    asm = L._vector_assembler(nv + ne)
     if ("rod_grad", False) in L._cached():
         y1, Ba, Bb = asm.assemble_many([[y1_v, y1_e], [ba_v, ba_e], [bb_v, bb_e]])
         g_rod = L._rod_gradient()
@@ -367,14 +366,6 @@ def _stretch_terms(q, ks, A, B, C):
     d_hL = ks * (-(ta * tb / L**2 + n * dt_b / L**2 - 2.0 * n * tb * aL / L**3)
                  + bL * (2.0 * n * ta / L**3 - 3.0 * n**2 * aL / L**4))
     return to_nodes(d_he + he_c, d_hL + hL_c), to_nodes(he_a, hL_a), to_nodes(he_b, hL_b)
-
-
-def _vector_assembler(L, size):
-    cache = L.__dict__.setdefault("_vector_assemblers", {})
-    asm = cache.get(size)
-    if asm is None:
-        asm = cache[size] = VectorAssembler([L.rods.vertex_index, L.rods.edge_index], size)
-    return asm
 
 
 def third_derivative_product(linkage, dx, u) -> np.ndarray:

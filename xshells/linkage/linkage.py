@@ -403,12 +403,16 @@ class Linkage:
                 c[key] = self.rods.gradient(with_rest_lengths)
             else:
                 size = self.rods.num_vars + (self.rods.num_edges if with_rest_lengths else 0)
-                asm = self._vector_assemblers.get(size) if hasattr(self, "_vector_assemblers") else None
-                if asm is None:
-                    self._vector_assemblers = getattr(self, "_vector_assemblers", {})
-                    asm = self._vector_assemblers[size] = VectorAssembler([self.rods.vertex_index, self.rods.edge_index], size)
-                c[key] = asm.assemble([t["gv"], t["ge"]])
+                c[key] = self._vector_assembler(size).assemble([t["gv"], t["ge"]])
         return c[key]
+
+    def _vector_assembler(self, size: int) -> VectorAssembler:
+        """Sums per-stencil rod vectors (vertex (13, S), edge (7, E)) into rod space of ``size``
+        (rod variables, then the edges' rest lengths if ``size`` includes them); built once per size."""
+        cache = self.__dict__.setdefault("_vector_assemblers", {})
+        if size not in cache:
+            cache[size] = VectorAssembler([self.rods.vertex_index, self.rods.edge_index], size)
+        return cache[size]
 
     def energy_parts(self):
         t = self._rod_terms()
