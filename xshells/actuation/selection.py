@@ -1,0 +1,419 @@
+"""Choosing the actuators: backward elimination from dense actuation, with a Gauss–Newton re-fit after each cut.
+
+Eq. 8 of the paper (:mod:`.sparsify`) trades the fit against an ℓp penalty
+whose weight ``η`` means something different on every design: on large
+designs the fit's curvature in the thousands of torques is so uneven that
+the trust region makes no progress, and no ``η`` gives few actuators. This
+module answers the designer's question directly:
+
+* ``max_fit``: the fewest actuators whose equilibrium stays within a mean
+  joint deviation ``F`` (relative to the span ``l₀``) of the dense
+  deployment;
+* ``actuators``: the best ``N`` actuators.
+
+Method (all quantities dimensionless; torques as ``t = τ/τ_ref``):
+
+1. Start from dense actuation (``t = 1`` everywhere, fit exact).
+2. At the current equilibrium, the linear response of the joint positions
+   to the active torques is ``J = S_P H⁻¹ S_αᵀ τ_ref`` (one back-solve per
+   active joint with the equilibrium's Cholesky factor).
+3. **Cut.** In the linearized least-squares problem
+   ``min |r + J δ|²`` the cost of dropping actuator ``i`` and re-fitting
+   the others is ``xᵢ² / (G⁻¹)ᵢᵢ`` (``G = JᵀJ``, ``x`` the LS torques):
+   the cheapest ones are removed one at a time, with rank-one downdates of
+   ``G⁻¹``; a round removes a fraction of the active set while the fit is
+   far below the limit, one actuator near it.
+4. **Re-fit.** The remaining torques are re-fitted on the nonlinear model
+   by bound-constrained Levenberg–Marquardt (``0 ≤ t ≤ t_max``), each step
+   a small dense bounded least-squares problem, each trial a full
+   equilibrium solve. A fold residual ``√2 · e`` on each joint angle's
+   excess ``e`` beyond the window of :mod:`.sparsify` keeps joints from
+   opening through themselves.
+5. A cut whose re-fit misses the limit, folds a joint or loses the
+   equilibrium is undone; it is retried with a smaller batch, then with
+   the next few candidates, and the elimination ends when none passes.
+
+Every accepted cut is one point of the trade-off curve (actuator count
+against deviation, paper Fig. 9), so the curve comes out of the same run.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from ..deploy.simulate import folded_joint
+from ..errors import InputError
+from ..linkage.state import restore, snapshot
+from .sparsify import TorqueFit
+
+FOLD_LS_WEIGHT = 1.0
+"""``c`` in the fold term ``c Σ e²`` of the least-squares objective (``e`` in radians): 5° of
+excess costs 7.6e-3, about 150 times the fit term at a 1 % mean deviation."""
+
+
+@dataclass(frozen=True)
+class SelectionOptions:
+    """Settings of :func:`select_actuators`.
+
+    Attributes
+    ----------
+    max_fit : float
+        Largest mean joint deviation, relative to the span (bounding-box
+        diagonal), that an answer may have (0.01: 1 %).
+    actuators : int or None
+        Stop at exactly this many actuators instead (``max_fit`` is then
+        only reported against).
+    tau_max : float or None
+        Largest torque of one actuator, in the energy's units; None: no limit.
+    full_curve : bool
+        Go on eliminating past the answer, down to one actuator, for the
+        whole trade-off curve; the answer stays the one that meets the limit.
+    cut_fraction : float
+        Share of the active actuators removed in one round while the fit is
+        far below the limit.
+    refit_iterations : int
+        Levenberg–Marquardt iterations of one re-fit.
+    candidates : int
+        Single cuts tried, in the linear model's order, before the
+        elimination gives up.
+    """
+
+    max_fit: float = 0.01
+    actuators: int | None = None
+    tau_max: float | None = None
+    full_curve: bool = False
+    cut_fraction: float = 0.2
+    refit_iterations: int = 12
+    candidates: int = 4
+
+    def __post_init__(self):
+        if not (np.isfinite(self.max_fit) and self.max_fit > 0):
+            raise InputError(f"max_fit must be a positive fraction of the span, got {self.max_fit}")
+        if self.actuators is not None and not (int(self.actuators) == self.actuators and self.actuators >= 1):
+            raise InputError(f"actuators must be a whole number of at least 1, got {self.actuators}")
+        if self.tau_max is not None and not (self.tau_max > 0):
+            raise InputError(f"tau_max must be positive, got {self.tau_max}")
+        if not (0 < self.cut_fraction < 1):
+            raise InputError(f"cut_fraction must lie in (0, 1), got {self.cut_fraction}")
+        if self.refit_iterations < 1 or self.candidates < 1:
+            raise InputError("refit_iterations and candidates must be at least 1")
+
+
+@dataclass
+class CurvePoint:
+    """One accepted cut: the trade-off curve's point at ``num_actuators``."""
+
+    num_actuators: int
+    fit_mean: float
+    fit_max: float
+    work: float
+    actuated: np.ndarray
+    torques: np.ndarray
+    time_s: float
+
+
+@dataclass
+class SelectionResult:
+    torques: np.ndarray
+    actuated: np.ndarray
+    fit_mean: float
+    fit_max: float
+    work: float
+    converged: bool
+    message: str
+    time_s: float
+    curve: list = field(default_factory=list)
+    rounds: int = 0
+    equilibrium_solves: int = 0
+
+
+class _Refit:
+    """The nonlinear least-squares problem over the active torques, on a :class:`TorqueFit` (p = 1, η = 0)."""
+
+    def __init__(self, fit: TorqueFit, ub: np.ndarray):
+        self.fit = fit
+        self.ub = ub
+        L = fit.L
+        self.sw = np.sqrt(fit.weights)[:, None] / fit.l0
+        self.solves = 0
+
+    def evaluate(self, t) -> tuple[np.ndarray, float]:
+        """Residual ``r`` (3n + n,) and the mean deviation at the equilibrium under ``t``; raises ArithmeticError."""
+        self.fit.evaluate(t)
+        self.solves += 1
+        _, dev = self.fit.fit_terms()
+        excess = self.fit.fold_excess()
+        r = np.concatenate([(self.sw * dev).ravel(), np.sqrt(2.0 * FOLD_LS_WEIGHT) * excess])
+        return r, float(np.linalg.norm(dev, axis=1).mean() / self.fit.l0)
+
+    def jacobian(self, active) -> np.ndarray:
+        """``∂r/∂t`` on the active joints (3n + n, k), from the factorization of the last evaluation."""
+        fit, L = self.fit, self.fit.L
+        n, k = L.num_joints, len(active)
+        rhs = np.zeros((len(fit.free), k))
+        # S_αᵀ e_i restricted to the free variables (no angle is pinned)
+        pos_in_free = np.searchsorted(fit.free, fit.angle_rows[active])
+        rhs[pos_in_free, np.arange(k)] = fit.tau_ref
+        X = np.zeros((L.num_vars, k))
+        X[fit.free] = fit.chol.solve(rhs)
+        Jp = (self.sw[:, :, None] * X[fit.pos_rows]).reshape(3 * n, k)
+        active_fold = (fit.fold_excess() != 0.0)
+        Ja = np.sqrt(2.0 * FOLD_LS_WEIGHT) * X[fit.angle_rows] * active_fold[:, None]
+        return np.vstack([Jp, Ja])
+
+    def run(self, t, active, iterations, r=None):
+        """Levenberg–Marquardt on ``t[active]`` within ``[0, ub]``; returns (t, r, fit_mean) at the best point.
+
+        ``t`` must be the state last evaluated when ``r`` is given.
+        """
+        t = np.array(t, float)
+        if r is None:
+            r, _ = self.evaluate(t)
+        F = 0.5 * float(r @ r)
+        best_state = snapshot(self.fit.L)
+        mu = None
+        for _ in range(iterations):
+            J = self.jacobian(active)
+            JtJ = J.T @ J
+            if mu is None:
+                mu = 1e-6 * float(np.trace(JtJ)) / max(len(active), 1)
+            g = J.T @ r
+            improved = False
+            for _attempt in range(6):
+                A = np.vstack([J, np.sqrt(mu) * np.eye(len(active))])
+                b = np.concatenate([-r, np.zeros(len(active))])
+                lo, hi = -t[active], self.ub[active] - t[active]
+                step = lsq_linear(A, b, bounds=(lo, hi), method="bvls" if len(active) <= 60 else "trf",
+                                  lsmr_tol="auto").x
+                step = np.clip(step, lo, hi)
+                predicted = -(g @ step + 0.5 * step @ (JtJ @ step))
+                trial = t.copy()
+                trial[active] += step
+                try:
+                    r_trial, _ = self.evaluate(trial)
+                    F_trial = 0.5 * float(r_trial @ r_trial)
+                except ArithmeticError:
+                    F_trial = np.inf
+                if F_trial < F:
+                    rho = (F - F_trial) / predicted if predicted > 0 else 0.0
+                    small = F - F_trial < 1e-4 * F
+                    t, r, F = trial, r_trial, F_trial
+                    best_state = snapshot(self.fit.L)
+                    mu *= 0.3 if rho > 0.5 else 1.0
+                    improved = True
+                    break
+                mu *= 10.0
+                restore(self.fit.L, best_state)
+                self.fit._t = None
+            if not improved or small:
+                break
+        restore(self.fit.L, best_state)
+        self.fit._t = None
+        r, fit_mean = self.evaluate(t)
+        return t, r, fit_mean
+
+
+def _linear_cuts(J, r, t_active, count, ub_active):
+    """Indices (into the active set) of ``count`` actuators to drop, cheapest first, and the re-fitted torques.
+
+    Linear model: residual ``r + J (x − t)``; dropping ``i`` from the LS
+    solution ``x`` raises ``|·|²`` by ``xᵢ² / (G⁻¹)ᵢᵢ``.
+    """
+    k = J.shape[1]
+    G = J.T @ J
+    G += (1e-10 * np.trace(G) / k + 1e-300) * np.eye(k)
+    Ginv = np.linalg.inv(G)
+    x = t_active - Ginv @ (J.T @ r)
+    keep = list(range(k))
+    dropped = []
+    for _ in range(count):
+        kk = np.array(keep)
+        d = np.diag(Ginv)[kk]
+        score = x[kk] ** 2 / d
+        score[x[kk] <= 0] = -1.0  # a negative LS torque helps nothing that a motor can do
+        j = int(np.argmin(score))
+        i = kk[j]
+        col = Ginv[:, i].copy()
+        x -= col * (x[i] / Ginv[i, i])
+        Ginv -= np.outer(col, col) / Ginv[i, i]
+        x[i] = 0.0
+        keep.remove(i)
+        dropped.append(i)
+    x = np.clip(x, 0.0, ub_active)
+    return dropped, x
+
+
+def _ranked_single_cuts(J, r, t_active):
+    """All active actuators, cheapest single cut first (linear model)."""
+    k = J.shape[1]
+    G = J.T @ J + (1e-10 * np.trace(J.T @ J) / k + 1e-300) * np.eye(k)
+    Ginv = np.linalg.inv(G)
+    x = t_active - Ginv @ (J.T @ r)
+    score = x**2 / np.diag(Ginv)
+    score[x <= 0] = -1.0
+    return np.argsort(score, kind="stable"), x, Ginv
+
+
+def select_actuators(linkage, tau_ref: float, options: SelectionOptions = SelectionOptions(), *, allowed=None,
+                     flat_energy: float = 0.0, callback=None) -> SelectionResult:
+    """Few actuators that deploy ``linkage`` to its current (densely actuated) shape.
+
+    Parameters
+    ----------
+    linkage : Linkage
+        At the densely actuated deployed equilibrium; it ends at the chosen
+        answer's equilibrium.
+    tau_ref : float
+        The dense torque per joint (``DeploymentResult.torque``).
+    options : SelectionOptions
+    allowed : (n,) bool array, optional
+        Joints that may carry an actuator (default all).
+    flat_energy : float
+        Energy of the flat assembly state (the reported work is the energy
+        stored from there).
+    callback : callable(CurvePoint) -> bool, optional
+        Called at every accepted cut; return True to stop (the answer is
+        then the best one found so far).
+
+    Returns
+    -------
+    SelectionResult
+    """
+    start = time.perf_counter()
+    o = options
+    n = linkage.num_joints
+    fit = TorqueFit(linkage, tau_ref, p=1.0, eta=0.0)
+    ub = np.full(n, np.inf if o.tau_max is None else o.tau_max / tau_ref)
+    t = np.ones(n)
+    if allowed is not None:
+        allowed = np.asarray(allowed, bool)
+        if allowed.shape != (n,) or not allowed.any():
+            raise InputError(f"allowed: expected {n} flags (one per joint), at least one set")
+        ub[~allowed] = 0.0
+    t = np.minimum(t, ub)
+    target_count = o.actuators
+    if target_count is not None and target_count > int(np.count_nonzero(ub > 0)):
+        raise InputError(f"--actuators {target_count}: only {int(np.count_nonzero(ub > 0))} joints may carry one")
+    refit = _Refit(fit, ub)
+    r, fit_mean = refit.evaluate(t)
+    active = np.flatnonzero(ub > 0)
+    if len(active) < n or o.tau_max is not None:  # the dense torques are not all available: fit first
+        t, r, fit_mean = refit.run(t, active, o.refit_iterations, r)
+    _, dev = fit.fit_terms()
+    curve = []
+
+    def record():
+        _, dev = fit.fit_terms()
+        dist = np.linalg.norm(dev, axis=1) / fit.l0
+        act = np.flatnonzero(t > 0)
+        p = CurvePoint(len(act), float(dist.mean()), float(dist.max()), float(linkage.energy()) - flat_energy,
+                       act, fit.torques(t)[act], time.perf_counter() - start)
+        curve.append(p)
+        return p
+
+    def meets(fm):
+        return fm <= o.max_fit if target_count is None else True
+
+    point = record()
+    best = (t.copy(), snapshot(linkage), point) if meets(fit_mean) and not folded_joint(linkage) else None
+    state = snapshot(linkage)
+    message, converged, rounds = "", False, 0
+    stopped = False
+    try:
+        while len(active) > (target_count or 1):
+            rounds += 1
+            J = refit.jacobian(active)
+            k = len(active)
+            far = fit_mean < 0.3 * o.max_fit
+            batch = max(1, int(o.cut_fraction * k)) if far else max(1, int(0.05 * k)) if fit_mean < 0.7 * o.max_fit else 1
+            if target_count is not None:
+                batch = min(batch, k - target_count)
+            accepted = False
+            tried_singles = 0
+            order = None
+            while not accepted:
+                if batch > 1 or order is None:
+                    dropped, x = _linear_cuts(J, r[:], t[active], batch, ub[active])
+                    if batch == 1:
+                        order, _, _ = _ranked_single_cuts(J, r, t[active])
+                        tried_singles = 1
+                else:
+                    if tried_singles >= min(o.candidates, k):
+                        break
+                    i = int(order[tried_singles])
+                    tried_singles += 1
+                    dropped = [i]
+                    _, x0, Ginv = _ranked_single_cuts(J, r, t[active])
+                    x = x0 - Ginv[:, i] * (x0[i] / Ginv[i, i])
+                    x[i] = 0.0
+                    x = np.clip(x, 0.0, ub[active])
+                trial_active = np.delete(active, dropped)
+                trial = np.zeros(n)
+                trial[trial_active] = np.maximum(x[np.setdiff1d(np.arange(k), dropped)], 0.0)
+                ok = True
+                try:
+                    r_new, fm_new = refit.evaluate(trial)
+                    trial, r_new, fm_new = refit.run(trial, trial_active, o.refit_iterations, r_new)
+                    # the re-fit may switch off more actuators
+                    trial_active = trial_active[trial[trial_active] > 0]
+                except ArithmeticError:
+                    ok = False
+                if ok and not folded_joint(linkage) and (meets(fm_new) or o.full_curve):
+                    accepted = True
+                    t, r, fit_mean, active = trial, r_new, fm_new, trial_active
+                    state = snapshot(linkage)
+                    point = record()
+                    if meets(fit_mean):
+                        best = (t.copy(), state, point)
+                    if callback is not None and callback(point):
+                        stopped = True
+                else:
+                    restore(linkage, state)
+                    fit._t = None
+                    refit.evaluate(t)
+                    if batch > 1:
+                        batch = max(1, batch // 3)
+                        order = None
+            if stopped:
+                message = "stopped by request"
+                break
+            if not accepted:
+                if target_count is not None:
+                    message = f"no cut below {len(active)} actuators keeps a valid equilibrium"
+                else:
+                    message = (f"no single cut of the {min(o.candidates, len(active))} cheapest actuators keeps the mean "
+                               f"deviation within {100 * o.max_fit:g}% of the span")
+                break
+            if not o.full_curve and not meets(fit_mean):
+                break
+        else:
+            message = f"reached {len(active)} actuator{'s' if len(active) != 1 else ''}"
+        converged = best is not None and not stopped
+        if target_count is not None:
+            converged = converged and len(active) == target_count
+    except KeyboardInterrupt:
+        message = "interrupted by the user"
+    if best is None:
+        message += "; no answer met the limit"
+        restore(linkage, state)
+        fit._t = None
+        final_t = t
+    else:
+        final_t, st, _ = best
+        restore(linkage, st)
+        fit._t = None
+    fit.evaluate(final_t)
+    _, dev = fit.fit_terms()
+    dist = np.linalg.norm(dev, axis=1) / fit.l0
+    tau = fit.torques(final_t)
+    folded = folded_joint(linkage)
+    if folded:
+        converged = False
+        message += f"; the final state is not valid: {folded}"
+    return SelectionResult(torques=tau, actuated=np.flatnonzero(tau > 0), fit_mean=float(dist.mean()),
+                           fit_max=float(dist.max()), work=float(linkage.energy()) - flat_energy, converged=converged,
+                           message=message.strip("; "), time_s=time.perf_counter() - start, curve=curve, rounds=rounds,
+                           equilibrium_solves=refit.solves)
