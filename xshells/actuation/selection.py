@@ -39,7 +39,7 @@ against deviation, paper Fig. 9), so the curve comes out of the same run.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -52,6 +52,9 @@ from .sparsify import TorqueFit
 FOLD_LS_WEIGHT = 1.0
 """``c`` in the fold term ``c Σ e²`` of the least-squares objective (``e`` in radians): 5° of
 excess costs 7.6e-3, about 150 times the fit term at a 1 % mean deviation."""
+
+TRIAL_NEWTON_ITERATIONS = 100
+"""Newton iterations allowed to the equilibrium at a re-fit's trial torques (see :meth:`_Refit.evaluate`)."""
 
 
 @dataclass(frozen=True)
@@ -140,14 +143,28 @@ class _Refit:
         self.sw = np.sqrt(fit.weights)[:, None] / fit.l0
         self.solves = 0
 
-    def evaluate(self, t) -> tuple[np.ndarray, float]:
-        """Residual ``r`` (3n + n,) and the mean deviation at the equilibrium under ``t``; raises ArithmeticError."""
-        self.fit.evaluate(t)
+    def evaluate(self, t, max_newton: int | None = None) -> tuple[np.ndarray, float]:
+        """Residual ``r`` (3n + n,) and the mean deviation at the equilibrium under ``t``; raises ArithmeticError.
+
+        ``max_newton`` caps the equilibrium's Newton iterations. (Accepted trial steps take
+        3–10, rejected ones 30–100; but a cap of 20 made more steps fail and cost more in all.)
+        """
+        newton = self.fit.newton
+        if max_newton is not None:
+            self.fit.newton = replace(newton, max_iterations=max_newton)
+        try:
+            self.fit.evaluate(t)
+        finally:
+            self.fit.newton = newton
         self.solves += 1
         _, dev = self.fit.fit_terms()
         excess = self.fit.fold_excess()
         r = np.concatenate([(self.sw * dev).ravel(), np.sqrt(2.0 * FOLD_LS_WEIGHT) * excess])
         return r, float(np.linalg.norm(dev, axis=1).mean() / self.fit.l0)
+
+    def _mean(self, r) -> float:
+        n = self.fit.L.num_joints
+        return float(np.linalg.norm(r[: 3 * n].reshape(n, 3) / self.sw, axis=1).mean() / self.fit.l0)
 
     def jacobian(self, active) -> np.ndarray:
         """``∂r/∂t`` on the active joints (3n + n, k), from the factorization of the last evaluation."""
@@ -164,28 +181,39 @@ class _Refit:
         Ja = np.sqrt(2.0 * FOLD_LS_WEIGHT) * X[fit.angle_rows] * active_fold[:, None]
         return np.vstack([Jp, Ja])
 
-    def run(self, t, active, iterations, r=None):
+    def run(self, t, active, iterations, r=None, *, good_enough=0.0, give_up_above=np.inf):
         """Levenberg–Marquardt on ``t[active]`` within ``[0, ub]``; returns (t, r, fit_mean) at the best point.
 
-        ``t`` must be the state last evaluated when ``r`` is given.
+        ``t`` must be the state last evaluated when ``r`` is given. It stops
+        early once ``½|r|² ≤ good_enough`` (a fit far inside the limit needs
+        no polish), or when the mean deviation is still above
+        ``give_up_above`` after two iterations (a cut that will not pass).
         """
         t = np.array(t, float)
         if r is None:
-            r, _ = self.evaluate(t)
+            r, fit_mean = self.evaluate(t)
+        else:
+            fit_mean = self._mean(r)
         F = 0.5 * float(r @ r)
         best_state = snapshot(self.fit.L)
         mu = None
-        for _ in range(iterations):
+        radius = 0.5
+        for it in range(iterations):
+            if F <= good_enough or (it >= 2 and fit_mean > give_up_above):
+                break
             J = self.jacobian(active)
             JtJ = J.T @ J
             if mu is None:
                 mu = 1e-6 * float(np.trace(JtJ)) / max(len(active), 1)
             g = J.T @ r
             improved = False
+            ta = t[active]
             for _attempt in range(6):
                 A = np.vstack([J, np.sqrt(mu) * np.eye(len(active))])
                 b = np.concatenate([-r, np.zeros(len(active))])
-                lo, hi = -t[active], self.ub[active] - t[active]
+                # a box trust region relative to the torques: the equilibrium (and Newton) stays on its branch
+                reach = radius * np.maximum(ta, ta.mean())
+                lo, hi = np.maximum(-ta, -reach), np.minimum(self.ub[active] - ta, reach)
                 step = lsq_linear(A, b, bounds=(lo, hi), method="bvls" if len(active) <= 60 else "trf",
                                   lsmr_tol="auto").x
                 step = np.clip(step, lo, hi)
@@ -193,21 +221,25 @@ class _Refit:
                 trial = t.copy()
                 trial[active] += step
                 try:
-                    r_trial, _ = self.evaluate(trial)
+                    r_trial, fm_trial = self.evaluate(trial, max_newton=TRIAL_NEWTON_ITERATIONS)
                     F_trial = 0.5 * float(r_trial @ r_trial)
                 except ArithmeticError:
                     F_trial = np.inf
                 if F_trial < F:
                     rho = (F - F_trial) / predicted if predicted > 0 else 0.0
-                    small = F - F_trial < 1e-4 * F
-                    t, r, F = trial, r_trial, F_trial
+                    small = F - F_trial < 1e-3 * F
+                    t, r, F, fit_mean = trial, r_trial, F_trial, fm_trial
                     best_state = snapshot(self.fit.L)
-                    mu *= 0.3 if rho > 0.5 else 1.0
+                    if rho > 0.5:
+                        mu *= 0.3
+                        radius = min(2.0 * radius, 2.0)
                     improved = True
                     break
                 mu *= 10.0
+                radius *= 0.25
                 restore(self.fit.L, best_state)
                 self.fit._t = None
+                self.evaluate(t)  # the factorization for the next trial's predictor
             if not improved or small:
                 break
         restore(self.fit.L, best_state)
@@ -297,6 +329,7 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
     target_count = o.actuators
     if target_count is not None and target_count > int(np.count_nonzero(ub > 0)):
         raise InputError(f"--actuators {target_count}: only {int(np.count_nonzero(ub > 0))} joints may carry one")
+    fit.predictor_limit = 0.2
     refit = _Refit(fit, ub)
     r, fit_mean = refit.evaluate(t)
     active = np.flatnonzero(ub > 0)
@@ -317,6 +350,9 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
     def meets(fm):
         return fm <= o.max_fit if target_count is None else True
 
+    # a re-fit far inside the limit needs no polish; one still far outside after two iterations will not pass
+    good_enough = 0.5 * (0.02 * o.max_fit) ** 2
+    give_up_above = np.inf if (o.full_curve or target_count is not None) else 1.5 * o.max_fit
     point = record()
     best = (t.copy(), snapshot(linkage), point) if meets(fit_mean) and not folded_joint(linkage) else None
     state = snapshot(linkage)
@@ -356,7 +392,8 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
                 ok = True
                 try:
                     r_new, fm_new = refit.evaluate(trial)
-                    trial, r_new, fm_new = refit.run(trial, trial_active, o.refit_iterations, r_new)
+                    trial, r_new, fm_new = refit.run(trial, trial_active, o.refit_iterations, r_new,
+                                                     good_enough=good_enough, give_up_above=give_up_above)
                     # the re-fit may switch off more actuators
                     trial_active = trial_active[trial[trial_active] > 0]
                 except ArithmeticError:

@@ -171,6 +171,7 @@ class TorqueFit:
         self.newton = _equilibrium_options(linkage, self.tau_ref)
         self._t = None
         self.equilibrium_iterations = 0
+        self.predictor_limit = None  # largest joint-angle change (radians) of the predictor; None: no limit
         # Joint angles are penalized outside [lo, hi]: FOLD_MARGIN inside (0, π), widened to
         # the dense deployment's own angles, so the penalty is zero wherever that is.
         alpha = linkage.joint_angles()
@@ -207,10 +208,13 @@ class TorqueFit:
         force = np.zeros(self.L.num_vars)
         force[self.angle_rows] = tau
         if self._t is not None:  # first-order predictor with the factorization at hand
-            dx = force - self._force
-            x = self.L.get_vars()
-            x[self.free] += self.chol.solve(dx[self.free])
-            self.L.set_vars(x)
+            dx = np.zeros(self.L.num_vars)
+            dx[self.free] = self.chol.solve((force - self._force)[self.free])
+            if self.predictor_limit is not None:  # near a buckling load the linear prediction overshoots
+                swing = float(np.abs(dx[self.angle_rows]).max())
+                if swing > self.predictor_limit:
+                    dx *= self.predictor_limit / swing
+            self.L.set_vars(self.L.get_vars() + dx)
         report = minimize(self.L, fixed=self.pins, force=force, options=self.newton)
         self.equilibrium_iterations += report.iterations
         if not report.converged:
