@@ -1,6 +1,8 @@
 """``xshells sparsify``: where to put the motors."""
 from __future__ import annotations
 
+import numpy as np
+
 from ..deploy.case import add_design_options, case_path_from_args
 from ..errors import InputError
 
@@ -8,18 +10,26 @@ from ..errors import InputError
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "sparsify", help="find a sparse set of joint torques that deploys a case to its dense-actuation shape",
-        description="Sparse actuation (paper §6). Deploys the case with every joint actuated, then finds few joints "
-                    "whose torques reach the same shape. Torques are in the energy's units (N·mm for mm and MPa).")
+        description="Sparse actuation (paper §6). Deploys the case with every joint actuated, then finds the fewest "
+                    "joints whose torques reach the same shape within --max-fit (or the best --actuators N), and the "
+                    "trade-off curve on the way. Torques are in the energy's units (N·mm for mm and MPa).")
     p.add_argument("case", help="a case file (.json), or a design (.obj, .msh) with --material etc.")
-    p.add_argument("--eta", type=float, default=3e-4, help="sparsity weight, dimensionless (default 3e-4)")
-    p.add_argument("--p", type=float, default=0.5, help="power of the lp penalty, in (0, 1] (default 0.5)")
+    p.add_argument("--max-fit", default="1%",
+                   help="the fewest actuators whose mean joint deviation from the dense deployment stays within this "
+                        "share of the span: a percentage (1%%) or a fraction (0.01); default 1%%")
+    p.add_argument("--actuators", type=int, help="the best N actuators instead of a deviation limit")
+    p.add_argument("--eta", type=float, help="experts: solve the paper's eq. 8 with this sparsity weight instead "
+                                             "(dimensionless, e.g. 3e-4)")
+    p.add_argument("--p", type=float, help="with --eta: power of the lp penalty, in (0, 1] (default 0.5)")
     p.add_argument("--tau-max", type=float, help="largest torque one actuator may apply")
     p.add_argument("--candidates", help="comma-separated input vertex indices of the joints that may be actuated (default all)")
     p.add_argument("--angle", type=float, help="target average opening angle, degrees (default: the case's)")
-    p.add_argument("--max-iters", type=int, default=100)
-    p.add_argument("--sweep", action="store_true", help="sweep eta (8 values) for p = 1, 1/2, 1/4 and plot the trade-off (Fig. 9)")
-    p.add_argument("--etas", help="comma-separated eta values for --sweep")
-    p.add_argument("--ps", help="comma-separated p values for --sweep (default 1,0.5,0.25)")
+    p.add_argument("--max-iters", type=int, help="with --eta: trust-region iterations (default 100)")
+    p.add_argument("--sweep", action="store_true",
+                   help="the whole trade-off curve (Fig. 9): go on eliminating down to one actuator; with --etas, "
+                        "solve eq. 8 for each eta and p instead")
+    p.add_argument("--etas", help="with --sweep: comma-separated eta values of eq. 8")
+    p.add_argument("--ps", help="with --sweep --etas: comma-separated p values (default 1,0.5,0.25)")
     add_design_options(p, steps_default=40)
     p.add_argument("--out", default="sparsify_out", help="output folder")
     p.add_argument("--no-progress", action="store_true")
@@ -41,15 +51,50 @@ def _sparsify(args) -> int:
         raise InputError(str(exc).replace(case_path, args.case)) from None
 
 
+def parse_fraction(text: str, what: str = "--max-fit") -> float:
+    """'1%' or '0.01' as a fraction of the span; a clear error for anything else."""
+    t = str(text).strip()
+    try:
+        value = float(t[:-1]) / 100.0 if t.endswith("%") else float(t)
+    except ValueError:
+        raise InputError(f"{what} {text}: expected a percentage (1%) or a fraction of the span (0.01)") from None
+    if not (np.isfinite(value) and 0 < value < 1):
+        raise InputError(f"{what} {text}: must lie between 0 and 100% of the span (a fraction like 0.01, or 1%)")
+    return value
+
+
 def _run(args, case_path) -> int:
-    from .run import DEFAULT_ETAS, DEFAULT_PS, run_sparsify, run_sweep
+    from .run import DEFAULT_ETAS, DEFAULT_PS, run_selection, run_sparsify, run_sweep
+    from .selection import SelectionOptions
     from .sparsify import SparsifyOptions
 
-    if args.max_iters < 1:
+    eq8 = args.eta is not None or bool(args.etas)
+    if args.p is not None:
+        SparsifyOptions(p=args.p)  # validates
+    for flag, value in (("--p", args.p), ("--max-iters", args.max_iters), ("--ps", args.ps)):
+        if value is not None and not eq8:
+            raise InputError(f"{flag} applies to eq. 8 only: give --eta (or --sweep --etas) too")
+    if args.max_iters is not None and args.max_iters < 1:
         raise InputError(f"--max-iters must be at least 1, got {args.max_iters}")
-    opts = SparsifyOptions(eta=args.eta, p=args.p, tau_max=args.tau_max, max_iterations=args.max_iters)
-    if args.sweep:
-        etas = _floats(args.etas, "etas") if args.etas else DEFAULT_ETAS
+    p = 0.5 if args.p is None else args.p
+    max_iters = 100 if args.max_iters is None else args.max_iters
+    if args.actuators is not None and args.actuators < 1:
+        raise InputError(f"--actuators must be at least 1, got {args.actuators}")
+    if args.eta is not None and args.actuators is not None:
+        raise InputError("--eta and --actuators choose the count in two different ways: give one of them")
+    if args.etas and not args.sweep:
+        raise InputError("--etas needs --sweep")
+    max_fit = parse_fraction(args.max_fit)
+    candidates = None
+    if args.candidates:
+        try:
+            candidates = [int(v) for v in args.candidates.split(",") if v.strip()]
+        except ValueError:
+            raise InputError(f"--candidates {args.candidates}: expected comma-separated vertex indices") from None
+    if args.sweep and args.etas:
+        opts = SparsifyOptions(eta=3e-4 if args.eta is None else args.eta, p=p, tau_max=args.tau_max,
+                               max_iterations=max_iters)
+        etas = _floats(args.etas, "etas")
         ps = _floats(args.ps, "ps") if args.ps else DEFAULT_PS
         if not etas or not ps:
             raise InputError("--sweep needs at least one eta and one p")
@@ -58,19 +103,28 @@ def _run(args, case_path) -> int:
             print(f"p = {r['p']:<5g} eta = {r['eta']:<9.3g} actuators {r['num_actuators']:>4}  fit mean {100 * r['fit_mean']:.3f}%  max {100 * r['fit_max']:.3f}%")
         print(f"  outputs in {args.out}/ (sweep.csv, sweep.png)")
         return 0
-    candidates = None
-    if args.candidates:
-        try:
-            candidates = [int(v) for v in args.candidates.split(",") if v.strip()]
-        except ValueError:
-            raise InputError(f"--candidates {args.candidates}: expected comma-separated vertex indices") from None
-    r = run_sparsify(case_path, args.out, opts, candidates=candidates, angle_deg=args.angle, progress=not args.no_progress)
+    if args.eta is not None:
+        opts = SparsifyOptions(eta=args.eta, p=p, tau_max=args.tau_max, max_iterations=max_iters)
+        r = run_sparsify(case_path, args.out, opts, candidates=candidates, angle_deg=args.angle, progress=not args.no_progress)
+    else:
+        opts = SelectionOptions(max_fit=max_fit, actuators=args.actuators, tau_max=args.tau_max, full_curve=args.sweep)
+        r = run_selection(case_path, args.out, opts, candidates=candidates, angle_deg=args.angle, progress=not args.no_progress)
+    _summary(r, args.out)
+    return 0
+
+
+def _summary(r: dict, out: str) -> None:
     print(f"{r['name']}: {r['num_actuators']} actuators at joints {r['actuated_joints']}")
-    print(f"  torques {[round(t, 4) for t in r['torques']]} (dense: {r['dense_torque']:.4g} at every joint)")
-    print(f"  distance to the dense deployment: mean {100 * r['fit_mean']:.3f}%, max {100 * r['fit_max']:.3f}% of the span")
-    print(f"  work {r['work']:.6g} (dense {r['dense_work']:.6g}); {r['message']}; {r['time_s']:.1f} s "
+    print(f"  torques {[float(f'{t:.4g}') for t in r['torques']]} (dense: {r['dense_torque']:.4g} at every joint)")
+    limit = f" (limit {100 * r['max_fit']:g}%)" if r.get("method") == "elimination" and not r.get("actuators_requested") else ""
+    print(f"  distance to the dense deployment: mean {100 * r['fit_mean']:.3f}%{limit}, max {100 * r['fit_max']:.3f}% of the span")
+    print(f"  work {r['work']:.6g} (dense {r['dense_work']:.6g}); {r['time_s']:.1f} s "
           f"(+ {r['dense_deployment_time_s']:.1f} s dense deployment)")
+    state = "finished" if r["converged"] else "NOT CONVERGED"
+    print(f"  {state}: {r['message']}")
+    if r.get("suggestion"):
+        print(f"  suggestion: {r['suggestion']}")
     for w in r.get("warnings", []):
         print(f"  warning: {w}")
-    print(f"  outputs in {args.out}/")
-    return 0
+    files = "result.json, torques.txt, actuators.png" + (", sweep.csv, sweep.png" if r.get("method") == "elimination" else "")
+    print(f"  outputs in {out}/ ({files})")

@@ -1,7 +1,9 @@
 """The sparsification job: dense deployment, then sparse torques, written to a folder.
 
-``run_sparsify`` is what ``xshells sparsify`` runs; ``run_sweep`` runs a
-sweep over ``η`` for several ``p`` and draws the Fig. 9 trade-off.
+``run_selection`` is what ``xshells sparsify`` runs by default (the fewest
+actuators within a deviation limit, or the best N, by elimination; it also
+writes the trade-off curve); ``run_sparsify`` solves eq. 8 for a given
+``η`` (``--eta``); ``run_sweep`` runs eq. 8 over ``η`` for several ``p``.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from ..io.export import atomic_write_text
 from ..linkage.linkage import Linkage
 from ..linkage.state import restore, snapshot
 from ..solve import NewtonOptions, minimize
+from .selection import SelectionOptions, select_actuators
 from .sparsify import SparsifyOptions, sparsify
 
 
@@ -101,6 +104,7 @@ def _result_dict(dense: DenseDeployment, res, options: SparsifyOptions) -> dict:
         "work": res.work,
         "dense_torque": dense.tau_ref,
         "dense_work": dense.dense_energy - dense.flat_energy,
+        "method": "eta",
         "eta": options.eta,
         "p": options.p,
         "tau_max": options.tau_max,
@@ -147,6 +151,7 @@ def run_sparsify(case_path, out_dir, options: SparsifyOptions = SparsifyOptions(
         if bar is not None:
             bar.close()
     result = _result_dict(dense, res, options)
+    result["suggestion"] = suggestion(result)
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     atomic_write_text(os.path.join(out_dir, "torques.txt"), "".join(f"{v:.10g}\n" for v in res.torques))
     from ..viz.render import render_actuators
@@ -214,3 +219,125 @@ def _write_sweep(out_dir, rows, name) -> None:
     from ..viz.render import plot_actuation_tradeoff
 
     plot_actuation_tradeoff(os.path.join(out_dir, "sweep.png"), rows, title=name)
+
+
+def suggestion(result: dict) -> str:
+    """What to try when a run did not end as asked ('' when it did)."""
+    if result["converged"]:
+        return ""
+    msg = result["message"]
+    if result.get("method") == "elimination":
+        if "no answer met" in msg:
+            return "try a larger --max-fit, or allow more joints (--candidates)"
+        if "interrupted" in msg or "stopped" in msg:
+            return "run again to finish; the answer above is the best one found before the stop"
+        if result.get("actuators_requested"):
+            return "try a larger --actuators, or --max-fit to let the count follow the deviation"
+        return "check the warnings above; a larger --max-fit gives fewer actuators"
+    if "trust region collapsed" in msg or "iteration limit" in msg or "step vanished" in msg:
+        return ("try the default mode (no --eta: the fewest actuators within --max-fit), "
+                "or a larger --max-iters, or another --eta")
+    if "not valid" in msg:
+        return "try the default mode (no --eta), or a smaller --eta"
+    return "try the default mode (no --eta)"
+
+
+def _selection_dict(dense: DenseDeployment, res, options: SelectionOptions) -> dict:
+    L = dense.linkage
+    jv = np.asarray(L.graph.joint_vertex)
+    out = {
+        "name": dense.name,
+        "method": "elimination",
+        "actuated_joints": [int(jv[j]) for j in res.actuated],
+        "torques": [float(res.torques[j]) for j in res.actuated],
+        "num_actuators": int(len(res.actuated)),
+        "num_joints": int(L.num_joints),
+        "fit_mean": res.fit_mean,
+        "fit_max": res.fit_max,
+        "max_fit": options.max_fit,
+        "actuators_requested": options.actuators,
+        "work": res.work,
+        "dense_torque": dense.tau_ref,
+        "dense_work": dense.dense_energy - dense.flat_energy,
+        "tau_max": options.tau_max,
+        "rounds": res.rounds,
+        "equilibrium_solves": res.equilibrium_solves,
+        "converged": res.converged,
+        "message": res.message,
+        "warnings": dense.warnings,
+        "time_s": res.time_s,
+        "dense_deployment_time_s": dense.time_s,
+        "joint_vertices": jv.tolist(),
+        "all_torques": res.torques.tolist(),
+        "units": "torques and work in the energy's units (N·mm for designs in mm and MPa); fit distances relative to the bounding-box diagonal of the dense deployment",
+    }
+    out["suggestion"] = suggestion(out)
+    return out
+
+
+def _curve_rows(L, curve) -> list[dict]:
+    jv = np.asarray(L.graph.joint_vertex)
+    return [{"num_actuators": c.num_actuators, "fit_mean": c.fit_mean, "fit_max": c.fit_max, "work": c.work,
+             "time_s": round(c.time_s, 3), "actuated_joints": " ".join(str(int(jv[j])) for j in c.actuated),
+             "torques": " ".join(f"{v:.6g}" for v in c.torques)} for c in curve]
+
+
+def _write_curve(out_dir, rows, name, options: SelectionOptions, chosen) -> None:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(rows[0].keys()))
+    w.writeheader()
+    w.writerows(rows)
+    atomic_write_text(os.path.join(out_dir, "sweep.csv"), buf.getvalue())
+    from ..viz.render import plot_actuation_curve
+
+    plot_actuation_curve(os.path.join(out_dir, "sweep.png"), rows, max_fit=options.max_fit if options.actuators is None else None,
+                         chosen=chosen, title=f"{name}: actuators against deviation")
+
+
+def run_selection(case_path, out_dir, options: SelectionOptions = SelectionOptions(), *, candidates=None,
+                  angle_deg=None, progress=True, dense: DenseDeployment | None = None) -> dict:
+    """The fewest actuators within ``options.max_fit`` (or the best ``options.actuators``) for a case.
+
+    Writes ``result.json``, ``torques.txt``, ``actuators.png`` and the
+    trade-off curve ``sweep.csv`` / ``sweep.png`` (one row per accepted cut)
+    into ``out_dir``; returns the ``result.json`` content. Ctrl-C keeps and
+    writes the best answer found so far.
+    """
+    os.makedirs(out_dir, exist_ok=True)
+    dense = dense or dense_deployment(case_path, angle_deg=angle_deg, progress=progress)
+    L = dense.linkage
+    allowed = _allowed_from_vertices(L, candidates)
+    restore(L, dense.state)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        goal = options.actuators or 1
+        bar = tqdm(desc="choosing actuators", unit="cut", total=max(L.num_joints - goal, 1))
+
+    def on_cut(point):
+        if bar is not None:
+            bar.set_postfix(actuators=point.num_actuators, mean=f"{100 * point.fit_mean:.3f}%", refresh=False)
+            bar.n = min(L.num_joints - point.num_actuators, bar.total)
+            bar.refresh()
+        return False
+
+    try:
+        res = select_actuators(L, dense.tau_ref, options, allowed=allowed, flat_energy=dense.flat_energy, callback=on_cut)
+    finally:
+        if bar is not None:
+            bar.close()
+    result = _selection_dict(dense, res, options)
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    atomic_write_text(os.path.join(out_dir, "torques.txt"), "".join(f"{v:.10g}\n" for v in res.torques))
+    _write_curve(out_dir, _curve_rows(L, res.curve), dense.name, options, len(res.actuated))
+    from ..viz.render import render_actuators
+
+    restore_after = snapshot(L)
+    restore(L, dense.state)
+    dense_joints = L.joint_positions()
+    restore(L, restore_after)
+    limit = f"mean ≤ {100 * options.max_fit:g}%" if options.actuators is None else f"best {options.actuators}"
+    render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints,
+                     title=f"{dense.name}: {len(res.actuated)} actuators ({limit}; mean {100 * res.fit_mean:.2f}%)")
+    return result

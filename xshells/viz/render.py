@@ -140,6 +140,41 @@ def plot_actuation_tradeoff(path, rows, title: str = "") -> None:
     plt.close(fig)
 
 
+def plot_actuation_curve(path, rows, *, max_fit=None, chosen=None, title: str = "") -> None:
+    """Mean and largest joint deviation against the number of actuators, from one elimination run.
+
+    ``rows``: dicts with ``num_actuators``, ``fit_mean`` and ``fit_max``
+    (relative to the span); ``max_fit`` draws the limit, ``chosen`` marks
+    the answer's actuator count.
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    # dense actuation (every joint) fits exactly: no point on a log scale
+    sel = sorted((r for r in rows if r["fit_mean"] > 0 and r["fit_max"] > 0), key=lambda r: r["num_actuators"])
+    if not sel:
+        sel = sorted(rows, key=lambda r: r["num_actuators"])
+    k = [r["num_actuators"] for r in sel]
+    ax.plot(k, [100 * r["fit_mean"] for r in sel], "o-", ms=4, color="C0", label="mean deviation")
+    ax.plot(k, [100 * r["fit_max"] for r in sel], "s--", ms=3, color="C1", alpha=0.8, label="largest deviation")
+    if max_fit is not None:
+        ax.axhline(100 * max_fit, color="C3", lw=1, label=f"limit on the mean ({100 * max_fit:g}%)")
+    if chosen is not None:
+        r = min(sel, key=lambda r: abs(r["num_actuators"] - chosen))
+        ax.plot([r["num_actuators"]], [100 * r["fit_mean"]], "*", ms=14, color="C3", zorder=5,
+                label=f"answer: {r['num_actuators']} actuators")
+    ax.set_xscale("log")
+    if all(r["fit_mean"] > 0 for r in sel):
+        ax.set_yscale("log")
+    ax.set_xlabel("number of actuators")
+    ax.set_ylabel("joint distance to the dense deployment (% of span)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    ax.set_title(title)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
 def plot_convergence(path, curves: dict, title: str = "") -> None:
     """Objective against iteration, one curve per method (paper Fig. 7)."""
     plt = _pyplot()
