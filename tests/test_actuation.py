@@ -166,20 +166,6 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys, argv, match):
     assert match in err and len(err.splitlines()) == 1, err
 
 
-def test_pointy_wings_need_few_actuators(tmp_path):
-    """The paper deploys this design with 4 actuators; we must need no more than 6 at ≤ 1% mean deviation."""
-    out = tmp_path / "out"
-    assert main(["sparsify", str(EXAMPLES / "asymm_wings_pointy" / "case.json"), "--out", str(out), "--no-progress"]) == 0
-    r = json.loads((out / "result.json").read_text())
-    assert 1 <= r["num_actuators"] <= 6
-    assert r["fit_mean"] <= 0.01
-    assert "not valid" not in r["message"], r["message"]
-    assert len(r["actuated_joints"]) == len(r["torques"]) == r["num_actuators"]
-    assert all(0 <= v < 157 for v in r["actuated_joints"])
-    assert (out / "actuators.png").stat().st_size > 10_000
-    assert len((out / "torques.txt").read_text().split()) == 157
-
-
 def test_cli_takes_a_bare_design_with_its_options(tmp_path):
     from xshells.io.export import write_design_obj
 

@@ -1,0 +1,233 @@
+"""Choosing actuators by elimination (xshells.actuation.selection): the cut formula, the re-fit's Jacobian,
+--max-fit and --actuators, the trade-off curve, and the real designs of issue 25."""
+import json
+
+import numpy as np
+import pytest
+
+from xshells.actuation import SelectionOptions, select_actuators
+from xshells.actuation.selection import _linear_cuts, _ranked_single_cuts, _Refit
+from xshells.actuation.sparsify import TorqueFit
+from xshells.cli import main
+from xshells.deploy import DeployOptions, deploy, rest_length_solve
+from xshells.errors import InputError
+from xshells.linkage.linkage import Linkage
+from xshells.linkage.state import restore, snapshot
+
+from data_paths import EXAMPLES
+from test_deploy import FLAT_BEAM, warped_grid
+
+
+@pytest.fixture(scope="module")
+def dense():
+    """A small incompatible grid deployed to 60° by uniform actuation: (linkage, τ_ref, state, flat energy)."""
+    L = Linkage(warped_grid(5), FLAT_BEAM, subdivision=4)
+    rest_length_solve(L)
+    flat = L.energy()
+    res = deploy(L, np.radians(60), DeployOptions(steps=6))
+    assert res.converged and res.torque > 0
+    return L, res.torque, snapshot(L), flat
+
+
+# ------------------------------------------------------------------ the linear model, by hand
+def test_single_cut_cost_is_the_increase_of_the_least_squares_residual():
+    rng = np.random.default_rng(3)
+    J, r, t = rng.standard_normal((12, 4)), rng.standard_normal(12), np.ones(4)
+    order, x, Ginv = _ranked_single_cuts(J, r, t)
+    # x is the LS solution of min |r + J (x − t)|
+    x_ref = t + np.linalg.lstsq(J, -r, rcond=None)[0]
+    assert np.allclose(x, x_ref, atol=1e-8)
+    base = np.sum((r + J @ (x - t)) ** 2)
+    costs = []
+    for i in range(4):  # brute force: drop i, re-fit the other three
+        keep = [j for j in range(4) if j != i]
+        y = np.linalg.lstsq(J[:, keep], -(r - J @ t), rcond=None)[0]
+        costs.append(np.sum((r - J @ t + J[:, keep] @ y) ** 2) - base)
+        assert costs[-1] == pytest.approx(x[i] ** 2 / Ginv[i, i], rel=1e-6)
+    positive = [int(i) for i in order if x[i] > 0]  # negative LS torques come first: a motor cannot pull
+    assert positive[0] == min(positive, key=lambda i: costs[i])
+
+
+def test_sequential_cuts_match_brute_force_re_fits():
+    rng = np.random.default_rng(4)
+    J = rng.standard_normal((20, 6))
+    t = np.full(6, 2.0)
+    r = -J @ (np.array([3.0, 0.1, 2.5, 0.05, 4.0, 1.0]) - t)  # an exact fit at known positive torques
+    dropped, x = _linear_cuts(J, r, t, 2, np.full(6, np.inf))
+    assert sorted(dropped) == [1, 3]  # the two weakest, whose loss the others can make up best
+    keep = [0, 2, 4, 5]
+    y = np.linalg.lstsq(J[:, keep], -(r - J @ t), rcond=None)[0]
+    assert np.allclose(x[keep], y, atol=1e-8) and np.all(x[dropped] == 0)
+
+
+# ------------------------------------------------------------------ derivatives
+def test_refit_jacobian_matches_finite_differences(dense):
+    L, tau, state, _ = dense
+    restore(L, state)
+    fit = TorqueFit(L, tau, p=1.0, eta=0.0)
+    refit = _Refit(fit, np.full(L.num_joints, np.inf))
+    rng = np.random.default_rng(5)
+    t = np.clip(1 + 0.3 * rng.standard_normal(L.num_joints), 0.3, 2.0)
+    active = np.flatnonzero(rng.random(L.num_joints) < 0.5)
+    refit.evaluate(t)
+    J = refit.jacobian(active)
+    v = rng.standard_normal(len(active))
+    errs = []
+    for h in (2e-3, 1e-3):
+        d = np.zeros(L.num_joints)
+        d[active] = h * v
+        rp, _ = refit.evaluate(t + d)
+        rm, _ = refit.evaluate(t - d)
+        errs.append(np.linalg.norm((rp - rm) / (2 * h) - J @ v) / np.linalg.norm(J @ v))
+    assert errs[-1] < 1e-5, errs
+    assert errs[0] / errs[1] > 3, errs  # second-order convergence onto J
+
+
+# ------------------------------------------------------------------ options and behaviour
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(max_fit=0.0), "max_fit"), (dict(max_fit=float("nan")), "max_fit"), (dict(actuators=0), "actuators"),
+    (dict(actuators=2.5), "actuators"), (dict(tau_max=-1.0), "tau_max"), (dict(cut_fraction=1.0), "cut_fraction"),
+])
+def test_bad_options(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        SelectionOptions(**kwargs)
+
+
+def test_max_fit_gives_few_actuators_within_the_limit_and_a_looser_limit_fewer(dense):
+    L, tau, state, flat = dense
+    counts = []
+    for limit in (0.002, 0.01):
+        restore(L, state)
+        r = select_actuators(L, tau, SelectionOptions(max_fit=limit), flat_energy=flat)
+        assert r.converged, r.message
+        assert r.fit_mean <= limit
+        assert len(r.actuated) < L.num_joints // 3
+        # the answer's state is the one reported
+        assert any(c.num_actuators == len(r.actuated) and abs(c.fit_mean - r.fit_mean) < 1e-9 for c in r.curve)
+        counts.append(len(r.actuated))
+    assert counts[1] <= counts[0], counts
+
+
+def test_actuators_gives_exactly_that_many(dense):
+    L, tau, state, _ = dense
+    for n in (2, 5):
+        restore(L, state)
+        r = select_actuators(L, tau, SelectionOptions(actuators=n))
+        assert len(r.actuated) == n and r.converged, r.message
+        assert np.all(r.torques[r.actuated] > 0)
+        assert np.count_nonzero(r.torques) == n
+
+
+def test_full_curve_goes_down_to_few_and_keeps_the_answer_within_the_limit(dense):
+    L, tau, state, _ = dense
+    restore(L, state)
+    r = select_actuators(L, tau, SelectionOptions(max_fit=0.005, full_curve=True))
+    counts = [c.num_actuators for c in r.curve]
+    assert counts[0] == L.num_joints and counts == sorted(counts, reverse=True) and len(set(counts)) == len(counts)
+    assert counts[-1] <= 2
+    assert r.fit_mean <= 0.005
+    assert min(c.fit_mean for c in r.curve if c.num_actuators <= 2) > 0
+
+
+def test_candidates_and_torque_limit_are_kept(dense):
+    L, tau, state, _ = dense
+    restore(L, state)
+    allowed = np.zeros(L.num_joints, bool)
+    allowed[::2] = True
+    r = select_actuators(L, tau, SelectionOptions(max_fit=0.01), allowed=allowed)
+    assert len(r.actuated) and allowed[r.actuated].all()
+    restore(L, state)
+    free = select_actuators(L, tau, SelectionOptions(actuators=3))
+    limit = 0.6 * free.torques.max()
+    restore(L, state)
+    capped = select_actuators(L, tau, SelectionOptions(max_fit=0.01, tau_max=limit))
+    assert capped.torques.max() <= limit * (1 + 1e-9)
+
+
+# ------------------------------------------------------------------ the CLI
+@pytest.mark.parametrize("argv,match", [
+    (["--max-fit", "abc"], "expected a percentage"), (["--max-fit", "150%"], "between 0 and 100%"),
+    (["--max-fit", "2"], "between 0 and 100%"), (["--actuators", "0"], "--actuators must be at least 1"),
+    (["--eta", "1e-3", "--actuators", "3"], "give one of them"), (["--p", "0.5"], "--p applies to eq. 8 only"),
+    (["--max-iters", "5"], "--max-iters applies"), (["--etas", "1e-3"], "--etas needs --sweep"),
+])
+def test_cli_bad_input_is_one_line(tmp_path, capsys, argv, match):
+    case = EXAMPLES / "asymm_wings_pointy" / "case.json"
+    assert main(["sparsify", str(case), "--out", str(tmp_path / "o"), "--no-progress", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and len(err.splitlines()) == 1, err
+
+
+def _small_case(tmp_path):
+    from xshells.io.export import write_design_obj
+
+    write_design_obj(tmp_path / "grid.obj", warped_grid(5))
+    spec = {"file": "grid.obj", "material": {"type": "rectangle", "E": 2000, "nu": 0.3, "params": [4.0, 1.5]},
+            "angle_deg": 60, "steps": 6, "subdivision": 4}
+    (tmp_path / "case.json").write_text(json.dumps(spec))
+    return tmp_path / "case.json"
+
+
+def test_cli_writes_the_answer_and_the_curve(tmp_path, capsys):
+    case = _small_case(tmp_path)
+    out = tmp_path / "out"
+    assert main(["sparsify", str(case), "--max-fit", "0.5%", "--sweep", "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    r = json.loads((out / "result.json").read_text())
+    assert r["method"] == "elimination" and r["max_fit"] == 0.005 and r["converged"] and r["fit_mean"] <= 0.005
+    assert "finished:" in text and "suggestion" not in text
+    rows = (out / "sweep.csv").read_text().splitlines()
+    assert rows[0].startswith("num_actuators,fit_mean,fit_max") and len(rows) > 5
+    assert int(rows[-1].split(",")[0]) <= 2  # --sweep goes on to the end of the curve
+    assert (out / "sweep.png").stat().st_size > 10_000 and (out / "actuators.png").stat().st_size > 10_000
+    assert len((out / "torques.txt").read_text().split()) == r["num_joints"]
+
+
+def test_a_run_that_stops_early_says_so_and_suggests_what_to_try(tmp_path, capsys):
+    case = _small_case(tmp_path)
+    out = tmp_path / "out"
+    assert main(["sparsify", str(case), "--eta", "1e-3", "--max-iters", "1", "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    r = json.loads((out / "result.json").read_text())
+    assert r["converged"] is False and "iteration limit" in r["message"]
+    assert "NOT CONVERGED" in text and "suggestion: try the default mode" in text
+    assert r["suggestion"]
+
+
+# ------------------------------------------------------------------ the real designs (issue 25)
+def _sparsify_default(case, out):
+    assert main(["sparsify", str(case), "--out", str(out), "--no-progress"]) == 0
+    r = json.loads((out / "result.json").read_text())
+    assert r["converged"], r["message"]
+    assert "not valid" not in r["message"]
+    return r
+
+
+def test_pointy_wings_need_at_most_the_papers_four_actuators(tmp_path):
+    out = tmp_path / "out"
+    r = _sparsify_default(EXAMPLES / "asymm_wings_pointy" / "case.json", out)
+    assert 1 <= r["num_actuators"] <= 4 and r["fit_mean"] <= 0.01, (r["num_actuators"], r["fit_mean"])
+    assert len(r["actuated_joints"]) == len(r["torques"]) == r["num_actuators"]
+    assert all(0 <= v < 157 for v in r["actuated_joints"])
+    assert (out / "actuators.png").stat().st_size > 10_000
+    assert len((out / "torques.txt").read_text().split()) == 157
+
+
+def test_pointy_wings_best_six(tmp_path):
+    out = tmp_path / "out"
+    assert main(["sparsify", str(EXAMPLES / "asymm_wings_pointy" / "case.json"), "--actuators", "6", "--out", str(out),
+                 "--no-progress"]) == 0
+    r = json.loads((out / "result.json").read_text())
+    assert r["num_actuators"] == 6 and r["converged"] and r["fit_mean"] <= 0.01
+
+
+def test_architectural_two_bumps_needs_at_most_fourteen_actuators(tmp_path):
+    """Paper Fig. 1 design (237 joints, custom profile); the reference ships 11- and 14-actuator sets."""
+    r = _sparsify_default(EXAMPLES / "two_bumps_architectural" / "case.json", tmp_path / "out")
+    assert 1 <= r["num_actuators"] <= 14 and r["fit_mean"] <= 0.01, (r["num_actuators"], r["fit_mean"])
+
+
+def test_a_606_segment_design_needs_at_most_five_percent_of_its_joints(tmp_path):
+    r = _sparsify_default(EXAMPLES / "breather_hole" / "case.json", tmp_path / "out")
+    assert r["num_joints"] == 328
+    assert 1 <= r["num_actuators"] <= 0.05 * r["num_joints"] and r["fit_mean"] <= 0.01, (r["num_actuators"], r["fit_mean"])
