@@ -231,3 +231,15 @@ def test_a_606_segment_design_needs_at_most_five_percent_of_its_joints(tmp_path)
     r = _sparsify_default(EXAMPLES / "breather_hole" / "case.json", tmp_path / "out")
     assert r["num_joints"] == 328
     assert 1 <= r["num_actuators"] <= 0.05 * r["num_joints"] and r["fit_mean"] <= 0.01, (r["num_actuators"], r["fit_mean"])
+
+
+def test_an_unstable_dense_state_is_one_clear_error(dense, monkeypatch):
+    L, tau, state, _ = dense
+    restore(L, state)
+
+    def unstable(self, t):
+        raise ArithmeticError("the equilibrium under the trial torques is unstable (indefinite Hessian)")
+
+    monkeypatch.setattr(TorqueFit, "_solve_equilibrium", unstable)
+    with pytest.raises(InputError, match="not a stable equilibrium under torque control"):
+        select_actuators(L, tau)

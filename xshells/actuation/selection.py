@@ -38,6 +38,7 @@ against deviation, paper Fig. 9), so the curve comes out of the same run.
 """
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field, replace
 
@@ -48,6 +49,8 @@ from ..deploy.simulate import folded_joint
 from ..errors import InputError
 from ..linkage.state import restore, snapshot
 from .sparsify import TorqueFit
+
+log = logging.getLogger(__name__)
 
 FOLD_LS_WEIGHT = 1.0
 """``c`` in the fold term ``c Σ e²`` of the least-squares objective (``e`` in radians): 5° of
@@ -187,7 +190,8 @@ class _Refit:
         ``t`` must be the state last evaluated when ``r`` is given. It stops
         early once ``½|r|² ≤ good_enough`` (a fit far inside the limit needs
         no polish), or when the mean deviation is still above
-        ``give_up_above`` after two iterations (a cut that will not pass).
+        ``give_up_above`` after two iterations, or 4/3 of it after one (a
+        cut that will not pass).
         """
         t = np.array(t, float)
         if r is None:
@@ -199,7 +203,7 @@ class _Refit:
         mu = None
         radius = 0.5
         for it in range(iterations):
-            if F <= good_enough or (it >= 2 and fit_mean > give_up_above):
+            if F <= good_enough or (it >= 2 and fit_mean > give_up_above) or (it >= 1 and fit_mean > 4 / 3 * give_up_above):
                 break
             J = self.jacobian(active)
             JtJ = J.T @ J
@@ -220,14 +224,17 @@ class _Refit:
                 predicted = -(g @ step + 0.5 * step @ (JtJ @ step))
                 trial = t.copy()
                 trial[active] += step
+                newton0 = self.fit.equilibrium_iterations
                 try:
                     r_trial, fm_trial = self.evaluate(trial, max_newton=TRIAL_NEWTON_ITERATIONS)
                     F_trial = 0.5 * float(r_trial @ r_trial)
                 except ArithmeticError:
                     F_trial = np.inf
+                log.debug("    trial |step| %.3g radius %.3g: F %.3e (%d Newton)", float(np.abs(step).max()), radius, F_trial,
+                          self.fit.equilibrium_iterations - newton0)
                 if F_trial < F:
                     rho = (F - F_trial) / predicted if predicted > 0 else 0.0
-                    small = F - F_trial < 1e-3 * F
+                    small = F - F_trial < 1e-2 * F  # measured: later iterations gain < 1% each and cost the most
                     t, r, F, fit_mean = trial, r_trial, F_trial, fm_trial
                     best_state = snapshot(self.fit.L)
                     if rho > 0.5:
@@ -235,11 +242,16 @@ class _Refit:
                         radius = min(2.0 * radius, 2.0)
                     improved = True
                     break
+                if F_trial > 2.0 * F and radius < 1.0 / 64:
+                    # even a tiny step snaps to another branch: the fit sits at a limit point, polish no further
+                    break
                 mu *= 10.0
                 radius *= 0.25
                 restore(self.fit.L, best_state)
                 self.fit._t = None
                 self.evaluate(t)  # the factorization for the next trial's predictor
+            log.debug("  re-fit %d: F %.3e, mean %.4f%%, %d trial(s), %s", it, F, 100 * fit_mean, _attempt + 1,
+                      "accepted" if improved else "no decrease")
             if not improved or small:
                 break
         restore(self.fit.L, best_state)
@@ -331,7 +343,11 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
         raise InputError(f"--actuators {target_count}: only {int(np.count_nonzero(ub > 0))} joints may carry one")
     fit.predictor_limit = 0.2
     refit = _Refit(fit, ub)
-    r, fit_mean = refit.evaluate(t)
+    try:
+        r, fit_mean = refit.evaluate(t)
+    except ArithmeticError as exc:
+        raise InputError(f"{exc} at the dense torques themselves: the deployed shape is not a stable equilibrium "
+                         f"under torque control, so no set of torques holds it; try another --angle") from None
     active = np.flatnonzero(ub > 0)
     if len(active) < n or o.tau_max is not None:  # the dense torques are not all available: fit first
         t, r, fit_mean = refit.run(t, active, o.refit_iterations, r)
@@ -390,14 +406,19 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
                 trial = np.zeros(n)
                 trial[trial_active] = np.maximum(x[np.setdiff1d(np.arange(k), dropped)], 0.0)
                 ok = True
+                t_trial = time.perf_counter()
                 try:
                     r_new, fm_new = refit.evaluate(trial)
+                    fm_first = fm_new
                     trial, r_new, fm_new = refit.run(trial, trial_active, o.refit_iterations, r_new,
                                                      good_enough=good_enough, give_up_above=give_up_above)
                     # the re-fit may switch off more actuators
                     trial_active = trial_active[trial[trial_active] > 0]
                 except ArithmeticError:
                     ok = False
+                log.debug("cut %d -> %d (batch %d, candidate %d): %s, mean %.4f%% (first %.4f%%), %.1f s",
+                          k, len(trial_active), batch, tried_singles, "ok" if ok else "failed",
+                          100 * fm_new if ok else np.nan, 100 * fm_first if ok else np.nan, time.perf_counter() - t_trial)
                 if ok and not folded_joint(linkage) and (meets(fm_new) or o.full_curve):
                     accepted = True
                     t, r, fit_mean, active = trial, r_new, fm_new, trial_active

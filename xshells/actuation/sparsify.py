@@ -324,7 +324,11 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
     if t.shape != (n,):
         raise InputError(f"t0: expected {n} values (one per joint), got shape {t.shape}")
     t = np.clip(t, 0.0, ub)
-    f = fit.evaluate(t)
+    try:
+        f = fit.evaluate(t)
+    except ArithmeticError as exc:
+        raise InputError(f"{exc} at the starting torques: sparse actuation needs a stable equilibrium there "
+                         f"(at the dense torques: try another --angle)") from None
     g = fit.gradient(t)
     radius = o.initial_radius
     history, converged, message = [], False, "reached the iteration limit"

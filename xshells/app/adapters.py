@@ -16,10 +16,11 @@ Adapter signatures (what the app calls; plug in new implementations here)
     the result has ``rest_lengths``, ``message`` and ``success``.
 ``run_actuate(linkage, torque, *, progress, cancel) -> ActuateOutcome``
     ``linkage`` is at the densely actuated deployed equilibrium, ``torque``
-    the dense torque per joint. Uses ``xshells.actuation.sparsify(linkage,
-    tau_ref, callback=...)`` whose callback receives records with
-    ``iteration``, ``objective`` and ``num_actuators``; the result has
-    ``torques``, ``actuated``, ``message`` and ``converged``.
+    the dense torque per joint. Uses ``xshells.actuation.select_actuators(linkage,
+    tau_ref, callback=...)`` (the fewest actuators within 1 % of the span) whose
+    callback receives one point per accepted cut with ``num_actuators`` and
+    ``fit_mean``; the result has ``torques``, ``actuated``, ``message`` and
+    ``converged``.
 
 ``progress(iteration: int, value: float, text: str) -> None``;
 ``cancel: threading.Event`` (set = stop after the current iteration).
@@ -96,7 +97,7 @@ def _present(module: str) -> bool:
 
 def modules_present() -> tuple[bool, bool]:
     """(optimization, actuation) modules exist; the entry points are checked when used."""
-    return _present("xshells.design.optimize"), _present("xshells.actuation.sparsify")
+    return _present("xshells.design.optimize"), _present("xshells.actuation.selection")
 
 
 def optimize_available() -> bool:
@@ -105,7 +106,7 @@ def optimize_available() -> bool:
 
 
 def actuate_available() -> bool:
-    return _lookup("xshells.actuation", "sparsify") is not None
+    return _lookup("xshells.actuation", "select_actuators") is not None
 
 
 def _terms(rec) -> dict:
@@ -142,17 +143,23 @@ def run_optimize(linkage, target_angle: float, *, progress, cancel, max_iteratio
 
 
 def run_actuate(linkage, torque: float, *, progress, cancel, max_iterations: int | None = None) -> ActuateOutcome:
-    """Find sparse joint torques that hold the current deployed shape (see the module docstring)."""
-    sparsify = _lookup("xshells.actuation", "sparsify")
-    if sparsify is None:
-        raise NotImplementedError(f"sparse actuation: {NOT_AVAILABLE}")
+    """Find few joint torques that hold the current deployed shape within 1 % of the span (see the module docstring).
 
-    def cb(rec) -> bool:
-        progress(int(rec.iteration), float(rec.objective), f"{rec.num_actuators} actuators")
+    Runs ``xshells sparsify``'s default, the elimination of
+    :func:`xshells.actuation.select_actuators`; ``progress`` gets one call per
+    accepted cut (the cut's number, its mean deviation, "N actuators").
+    ``max_iterations`` is not used by it (the elimination ends by itself;
+    ``cancel`` stops it after the current cut, keeping the best answer so far).
+    """
+    select = _lookup("xshells.actuation", "select_actuators")
+    if select is None:
+        raise NotImplementedError(f"sparse actuation: {NOT_AVAILABLE}")
+    cuts = [0]
+
+    def cb(point) -> bool:
+        cuts[0] += 1
+        progress(cuts[0], float(point.fit_mean), f"{point.num_actuators} actuators, mean {100 * point.fit_mean:.2f}%")
         return cancel.is_set()
 
-    kw = {}
-    if max_iterations is not None:
-        kw["options"] = _lookup("xshells.actuation", "SparsifyOptions")(max_iterations=int(max_iterations))
-    res = sparsify(linkage, float(torque), callback=cb, **kw)
+    res = select(linkage, float(torque), callback=cb)
     return ActuateOutcome(np.asarray(res.torques, float), np.asarray(res.actuated), str(res.message), bool(res.converged))
