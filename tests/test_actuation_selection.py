@@ -14,7 +14,7 @@ from xshells.errors import InputError
 from xshells.linkage.linkage import Linkage
 from xshells.linkage.state import restore, snapshot
 
-from data_paths import EXAMPLES
+from data_paths import DATA, EXAMPLES, needs_data
 from test_deploy import FLAT_BEAM, warped_grid
 
 
@@ -243,3 +243,19 @@ def test_an_unstable_dense_state_is_one_clear_error(dense, monkeypatch):
     monkeypatch.setattr(TorqueFit, "_solve_equilibrium", unstable)
     with pytest.raises(InputError, match="not a stable equilibrium under torque control"):
         select_actuators(L, tau)
+
+
+@needs_data
+def test_a_shape_that_torques_cannot_hold_is_reported_with_what_to_try(tmp_path, capsys):
+    """The boat at 62°: its deployment torque falls as it opens, so under torque control it snaps elsewhere."""
+    case = {"name": "boat", "file": str(DATA / "python/examples/20190114_002018_meshID_444481be-5cba-4dad-a316-b52203791b61.obj"),
+            "subdivision": 8, "material": {"type": "rectangle", "E": 20000, "nu": 0.3, "params": [15, 3]},
+            "angle_deg": 62, "steps": 20}
+    (tmp_path / "boat.json").write_text(json.dumps(case))
+    out = tmp_path / "out"
+    assert main(["sparsify", str(tmp_path / "boat.json"), "--out", str(out), "--no-progress"]) == 0
+    r = json.loads((out / "result.json").read_text())
+    text = capsys.readouterr().out
+    assert r["converged"] is False and "do not hold the deployed shape" in r["message"]
+    assert "NOT CONVERGED" in text and "suggestion: try another --angle" in text
+    assert r["fit_mean"] > 0.01  # the reported fit is the honest one, not a pass

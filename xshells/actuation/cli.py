@@ -114,8 +114,12 @@ def _run(args, case_path) -> int:
 
 
 def _summary(r: dict, out: str) -> None:
-    print(f"{r['name']}: {r['num_actuators']} actuators at joints {r['actuated_joints']}")
-    print(f"  torques {[float(f'{t:.4g}') for t in r['torques']]} (dense: {r['dense_torque']:.4g} at every joint)")
+    def listed(values, fmt):
+        text = ", ".join(fmt(v) for v in values[:12])
+        return f"[{text}{', … (all in result.json)' if len(values) > 12 else ''}]"
+
+    print(f"{r['name']}: {r['num_actuators']} actuators at joints {listed(r['actuated_joints'], str)}")
+    print(f"  torques {listed(r['torques'], lambda t: f'{t:.4g}')} (dense: {r['dense_torque']:.4g} at every joint)")
     limit = f" (limit {100 * r['max_fit']:g}%)" if r.get("method") == "elimination" and not r.get("actuators_requested") else ""
     print(f"  distance to the dense deployment: mean {100 * r['fit_mean']:.3f}%{limit}, max {100 * r['fit_max']:.3f}% of the span")
     print(f"  work {r['work']:.6g} (dense {r['dense_work']:.6g}); {r['time_s']:.1f} s "

@@ -56,6 +56,8 @@ FOLD_LS_WEIGHT = 1.0
 """``c`` in the fold term ``c Σ e²`` of the least-squares objective (``e`` in radians): 5° of
 excess costs 7.6e-3, about 150 times the fit term at a 1 % mean deviation."""
 
+UNHOLDABLE = "the dense torques do not hold the deployed shape"
+
 TRIAL_NEWTON_ITERATIONS = 100
 """Newton iterations allowed to the equilibrium at a re-fit's trial torques (see :meth:`_Refit.evaluate`)."""
 
@@ -349,7 +351,9 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
         raise InputError(f"{exc} at the dense torques themselves: the deployed shape is not a stable equilibrium "
                          f"under torque control, so no set of torques holds it; try another --angle") from None
     active = np.flatnonzero(ub > 0)
-    if len(active) < n or o.tau_max is not None:  # the dense torques are not all available: fit first
+    # Fit first where the dense torques are not all available, or where they do not hold the dense shape
+    # (a deployment unstable under torque control snaps to another equilibrium: the boat at 62°).
+    if len(active) < n or o.tau_max is not None or fit_mean > 0.1 * o.max_fit:
         t, r, fit_mean = refit.run(t, active, o.refit_iterations, r)
     _, dev = fit.fit_terms()
     curve = []
@@ -374,8 +378,10 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
     state = snapshot(linkage)
     message, converged, rounds = "", False, 0
     stopped = False
+    # Where even every joint, re-fitted, misses the limit, the shape cannot be held by torques: say why.
+    unholdable = target_count is None and fit_mean > o.max_fit
     try:
-        while len(active) > (target_count or 1):
+        while not unholdable and len(active) > (target_count or 1):
             rounds += 1
             J = refit.jacobian(active)
             k = len(active)
@@ -449,6 +455,11 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
                 break
         else:
             message = f"reached {len(active)} actuator{'s' if len(active) != 1 else ''}"
+        if unholdable:
+            message = (f"{UNHOLDABLE}: under torque control it moves to another equilibrium (mean deviation "
+                       f"{100 * fit_mean:.2f}% with all {len(active)} joints actuated and their torques re-fitted), so it is "
+                       f"not stable under torque control at this angle (typically where the deployment torque falls as "
+                       f"it opens)")
         converged = best is not None and not stopped
         if target_count is not None:
             converged = converged and len(active) == target_count
