@@ -9,24 +9,12 @@ from xshells.actuation import SelectionOptions, select_actuators
 from xshells.actuation.selection import _linear_cuts, _ranked_single_cuts, _Refit
 from xshells.actuation.sparsify import TorqueFit
 from xshells.cli import main
-from xshells.deploy import DeployOptions, deploy, rest_length_solve
 from xshells.errors import InputError
-from xshells.linkage.linkage import Linkage
-from xshells.linkage.state import restore, snapshot
+from xshells.linkage.state import restore
 
 from data_paths import DATA, EXAMPLES, needs_data
-from test_deploy import FLAT_BEAM, warped_grid
-
-
-@pytest.fixture(scope="module")
-def dense():
-    """A small incompatible grid deployed to 60° by uniform actuation: (linkage, τ_ref, state, flat energy)."""
-    L = Linkage(warped_grid(5), FLAT_BEAM, subdivision=4)
-    rest_length_solve(L)
-    flat = L.energy()
-    res = deploy(L, np.radians(60), DeployOptions(steps=6))
-    assert res.converged and res.torque > 0
-    return L, res.torque, snapshot(L), flat
+from test_actuation import dense  # noqa: F401  (the small deployed grid, shared fixture)
+from test_deploy import warped_grid
 
 
 # ------------------------------------------------------------------ the linear model, by hand

@@ -91,25 +91,26 @@ def _allowed_from_vertices(L: Linkage, candidates) -> np.ndarray | None:
     return allowed
 
 
-def _result_dict(dense: DenseDeployment, res, options: SparsifyOptions) -> dict:
+UNITS = ("torques and work in the energy's units (N·mm for designs in mm and MPa); fit distances relative to the "
+         "bounding-box diagonal of the dense deployment")
+
+
+def _result_dict(dense: DenseDeployment, res, method: dict) -> dict:
+    """``result.json`` of either method: the fields they share, ``method``'s own, and a suggestion."""
     L = dense.linkage
     jv = np.asarray(L.graph.joint_vertex)
-    return {
+    out = {
         "name": dense.name,
+        **method,
         "actuated_joints": [int(jv[j]) for j in res.actuated],
         "torques": [float(res.torques[j]) for j in res.actuated],
         "num_actuators": int(len(res.actuated)),
+        "num_joints": int(L.num_joints),
         "fit_mean": res.fit_mean,
         "fit_max": res.fit_max,
         "work": res.work,
         "dense_torque": dense.tau_ref,
         "dense_work": dense.dense_energy - dense.flat_energy,
-        "method": "eta",
-        "eta": options.eta,
-        "p": options.p,
-        "tau_max": options.tau_max,
-        "objective": res.objective,
-        "iterations": res.iterations,
         "converged": res.converged,
         "message": res.message,
         "warnings": dense.warnings,
@@ -117,8 +118,24 @@ def _result_dict(dense: DenseDeployment, res, options: SparsifyOptions) -> dict:
         "dense_deployment_time_s": dense.time_s,
         "joint_vertices": jv.tolist(),
         "all_torques": res.torques.tolist(),
-        "units": "torques and work in the energy's units (N·mm for designs in mm and MPa); fit distances relative to the bounding-box diagonal of the dense deployment",
+        "units": UNITS,
     }
+    out["suggestion"] = suggestion(out)
+    return out
+
+
+def _write_outputs(out_dir, dense: DenseDeployment, res, result: dict, title: str) -> None:
+    """``result.json``, ``torques.txt`` and ``actuators.png`` (over the dense deployment's joints)."""
+    L = dense.linkage
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    atomic_write_text(os.path.join(out_dir, "torques.txt"), "".join(f"{v:.10g}\n" for v in res.torques))
+    from ..viz.render import render_actuators
+
+    restore_after = snapshot(L)
+    restore(L, dense.state)
+    dense_joints = L.joint_positions()
+    restore(L, restore_after)
+    render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints, title=title)
 
 
 def run_sparsify(case_path, out_dir, options: SparsifyOptions = SparsifyOptions(), *, candidates=None,
@@ -150,18 +167,10 @@ def run_sparsify(case_path, out_dir, options: SparsifyOptions = SparsifyOptions(
     finally:
         if bar is not None:
             bar.close()
-    result = _result_dict(dense, res, options)
-    result["suggestion"] = suggestion(result)
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
-    atomic_write_text(os.path.join(out_dir, "torques.txt"), "".join(f"{v:.10g}\n" for v in res.torques))
-    from ..viz.render import render_actuators
-
-    restore_after = snapshot(L)
-    restore(L, dense.state)
-    dense_joints = L.joint_positions()
-    restore(L, restore_after)
-    render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints,
-                     title=f"{dense.name}: {len(res.actuated)} actuators (η = {options.eta:g}, p = {options.p:g})")
+    result = _result_dict(dense, res, {"method": "eta", "eta": options.eta, "p": options.p, "tau_max": options.tau_max,
+                                       "objective": res.objective, "iterations": res.iterations})
+    _write_outputs(out_dir, dense, res, result,
+                   f"{dense.name}: {len(res.actuated)} actuators (η = {options.eta:g}, p = {options.p:g})")
     return result
 
 
@@ -210,12 +219,16 @@ def run_sweep(case_path, out_dir, *, etas=DEFAULT_ETAS, ps=DEFAULT_PS, base: Spa
     return rows
 
 
-def _write_sweep(out_dir, rows, name) -> None:
+def _write_csv(path, rows) -> None:
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(rows[0].keys()))
     w.writeheader()
     w.writerows(rows)
-    atomic_write_text(os.path.join(out_dir, "sweep.csv"), buf.getvalue())
+    atomic_write_text(path, buf.getvalue())
+
+
+def _write_sweep(out_dir, rows, name) -> None:
+    _write_csv(os.path.join(out_dir, "sweep.csv"), rows)
     from ..viz.render import plot_actuation_tradeoff
 
     plot_actuation_tradeoff(os.path.join(out_dir, "sweep.png"), rows, title=name)
@@ -245,39 +258,6 @@ def suggestion(result: dict) -> str:
     return "try the default mode (no --eta)"
 
 
-def _selection_dict(dense: DenseDeployment, res, options: SelectionOptions) -> dict:
-    L = dense.linkage
-    jv = np.asarray(L.graph.joint_vertex)
-    out = {
-        "name": dense.name,
-        "method": "elimination",
-        "actuated_joints": [int(jv[j]) for j in res.actuated],
-        "torques": [float(res.torques[j]) for j in res.actuated],
-        "num_actuators": int(len(res.actuated)),
-        "num_joints": int(L.num_joints),
-        "fit_mean": res.fit_mean,
-        "fit_max": res.fit_max,
-        "max_fit": options.max_fit,
-        "actuators_requested": options.actuators,
-        "work": res.work,
-        "dense_torque": dense.tau_ref,
-        "dense_work": dense.dense_energy - dense.flat_energy,
-        "tau_max": options.tau_max,
-        "rounds": res.rounds,
-        "equilibrium_solves": res.equilibrium_solves,
-        "converged": res.converged,
-        "message": res.message,
-        "warnings": dense.warnings,
-        "time_s": res.time_s,
-        "dense_deployment_time_s": dense.time_s,
-        "joint_vertices": jv.tolist(),
-        "all_torques": res.torques.tolist(),
-        "units": "torques and work in the energy's units (N·mm for designs in mm and MPa); fit distances relative to the bounding-box diagonal of the dense deployment",
-    }
-    out["suggestion"] = suggestion(out)
-    return out
-
-
 def _curve_rows(L, curve) -> list[dict]:
     jv = np.asarray(L.graph.joint_vertex)
     return [{"num_actuators": c.num_actuators, "fit_mean": c.fit_mean, "fit_max": c.fit_max, "work": c.work,
@@ -286,11 +266,7 @@ def _curve_rows(L, curve) -> list[dict]:
 
 
 def _write_curve(out_dir, rows, name, options: SelectionOptions, chosen) -> None:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(rows[0].keys()))
-    w.writeheader()
-    w.writerows(rows)
-    atomic_write_text(os.path.join(out_dir, "sweep.csv"), buf.getvalue())
+    _write_csv(os.path.join(out_dir, "sweep.csv"), rows)
     from ..viz.render import plot_actuation_curve
 
     plot_actuation_curve(os.path.join(out_dir, "sweep.png"), rows, max_fit=options.max_fit if options.actuators is None else None,
@@ -330,17 +306,11 @@ def run_selection(case_path, out_dir, options: SelectionOptions = SelectionOptio
     finally:
         if bar is not None:
             bar.close()
-    result = _selection_dict(dense, res, options)
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
-    atomic_write_text(os.path.join(out_dir, "torques.txt"), "".join(f"{v:.10g}\n" for v in res.torques))
-    _write_curve(out_dir, _curve_rows(L, res.curve), dense.name, options, len(res.actuated))
-    from ..viz.render import render_actuators
-
-    restore_after = snapshot(L)
-    restore(L, dense.state)
-    dense_joints = L.joint_positions()
-    restore(L, restore_after)
+    result = _result_dict(dense, res, {"method": "elimination", "max_fit": options.max_fit,
+                                       "actuators_requested": options.actuators, "tau_max": options.tau_max,
+                                       "rounds": res.rounds, "equilibrium_solves": res.equilibrium_solves})
+    _write_curve(out_dir, _curve_rows(dense.linkage, res.curve), dense.name, options, len(res.actuated))
     limit = f"mean ≤ {100 * options.max_fit:g}%" if options.actuators is None else f"best {options.actuators}"
-    render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints,
-                     title=f"{dense.name}: {len(res.actuated)} actuators ({limit}; mean {100 * res.fit_mean:.2f}%)")
+    _write_outputs(out_dir, dense, res, result,
+                   f"{dense.name}: {len(res.actuated)} actuators ({limit}; mean {100 * res.fit_mean:.2f}%)")
     return result

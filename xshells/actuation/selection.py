@@ -303,6 +303,37 @@ def _ranked_single_cuts(J, r, t_active):
     return np.argsort(score, kind="stable"), x, Ginv
 
 
+def _proposals(J, r, t_active, ub_active, batch: int, candidates: int):
+    """Cuts to try, best first: (indices into the active set to drop, the other torques re-fitted linearly).
+
+    A batch, then a third of it, … down to single cuts; then the next
+    ``candidates − 1`` single cuts of the linear ranking.
+    """
+    while batch > 1:
+        yield _linear_cuts(J, r, t_active, batch, ub_active)
+        batch = max(1, batch // 3)
+    order, x0, Ginv = _ranked_single_cuts(J, r, t_active)
+    for i in order[:candidates]:
+        x = x0 - Ginv[:, i] * (x0[i] / Ginv[i, i])
+        x[i] = 0.0
+        yield [int(i)], np.clip(x, 0.0, ub_active)
+
+
+def _refit_cut(refit: _Refit, trial, trial_active, iterations, good_enough, give_up_above):
+    """Equilibrium and nonlinear re-fit after a cut: (ok, t, r, fit_mean); ok is False where the equilibrium is lost."""
+    start = time.perf_counter()
+    try:
+        r, first = refit.evaluate(trial)
+        t, r, fit_mean = refit.run(trial, trial_active, iterations, r, good_enough=good_enough,
+                                   give_up_above=give_up_above)
+    except ArithmeticError:
+        log.debug("cut to %d: equilibrium lost, %.1f s", len(trial_active), time.perf_counter() - start)
+        return False, trial, None, np.inf
+    log.debug("cut to %d: mean %.4f%% (first %.4f%%), %.1f s", len(trial_active), 100 * fit_mean, 100 * first,
+              time.perf_counter() - start)
+    return True, t, r, fit_mean
+
+
 def select_actuators(linkage, tau_ref: float, options: SelectionOptions = SelectionOptions(), *, allowed=None,
                      flat_energy: float = 0.0, callback=None) -> SelectionResult:
     """Few actuators that deploy ``linkage`` to its current (densely actuated) shape.
@@ -355,7 +386,6 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
     # (a deployment unstable under torque control snaps to another equilibrium: the boat at 62°).
     if len(active) < n or o.tau_max is not None or fit_mean > 0.1 * o.max_fit:
         t, r, fit_mean = refit.run(t, active, o.refit_iterations, r)
-    _, dev = fit.fit_terms()
     curve = []
 
     def record():
@@ -390,41 +420,13 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
             if target_count is not None:
                 batch = min(batch, k - target_count)
             accepted = False
-            tried_singles = 0
-            order = None
-            while not accepted:
-                if batch > 1 or order is None:
-                    dropped, x = _linear_cuts(J, r[:], t[active], batch, ub[active])
-                    if batch == 1:
-                        order, _, _ = _ranked_single_cuts(J, r, t[active])
-                        tried_singles = 1
-                else:
-                    if tried_singles >= min(o.candidates, k):
-                        break
-                    i = int(order[tried_singles])
-                    tried_singles += 1
-                    dropped = [i]
-                    _, x0, Ginv = _ranked_single_cuts(J, r, t[active])
-                    x = x0 - Ginv[:, i] * (x0[i] / Ginv[i, i])
-                    x[i] = 0.0
-                    x = np.clip(x, 0.0, ub[active])
+            for number, (dropped, x) in enumerate(_proposals(J, r, t[active], ub[active], batch, o.candidates)):
                 trial_active = np.delete(active, dropped)
                 trial = np.zeros(n)
-                trial[trial_active] = np.maximum(x[np.setdiff1d(np.arange(k), dropped)], 0.0)
-                ok = True
-                t_trial = time.perf_counter()
-                try:
-                    r_new, fm_new = refit.evaluate(trial)
-                    fm_first = fm_new
-                    trial, r_new, fm_new = refit.run(trial, trial_active, o.refit_iterations, r_new,
-                                                     good_enough=good_enough, give_up_above=give_up_above)
-                    # the re-fit may switch off more actuators
-                    trial_active = trial_active[trial[trial_active] > 0]
-                except ArithmeticError:
-                    ok = False
-                log.debug("cut %d -> %d (batch %d, candidate %d): %s, mean %.4f%% (first %.4f%%), %.1f s",
-                          k, len(trial_active), batch, tried_singles, "ok" if ok else "failed",
-                          100 * fm_new if ok else np.nan, 100 * fm_first if ok else np.nan, time.perf_counter() - t_trial)
+                trial[trial_active] = x[np.setdiff1d(np.arange(k), dropped)]
+                ok, trial, r_new, fm_new = _refit_cut(refit, trial, trial_active, o.refit_iterations, good_enough,
+                                                      give_up_above)
+                trial_active = trial_active[trial[trial_active] > 0]  # the re-fit may switch off more actuators
                 if ok and not folded_joint(linkage) and (meets(fm_new) or o.full_curve):
                     accepted = True
                     t, r, fit_mean, active = trial, r_new, fm_new, trial_active
@@ -434,13 +436,10 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
                         best = (t.copy(), state, point)
                     if callback is not None and callback(point):
                         stopped = True
-                else:
-                    restore(linkage, state)
-                    fit._t = None
-                    refit.evaluate(t)
-                    if batch > 1:
-                        batch = max(1, batch // 3)
-                        order = None
+                    break
+                restore(linkage, state)  # undo the cut, with the factorization of the state kept
+                fit._t = None
+                refit.evaluate(t)
             if stopped:
                 message = "stopped by request"
                 break
