@@ -147,7 +147,7 @@ def run_actuate(linkage, torque: float, *, progress, cancel, max_iterations: int
 
     Runs ``xshells sparsify``'s default, the elimination of
     :func:`xshells.actuation.select_actuators`; ``progress`` gets one call per
-    accepted cut (the cut's number, its mean deviation, "N actuators").
+    accepted cut (the cut's number, its mean deviation in % of the span, "N actuators, mean …").
     ``max_iterations`` is not used by it (the elimination ends by itself;
     ``cancel`` stops it after the current cut, keeping the best answer so far).
     """
@@ -158,7 +158,8 @@ def run_actuate(linkage, torque: float, *, progress, cancel, max_iterations: int
 
     def cb(point) -> bool:
         cuts[0] += 1
-        progress(cuts[0], float(point.fit_mean), f"{point.num_actuators} actuators, mean {100 * point.fit_mean:.2f}%")
+        n = point.num_actuators
+        progress(cuts[0], 100.0 * float(point.fit_mean), f"{n} actuator{'s' if n != 1 else ''}, mean {100 * point.fit_mean:.2f}%")
         return cancel.is_set()
 
     res = select(linkage, float(torque), callback=cb)

@@ -544,7 +544,7 @@ class App:
             self.opt_md.content = f"sparse actuation: {adapters.NOT_AVAILABLE}"
             return
         self._opt_history = []
-        self._opt_title = "actuation objective"
+        self._opt_title = "mean deviation, % of span"
         if self.session.actuate(int(self.opt_iters.value)):
             self.result_md.content = "sparse actuation…"
 
