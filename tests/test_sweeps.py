@@ -274,3 +274,26 @@ def test_dispatch_size_ranks_larger_designs_first(tmp_path):
     base = {"file": str(tmp_path / "grid.obj"), "subdivision": 4, "steps": 5}
     assert estimated_size({**base, "angle_deg": 75}) == 1.25 * estimated_size({**base, "angle_deg": 60})
     assert estimated_size({**base, "angle_rad": math.pi / 2}) == pytest.approx(estimated_size({**base, "angle_deg": 90}))
+
+
+def test_a_sparsify_sweep_without_eta_runs_the_elimination_and_draws_its_curve(tmp_path):
+    small_grid(tmp_path / "grid.obj")
+    (tmp_path / "s.yaml").write_text(
+        "task: sparsify\nbase:\n  file: grid.obj\n  subdivision: 3\n  steps: 4\n  angle_deg: 60\n"
+        "  material: {type: rectangle, E: 2e3, nu: 0.3, params: [4.0, 1.5]}\naxes:\n  max_fit: [0.002, 0.01]\n")
+    spec = load_spec(tmp_path / "s.yaml")
+    rep = run_sweep(spec, str(tmp_path / "out"), SweepSettings(workers=0))
+    assert not rep.failed, [r["error"] for r in rep.records]
+    res = [r["result"] for r in rep.records]
+    assert all(r["method"] == "elimination" and r["fit_mean"] <= r["max_fit"] for r in res)
+    assert res[1]["num_actuators"] <= res[0]["num_actuators"]
+    plots = write_summary(str(tmp_path / "out"), spec, {r["id"]: r for r in rep.records})
+    assert "tradeoff.png" in [os.path.basename(p) for p in plots]
+
+
+def test_a_sparsify_spec_mixing_the_two_methods_is_refused(tmp_path):
+    small_grid(tmp_path / "grid.obj")
+    spec = spec_from_dict({"task": "sparsify", "base": {"file": "grid.obj", "subdivision": 3, "steps": 4, "angle_deg": 60,
+                                                        "eta": 1e-3, "max_fit": 0.01}}, str(tmp_path))
+    rep = run_sweep(spec, str(tmp_path / "out"), SweepSettings(workers=0))
+    assert rep.failed and "not both" in rep.records[0]["error"]

@@ -100,8 +100,10 @@ class SelectionOptions:
     def __post_init__(self):
         if not (np.isfinite(self.max_fit) and self.max_fit > 0):
             raise InputError(f"max_fit must be a positive fraction of the span, got {self.max_fit}")
-        if self.actuators is not None and not (int(self.actuators) == self.actuators and self.actuators >= 1):
-            raise InputError(f"actuators must be a whole number of at least 1, got {self.actuators}")
+        if self.actuators is not None:
+            if not (int(self.actuators) == self.actuators and self.actuators >= 1):
+                raise InputError(f"actuators must be a whole number of at least 1, got {self.actuators}")
+            object.__setattr__(self, "actuators", int(self.actuators))  # 6.0 from a spec file counts as 6
         if self.tau_max is not None and not (self.tau_max > 0):
             raise InputError(f"tau_max must be positive, got {self.tau_max}")
         if not (0 < self.cut_fraction < 1):

@@ -159,8 +159,8 @@ def tradeoff_plot(path: str, spec: SweepSpec, rows: list) -> bool:
     """Fit distance against number of actuators, one curve per p (Fig. 9); False without the columns."""
     from ..viz.render import plot_actuation_tradeoff
 
-    pts = [r for r in rows if r["status"] != "failed"
-           and all(_finite(r.get(k)) for k in ("num_actuators", "fit_mean", "p"))]
+    pts = [r for r in rows if r["status"] != "failed" and all(_finite(r.get(k)) for k in ("num_actuators", "fit_mean"))
+           and (_finite(r.get("p")) or r.get("method") == "elimination")]
     if not pts:
         return False
     plot_actuation_tradeoff(path, pts, title=spec.name)

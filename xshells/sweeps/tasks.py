@@ -213,21 +213,34 @@ def _write_case(params: dict, path: str) -> str:
 
 
 SPARSIFY_KEYS = ("eta", "p", "tau_max", "max_iterations")
+SELECTION_KEYS = ("max_fit", "actuators", "tau_max")
 
 
 def sparsify_task(params: dict, out_dir: str) -> dict:
-    """Dense deployment, then sparse actuation for one (η, p) (``xshells sparsify``, quietly)."""
-    from ..actuation.run import run_sparsify
+    """Dense deployment, then sparse actuation (``xshells sparsify``, quietly).
+
+    With ``eta`` or ``p`` (or ``max_iterations``) among the parameters it solves eq. 8 for that (η, p);
+    otherwise it runs the default elimination (``max_fit``, default 1 %, or ``actuators``).
+    """
+    from ..actuation.run import run_selection, run_sparsify
+    from ..actuation.selection import SelectionOptions
     from ..actuation.sparsify import SparsifyOptions
 
     os.makedirs(out_dir, exist_ok=True)
     case = _write_case(params, os.path.join(out_dir, "case.json"))
-    opts = SparsifyOptions(**{k: params[k] for k in SPARSIFY_KEYS if params.get(k) is not None})
-    r = run_sparsify(case, out_dir, opts, progress=False)
     keys = ("converged", "message", "num_actuators", "fit_mean", "fit_max", "work", "dense_work", "dense_torque",
-            "objective", "iterations", "time_s", "dense_deployment_time_s")
-    # η and p as used (defaults included), so that the trade-off plot has them without the spec naming them
-    return {"eta": opts.eta, "p": opts.p, **{k: r[k] for k in keys}}
+            "time_s", "dense_deployment_time_s")
+    if any(params.get(k) is not None for k in ("eta", "p", "max_iterations")):
+        if params.get("max_fit") is not None or params.get("actuators") is not None:
+            raise InputError("sparsify: give eta/p (eq. 8) or max_fit/actuators (elimination), not both")
+        opts = SparsifyOptions(**{k: params[k] for k in SPARSIFY_KEYS if params.get(k) is not None})
+        r = run_sparsify(case, out_dir, opts, progress=False)
+        # η and p as used (defaults included), so that the trade-off plot has them without the spec naming them
+        return {"eta": opts.eta, "p": opts.p, "objective": r["objective"], "iterations": r["iterations"],
+                **{k: r[k] for k in keys}}
+    sel = SelectionOptions(**{k: params[k] for k in SELECTION_KEYS if params.get(k) is not None})
+    r = run_selection(case, out_dir, sel, progress=False)
+    return {"method": "elimination", "max_fit": sel.max_fit, "actuators": sel.actuators, **{k: r[k] for k in keys}}
 
 
 def optimize_task(params: dict, out_dir: str) -> dict:
@@ -275,10 +288,11 @@ def noop_task(params: dict, out_dir: str) -> dict:
 # what a task's outputs import on first use (PNGs, 3D views, the DXF drawing): 0.9 s per worker otherwise
 _PLOTS = ("xshells.viz.render", "matplotlib.pyplot", "mpl_toolkits.mplot3d.art3d", "ezdxf")
 register_task("deploy", deploy_task, preload=("xshells.deploy.run",) + _PLOTS)
-register_task("sparsify", sparsify_task, requires=("xshells.actuation.run:run_sparsify",),
+register_task("sparsify", sparsify_task, requires=("xshells.actuation.run:run_selection",),
               preload=("xshells.actuation.run",) + _PLOTS,
               params={"eta": number(0), "p": number(0, 1, open_min=True), "tau_max": optional(number(0, open_min=True)),
-                      "max_iterations": number(1, integer=True)})
+                      "max_iterations": number(1, integer=True), "max_fit": number(0, 1, open_min=True),
+                      "actuators": optional(number(1, integer=True))})
 register_task("optimize", optimize_task, requires=("xshells.design.run:run_optimize",),
               preload=("xshells.design.run",) + _PLOTS,
               params={"gamma": number(0, 1), "beta": number(0), "max_iterations": number(1, integer=True),

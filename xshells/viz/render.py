@@ -123,13 +123,16 @@ def render_actuators(path, linkage, actuated, torques, reference=None, title: st
 def plot_actuation_tradeoff(path, rows, title: str = "") -> None:
     """Fitting distance against the number of actuators, one curve per ``p`` (paper Fig. 9).
 
-    ``rows``: dicts with ``p``, ``num_actuators`` and ``fit_mean`` (relative to the span).
+    ``rows``: dicts with ``p``, ``num_actuators`` and ``fit_mean`` (relative to the span); rows
+    without ``p`` (the elimination's) make a curve of their own.
     """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
-    for p in sorted({r["p"] for r in rows}, reverse=True):
-        sel = sorted((r for r in rows if r["p"] == p), key=lambda r: r["num_actuators"])
-        ax.plot([r["num_actuators"] for r in sel], [100 * r["fit_mean"] for r in sel], "o-", ms=4, label=f"p = {p:g}")
+    groups = {r.get("p") for r in rows}
+    for p in sorted(groups - {None}, reverse=True) + ([None] if None in groups else []):
+        sel = sorted((r for r in rows if r.get("p") == p), key=lambda r: r["num_actuators"])
+        ax.plot([r["num_actuators"] for r in sel], [100 * r["fit_mean"] for r in sel], "o-", ms=4,
+                label="elimination (--max-fit / --actuators)" if p is None else f"p = {p:g}")
     ax.set_xlabel("number of actuators")
     ax.set_ylabel("mean joint distance to the dense deployment (% of span)")
     ax.legend()
