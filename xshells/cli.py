@@ -4,12 +4,16 @@ Each subcommand lives beside the code it drives, in a module that exposes
 ``register(subparsers)``; this file only collects them. A subcommand's
 handler returns an exit code. Errors that the user can fix are raised as
 :class:`xshells.errors.InputError` and printed as one line, never as a
-traceback.
+traceback (exit 2). Anything else is a bug of ours: one line too, exit 3, the
+traceback written to ``OUT/error.log``; ``--debug`` (anywhere on the command
+line) shows it instead. An output folder that cannot be created or written is
+refused before any work starts.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from .errors import InputError
@@ -62,12 +66,19 @@ def _parser_for(argv: list[str]) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    debug = "--debug" in argv  # anywhere on the line: show tracebacks of internal errors
+    argv = [a for a in argv if a != "--debug"]
     parser = _parser_for(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
+        out = getattr(args, "out", None)
+        if isinstance(out, str) and out:  # refused before any work starts
+            from .io.export import prepare_output_dir
+
+            prepare_output_dir(out)
         # Floating-point warnings (overflow, 0/0 in a collapsing state) are not for the
         # command line: a run that goes wrong says so in its own one-line message.
         import numpy as np
@@ -80,6 +91,30 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"xshells {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # a bug of ours, not the user's input: one line, the traceback kept
+        if debug:
+            raise
+        return _internal_error(args, exc)
+
+
+def _internal_error(args, exc: Exception) -> int:
+    import traceback
+
+    text = "".join(traceback.format_exception(exc))
+    where = ""
+    out = getattr(args, "out", None)
+    if isinstance(out, str) and os.path.isdir(out):
+        try:
+            from .io.export import atomic_write_text
+
+            atomic_write_text(os.path.join(out, "error.log"), text)
+            where = f"; the traceback is in {os.path.join(out, 'error.log')}"
+        except OSError:
+            pass
+    msg = " ".join(str(exc).split())[:300] or "no message"
+    print(f"xshells {args.command}: internal error ({type(exc).__name__}: {msg}); run with --debug for the "
+          f"traceback{where}", file=sys.stderr)
+    return 3
 
 
 if __name__ == "__main__":

@@ -136,24 +136,23 @@ class UploadStore:
             spec = json.loads(content.decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{name}: not valid JSON ({getattr(exc, 'msg', 'not UTF-8')})") from None
-        if not isinstance(spec, dict) or "file" not in spec:
-            raise InputError(f"{name}: a case is a JSON object with at least a 'file' key")
-        ref = _safe_name(spec.get("flat_file") or spec["file"])
+        from ..io.case_schema import validate_case
+
+        case = validate_case(spec, name)  # the case files' one schema, as for every command
+        ref = _safe_name(case.flat_file or case.file)
         design = self._designs.get(ref)
         if design is None:
             raise InputError(f"{name}: upload its design file '{ref}' first (an uploaded case cannot read files by path)")
-        material = spec.get("material") or dict(DEFAULT_MATERIAL)
-        if not isinstance(material, dict) or material.get("type") == "contour":
+        material = case.material.model_dump(exclude_none=True) if case.material is not None else dict(DEFAULT_MATERIAL)
+        if material.get("type") == "contour":
             raise InputError(f"{name}: uploaded cases support parametric materials only (type, params, E, nu)")
-        try:
-            angle = spec.get("angle_deg")
-            angle = float(angle) if angle is not None else (np.degrees(float(spec["angle_rad"])) if spec.get("angle_rad") is not None else None)
-            sub = int(spec.get("subdivision", 8))
-        except (TypeError, ValueError):
-            raise InputError(f"{name}: angle and subdivision must be numbers") from None
-        if spec.get("rest_lengths"):
+        if case.rest_lengths:
             raise InputError(f"{name}: rest-length files are not read from uploads; remove 'rest_lengths'")
-        return Project(str(spec.get("name", os.path.splitext(name)[0])), layout_from_design(design), dict(material), sub, angle)
+        angle = case.angle_deg if case.angle_deg is not None else (
+            float(np.degrees(case.angle_rad)) if case.angle_rad is not None else None)
+        # an uploaded case without a subdivision keeps the app's own default (8), not the case files' (10)
+        sub = case.subdivision if "subdivision" in spec else 8
+        return Project(case.name or os.path.splitext(name)[0], layout_from_design(design), material, sub, angle)
 
 
 def grid_project(nx: int, ny: int, angle_deg: float = 90.0, spacing: float = 100.0) -> Project:

@@ -4,7 +4,8 @@ Keys: ``file`` (design; ``flat_file`` wins when present), ``subdivision``,
 ``material`` (``{type, E, nu, params, stiff_axis}`` or ``{type: "contour",
 contour_file, E, nu}``), one of ``angle_deg``, ``angle_rad`` or
 ``open_by_deg``, ``steps`` and ``rest_lengths`` (a file). Paths are relative
-to the case file.
+to the case file. The schema (types, ranges, units) is
+:mod:`xshells.io.case_schema`, published as ``docs/case.schema.json``.
 """
 from __future__ import annotations
 
@@ -40,27 +41,30 @@ def load_case(path) -> Case:
         raise InputError(f"{path}: cannot read case file ({exc.strerror})") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
-    if not isinstance(spec, dict) or "file" not in spec:
-        raise InputError(f"{path}: a case is a JSON object with at least a 'file' key")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text file (byte {exc.start} is not UTF-8): a case file is JSON") from None
+    from ..io.case_schema import validate_case
+
+    case = validate_case(spec, path)
     base = os.path.dirname(os.path.abspath(path))
     rel = lambda p: p if os.path.isabs(p) else os.path.join(base, p)  # noqa: E731
     angle = None
-    if spec.get("angle_deg") is not None:
-        angle = np.radians(float(spec["angle_deg"]))
-    elif spec.get("angle_rad") is not None:
-        angle = float(spec["angle_rad"])
-    material = dict(spec.get("material") or DEFAULT_MATERIAL)
+    if case.angle_deg is not None:
+        angle = float(np.radians(case.angle_deg))
+    elif case.angle_rad is not None:
+        angle = float(case.angle_rad)
+    material = case.material.model_dump(exclude_none=True) if case.material is not None else dict(DEFAULT_MATERIAL)
     if material.get("contour_file"):
         material["contour_file"] = rel(material["contour_file"])
     return Case(
-        name=str(spec.get("name", os.path.splitext(os.path.basename(path))[0])),
-        design_path=rel(spec.get("flat_file") or spec["file"]),
+        name=case.name or os.path.splitext(os.path.basename(path))[0],
+        design_path=rel(case.flat_file or case.file),
         material=material,
-        subdivision=int(spec.get("subdivision", 10)),
+        subdivision=case.subdivision,
         angle_rad=angle,
-        open_by_rad=np.radians(float(spec["open_by_deg"])) if spec.get("open_by_deg") is not None else None,
-        steps=int(spec.get("steps", 40)),
-        rest_lengths_path=rel(spec["rest_lengths"]) if spec.get("rest_lengths") else None,
+        open_by_rad=float(np.radians(case.open_by_deg)) if case.open_by_deg is not None else None,
+        steps=case.steps,
+        rest_lengths_path=rel(case.rest_lengths) if case.rest_lengths else None,
     )
 
 

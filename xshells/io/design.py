@@ -168,6 +168,7 @@ def _validate(d: Design) -> None:
         s = int(loops[0])
         raise InputError(f"{label}: {d.where_edge(s)}: self-loop at {d.where_vertex(int(E[s, 0]))}")
     _check_duplicates(d)
+    _check_magnitude(d)
     # Work in units of the largest coordinate so huge inputs cannot overflow.
     scale = float(np.max(np.abs(V[np.unique(E)]))) or 1.0
     W = V / scale
@@ -178,6 +179,31 @@ def _validate(d: Design) -> None:
         s = int(short[0])
         raise InputError(f"{label}: {d.where_edge(s)}: zero-length segment between "
                          f"{d.where_vertex(int(E[s, 0]))} and {d.where_vertex(int(E[s, 1]))}")
+
+
+# A vertex this many times farther from the others' centre than the design's typical
+# size swamps the rest in double precision (their differences round to zero).
+_MAGNITUDE_RATIO = 1e9
+
+
+def _check_magnitude(d: Design) -> None:
+    """Name a coordinate so large that the other vertices' differences are lost to round-off."""
+    V = d.vertices[np.unique(d.edges)]
+    centre = np.median(V, axis=0)
+    dist = np.max(np.abs(V - centre), axis=1)
+    typical = float(np.median(dist))
+    if typical == 0.0:
+        typical = float(np.max(dist[dist > 0])) if np.any(dist > 0) else 1.0
+    worst = int(np.argmax(dist))
+    if dist[worst] > _MAGNITUDE_RATIO * typical:
+        v = int(np.unique(d.edges)[worst])
+        big = float(np.max(np.abs(d.vertices[v])))
+        with np.errstate(over="ignore"):
+            ratio = dist[worst] / typical
+        times = f"{ratio:.2g} times" if np.isfinite(ratio) else f"more than {_MAGNITUDE_RATIO:g} times"
+        raise InputError(f"{d.label()}: {d.where_vertex(v)} has a coordinate of {big:.3g}, {times} "
+                         f"the design's typical size ({typical:.3g}): at that magnitude the other vertices' "
+                         f"positions are lost to round-off; check the file and its units")
 
 
 def _check_duplicates(d: Design) -> None:

@@ -36,6 +36,29 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         raise
 
 
+def prepare_output_dir(path: str | os.PathLike) -> str:
+    """Create the output folder ``path`` and check that files can be written there, before any work starts.
+
+    Raises
+    ------
+    InputError
+        One line naming the folder and why it cannot be used.
+    """
+    from ..errors import InputError
+
+    path = os.fspath(path)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise InputError(f"--out {path}: exists and is not a folder")
+    try:
+        os.makedirs(path, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=path)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise InputError(f"--out {path}: cannot create or write the output folder ({exc.strerror or exc})") from None
+    return path
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))

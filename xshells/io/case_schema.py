@@ -1,0 +1,224 @@
+"""The case file's schema: every key, its type, its range and its unit, in one declarative place.
+
+A case file is a JSON object (as an entry of the paper's ``cases.json``).
+:func:`validate_case` checks a parsed object against :class:`CaseFile` and
+turns the first problem into one line naming the file and the key; unknown
+keys are refused with the nearest known name. The same models give the
+published JSON Schema (``docs/case.schema.json``) and its page
+(``docs/case.md``)::
+
+    python -m xshells.io.case_schema docs/case.schema.json docs/case.md
+
+pydantic (not jsonschema) because one model both validates with typed,
+strict fields (no "60" for 60, no 5 for a path) and *generates* the JSON
+Schema that editors and Grasshopper users validate against, so the two can
+never drift apart; jsonschema would need the schema written by hand and the
+parsing done a second time.
+
+Units follow the design file (the bundled data: millimetres; E in MPa).
+"""
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import sys
+from typing import Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from ..errors import InputError
+
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class MaterialSpec(_Strict):
+    """The beams' cross-section and elastic constants."""
+
+    type: str = Field("rectangle", description="cross-section type: rectangle, ellipse, I, L, + (case-insensitive; "
+                                                "also rect, ibeam, plus) or contour, which reads contour_file")
+    E: Optional[float] = Field(None, gt=0, allow_inf_nan=False,
+                               description="Young's modulus, in the design's stress unit (MPa for millimetres); default 20000, or the section file's")
+    nu: Optional[float] = Field(None, gt=-1, lt=0.5, allow_inf_nan=False,
+                                description="Poisson's ratio (dimensionless); default 0.3, or the section file's")
+    params: list[float] = Field(default_factory=list, max_length=16,
+                                description="the type's dimensions in the design's length unit: rectangle width, height; "
+                                            "ellipse a, b; I w1, w2, w3, h1, h2, h3; L and + a, b, t1, t2")
+    contour_file: Optional[str] = Field(None, min_length=1,
+                                        description="for type 'contour': a cross-section file (.obj, .msh or .json), relative to the case file")
+    stiff_axis: Optional[Literal["D1", "D2"]] = Field(
+        None, description="which material director the larger bending stiffness is about")
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        from ..section.profiles import TYPE_ALIASES
+
+        if self.type.strip().lower() not in set(TYPE_ALIASES) | {"contour"}:
+            known = ", ".join(sorted(set(TYPE_ALIASES.values()), key=str.lower))
+            raise ValueError(f"unknown cross-section type {self.type!r} (known: {known}, contour)")
+        if self.type == "contour" and not self.contour_file:
+            raise ValueError("type 'contour' needs contour_file")
+        if self.type != "contour" and self.contour_file:
+            raise ValueError(f"contour_file is only read with type 'contour' (type is {self.type!r})")
+        if any(not (math.isfinite(v) and v > 0) for v in self.params):
+            raise ValueError(f"params must be positive finite lengths, got {self.params}")
+        return self
+
+
+class CaseFile(_Strict):
+    """An X-shell case: a design, its material, and how far to deploy it."""
+
+    file: str = Field(..., min_length=1, description="the design: a line-graph .obj or a gmsh .msh, relative to the case file")
+    flat_file: Optional[str] = Field(None, min_length=1, description="a flat assembly state to read instead of file")
+    name: Optional[str] = Field(None, description="a name for outputs (default: the case file's name)")
+    material: Optional[MaterialSpec] = Field(None, description="default: rectangle 10 × 7, E 20000, ν 0.3")
+    subdivision: int = Field(10, ge=1, le=1000, description="edges per rod segment")
+    steps: int = Field(40, ge=1, le=100000, description="deployment increments")
+    angle_deg: Optional[float] = Field(None, gt=0, lt=180, allow_inf_nan=False,
+                                       description="target average opening angle of the deployed state, degrees")
+    angle_rad: Optional[float] = Field(None, gt=0, lt=math.pi, allow_inf_nan=False,
+                                       description="the same in radians")
+    open_by_deg: Optional[float] = Field(None, gt=0, lt=180, allow_inf_nan=False,
+                                         description="open by this much from the assembly state, degrees (default 60 when no angle is given)")
+    rest_lengths: Optional[str] = Field(None, min_length=1,
+                                        description="a file of per-segment rest lengths (design parameters) that replaces the rest-length solve")
+    # informational keys of the paper's cases.json, kept so that its entries load as they are
+    figure: Optional[str] = Field(None, description="informational: the paper's figure")
+    description: Optional[str] = Field(None, description="informational: free text")
+    reference_sparse_torques: Optional[list[str]] = Field(None, description="informational: the reference's torque files")
+
+    @model_validator(mode="after")
+    def _one_angle(self):
+        given = [k for k in ("angle_deg", "angle_rad", "open_by_deg") if getattr(self, k) is not None]
+        if len(given) > 1:
+            raise ValueError(f"give one of angle_deg, angle_rad, open_by_deg, not {' and '.join(given)}")
+        return self
+
+
+def _known_keys(model) -> list[str]:
+    return list(model.model_fields)
+
+
+def _where(loc) -> str:
+    return ".".join(str(p) for p in loc) if loc else ""
+
+
+def _one_line(path, exc: ValidationError, data) -> str:
+    err = exc.errors()[0]
+    loc = err.get("loc", ())
+    key = _where(loc)
+    if err["type"] == "extra_forbidden":
+        model = MaterialSpec if len(loc) > 1 and loc[0] == "material" else CaseFile
+        close = difflib.get_close_matches(str(loc[-1]), _known_keys(model), n=1, cutoff=0.6)
+        hint = f" (did you mean '{close[0]}'?)" if close else f" (known: {', '.join(_known_keys(model))})"
+        return f"{path}: unknown key '{key}'{hint}"
+    if err["type"] == "missing":
+        return f"{path}: missing key '{key}'"
+    msg = err["msg"]
+    for prefix in ("Value error, ", "Assertion failed, "):
+        if msg.startswith(prefix):
+            msg = msg[len(prefix):]
+    if not key:
+        return f"{path}: {msg}"
+    value = err.get("input")
+    if isinstance(value, (str, int, float, bool, type(None))):
+        return f"{path}: key '{key}' = {json.dumps(value)}: {msg}"
+    return f"{path}: key '{key}': {msg}"
+
+
+def validate_case(data, path="<case>") -> CaseFile:
+    """Check a parsed case object; InputError with one line naming ``path`` and the key."""
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: a case is a JSON object with at least a 'file' key, got {type(data).__name__}")
+    try:
+        return CaseFile.model_validate(data)
+    except ValidationError as exc:
+        raise InputError(_one_line(path, exc, data)) from None
+
+
+def json_schema() -> dict:
+    """The published JSON Schema of a case file."""
+    schema = CaseFile.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "xshells case file"
+    schema["description"] = ("An X-shell case: a design, its material and how far to deploy it. Units follow the "
+                             "design file (the bundled data: millimetres, E in MPa). Paths are relative to the case file.")
+    return schema
+
+
+def _type_text(prop: dict, defs: dict) -> str:
+    if "$ref" in prop:
+        return "object (" + prop["$ref"].rsplit("/", 1)[-1] + ")"
+    if "anyOf" in prop:
+        kinds = [_type_text(p, defs) for p in prop["anyOf"] if p.get("type") != "null"]
+        return " or ".join(kinds)
+    if "enum" in prop:
+        return "one of " + ", ".join(f"`{v}`" for v in prop["enum"])
+    if "const" in prop:
+        return f"`{prop['const']}`"
+    t = prop.get("type", "")
+    if t == "array":
+        return f"list of {_type_text(prop.get('items', {}), defs)}"
+    return t
+
+
+def _range_text(prop: dict) -> str:
+    p = prop
+    if "anyOf" in prop:
+        p = next((q for q in prop["anyOf"] if q.get("type") != "null"), prop)
+    parts = []
+    for key, sym in (("exclusiveMinimum", ">"), ("minimum", "≥"), ("exclusiveMaximum", "<"), ("maximum", "≤")):
+        if key in p:
+            parts.append(f"{sym} {p[key]:g}" if isinstance(p[key], (int, float)) else f"{sym} {p[key]}")
+    return ", ".join(parts)
+
+
+def markdown() -> str:
+    """``docs/case.md``, generated from :func:`json_schema`."""
+    schema = json_schema()
+    defs = schema.get("$defs", {})
+    out = ["# Case files", "",
+           "<!-- generated by `python -m xshells.io.case_schema docs/case.schema.json docs/case.md`: do not edit -->", "",
+           schema["description"], "",
+           "A case file is a JSON object. Every command (`xshells deploy`, `optimize`, `sparsify`, `app`) reads it "
+           "through one schema, published as [`case.schema.json`](case.schema.json) (JSON Schema 2020-12) for "
+           "editors and Grasshopper. Unknown keys are refused with the nearest known name.", "",
+           "```json",
+           json.dumps({"name": "asymm_wings_pointy", "file": "flat_opt.msh", "rest_lengths": "design_parameters.txt",
+                       "material": {"type": "rectangle", "E": 20000, "nu": 0.3, "params": [12, 8], "stiff_axis": "D1"},
+                       "angle_rad": 2.0, "steps": 50, "subdivision": 10}, indent=1),
+           "```", ""]
+
+    def table(title, obj):
+        out.extend([f"## {title}", "", "| key | type | range | default | meaning |", "|---|---|---|---|---|"])
+        required = set(obj.get("required", []))
+        for key, prop in obj["properties"].items():
+            default = "required" if key in required else (
+                json.dumps(prop["default"]) if prop.get("default") not in (None, []) else "")
+            out.append(f"| `{key}` | {_type_text(prop, defs)} | {_range_text(prop)} | {default} | "
+                       f"{prop.get('description', '')} |")
+        out.append("")
+
+    table("Keys", schema)
+    table("`material`", defs["MaterialSpec"])
+    out.append("One of `angle_deg`, `angle_rad` and `open_by_deg` at most.")
+    return "\n".join(out) + "\n"
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 2:
+        print("usage: python -m xshells.io.case_schema SCHEMA.json PAGE.md", file=sys.stderr)
+        return 2
+    from .export import atomic_write_text
+
+    atomic_write_text(argv[0], json.dumps(json_schema(), indent=2) + "\n")
+    atomic_write_text(argv[1], markdown())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
