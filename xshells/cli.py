@@ -73,6 +73,24 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    import signal
+
+    def _terminate(signum, frame):  # SIGTERM as Ctrl-C: work is kept and files are complete or absent
+        raise KeyboardInterrupt
+
+    previous = None
+    try:
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    except (ValueError, AttributeError):  # not the main thread, or no SIGTERM here
+        pass
+    try:
+        return _run(args, debug)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args, debug: bool) -> int:
     try:
         out = getattr(args, "out", None)
         if isinstance(out, str) and out:  # refused before any work starts

@@ -121,6 +121,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         "flat": flat,
         "deployed": deployed,
         "target_angle_deg": float(np.degrees(target_angle)),
+        # complete: reached the target; stopped: ended short of it (the message says why); interrupted: Ctrl-C/SIGTERM
+        "status": "interrupted" if interrupted else ("complete" if res.converged else "stopped"),
         "reached": bool(res is not None and res.converged),
         "message": "interrupted by the user" if interrupted else res.message,
         "steps": steps_out,

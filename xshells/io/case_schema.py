@@ -75,7 +75,7 @@ class CaseFile(_Strict):
     flat_file: Optional[str] = Field(None, min_length=1, description="a flat assembly state to read instead of file")
     name: Optional[str] = Field(None, description="a name for outputs (default: the case file's name)")
     material: Optional[MaterialSpec] = Field(None, description="default: rectangle 10 × 7, E 20000, ν 0.3")
-    subdivision: int = Field(10, ge=1, le=1000, description="edges per rod segment")
+    subdivision: int = Field(10, ge=3, le=1000, description="edges per rod segment (at least 3)")
     steps: int = Field(40, ge=1, le=100000, description="deployment increments")
     angle_deg: Optional[float] = Field(None, gt=0, lt=180, allow_inf_nan=False,
                                        description="target average opening angle of the deployed state, degrees")

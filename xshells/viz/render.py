@@ -18,8 +18,13 @@ def _pyplot():
 
 def _save(fig, path) -> None:
     tmp = str(path) + ".tmp.png"
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    os.replace(tmp, path)
+    try:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+        os.replace(tmp, path)
+    except BaseException:  # interrupted (Ctrl-C, SIGTERM) or failed: no half-written picture
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
 
 
 def render_linkage(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray, title: str = "",
