@@ -111,6 +111,7 @@ def _result_dict(dense: DenseDeployment, res, method: dict) -> dict:
         "work": res.work,
         "dense_torque": dense.tau_ref,
         "dense_work": dense.dense_energy - dense.flat_energy,
+        "status": "interrupted" if "interrupted" in res.message else "complete",
         "converged": res.converged,
         "message": res.message,
         "warnings": dense.warnings,

@@ -224,6 +224,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         "time_s": res.time_s,
         "time_per_iteration_s": res.time_s / iters,
         "total_time_s": time.perf_counter() - t0,
+        "status": "interrupted" if interrupted else "complete",
         "message": res.message,
         "history": [asdict(r) for r in res.history],
         "bfgs_history": bfgs,
