@@ -121,10 +121,11 @@ def _internal_error(args, exc: Exception) -> int:
     text = "".join(traceback.format_exception(exc))
     where = ""
     out = getattr(args, "out", None)
-    if isinstance(out, str) and os.path.isdir(out):
+    if isinstance(out, str) and out:
         try:
             from .io.export import atomic_write_text
 
+            os.makedirs(out, exist_ok=True)
             atomic_write_text(os.path.join(out, "error.log"), text)
             where = f"; the traceback is in {os.path.join(out, 'error.log')}"
         except OSError:

@@ -49,6 +49,11 @@ def prepare_output_dir(path: str | os.PathLike) -> str:
     path = os.fspath(path)
     if os.path.exists(path) and not os.path.isdir(path):
         raise InputError(f"--out {path}: exists and is not a folder")
+    # the first folder on the way that does not exist yet: removed again after the probe, so that a
+    # command refused later for its input leaves nothing behind (each command creates its folder itself)
+    first_new, head = None, os.path.abspath(path)
+    while not os.path.exists(head):
+        first_new, head = head, os.path.dirname(head)
     try:
         os.makedirs(path, exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=path)
@@ -56,6 +61,11 @@ def prepare_output_dir(path: str | os.PathLike) -> str:
         os.unlink(probe)
     except OSError as exc:
         raise InputError(f"--out {path}: cannot create or write the output folder ({exc.strerror or exc})") from None
+    finally:
+        if first_new is not None and os.path.isdir(first_new):
+            import shutil
+
+            shutil.rmtree(first_new, ignore_errors=True)
     return path
 
 
