@@ -233,3 +233,16 @@ def test_the_fuzzed_deploy_base_case_is_a_valid_run(tmp_path, capsys):
                                                  "material": {"type": "rectangle", "params": [4, 1.5], "E": 2000}}))
     assert main(["deploy", str(tmp_path / "c.json"), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
     assert json.loads((tmp_path / "o" / "result.json").read_text())["status"] == "complete"
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["deploy", "M", "--steps", "0"], "--steps must be at least 1, got 0"),
+    (["deploy", "M", "--subdivision", "0"], "--subdivision must be at least 3"),
+    (["optimize", "M", "--steps", "0"], "--steps must be at least 1"),
+    (["sparsify", "M", "--subdivision", "2"], "--subdivision must be at least 3"),
+    (["demo", "--steps", "0"], "--steps must be at least 1"),
+])
+def test_zero_counts_are_refused_not_replaced_by_the_default(tmp_path, capsys, argv, match):
+    argv = [str(EXAMPLES / "manta_ray.obj") if a == "M" else a for a in argv]
+    code, err = _cli(capsys, argv + ["--out", str(tmp_path / "o"), "--no-progress"])
+    assert code == 2 and match in err and len(err.splitlines()) == 1, err

@@ -133,6 +133,14 @@ def add_design_options(parser, steps_default: int) -> None:
     parser.add_argument("--steps", type=int, help=f"for a design file: deployment increments (default {steps_default})")
 
 
+def check_counts(subdivision, steps) -> None:
+    """``--subdivision`` and ``--steps`` as given on the command line (None: not given); one line when out of range."""
+    if subdivision is not None and subdivision < 3:
+        raise InputError(f"--subdivision must be at least 3 edges per segment, got {subdivision}")
+    if steps is not None and steps < 1:
+        raise InputError(f"--steps must be at least 1, got {steps}")
+
+
 def case_path_from_args(args, command: str, steps_default: int) -> str:
     """``args.case`` if it is a case file, else the case of the design it names, written to ``args.out/case.json``.
 
@@ -150,8 +158,10 @@ def case_path_from_args(args, command: str, steps_default: int) -> str:
         raise InputError(f"{path}: no such file")
     from ..io.export import atomic_write_text
 
+    check_counts(args.subdivision, args.steps)
     case = case_for_design(path, material_spec_from_option(args.material, args.young, args.poisson),
-                           subdivision=args.subdivision or 10, steps=args.steps or steps_default)
+                           subdivision=10 if args.subdivision is None else args.subdivision,
+                           steps=steps_default if args.steps is None else args.steps)
     os.makedirs(args.out, exist_ok=True)
     out = os.path.join(args.out, "case.json")
     atomic_write_text(out, json.dumps(case, indent=1))

@@ -43,21 +43,24 @@ def _material_from_args(args):
 
 
 def _deploy(args) -> int:
-    from .case import load_case, material_from_spec
+    from .case import check_counts, load_case, material_from_spec
     from .run import run_deployment
 
+    check_counts(args.subdivision, args.steps)
     if args.input.endswith(".json"):
         if args.material:
             raise InputError("--material contradicts the case file's material; edit the case file instead")
         case = load_case(args.input)
         material = material_from_spec(case.material)
-        kw = dict(subdivision=args.subdivision or case.subdivision, steps=args.steps or case.steps,
+        kw = dict(subdivision=case.subdivision if args.subdivision is None else args.subdivision,
+                  steps=case.steps if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else case.angle_rad,
                   open_by=case.open_by_rad, rest_lengths_path=args.rest_lengths or case.rest_lengths_path, name=case.name)
         design = case.design_path
     else:
         material = _material_from_args(args)
-        kw = dict(subdivision=args.subdivision or 10, steps=args.steps or 40,
+        kw = dict(subdivision=10 if args.subdivision is None else args.subdivision,
+                  steps=40 if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else None,
                   rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input))
         design = args.input
@@ -70,8 +73,10 @@ def _deploy(args) -> int:
 
 def _demo(args) -> int:
     from ..section import Material
+    from .case import check_counts
     from .run import run_deployment
 
+    check_counts(None, args.steps)
     material = Material.uniform("rectangle", [10, 7], E=20000, nu=0.3)
     result = run_deployment(DEMO_DESIGN, material, out_dir=args.out, subdivision=8, target_angle=np.radians(93),
                             steps=args.steps, progress=not args.no_progress, name="manta_ray")
