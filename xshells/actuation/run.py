@@ -139,6 +139,15 @@ def _write_outputs(out_dir, dense: DenseDeployment, res, result: dict, title: st
     render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints, title=title)
 
 
+def _start(case_path, out_dir, dense, angle_deg, progress, candidates):
+    """The output folder, the dense deployment (given or computed) at its state, and the allowed joints."""
+    os.makedirs(out_dir, exist_ok=True)
+    dense = dense or dense_deployment(case_path, angle_deg=angle_deg, progress=progress)
+    allowed = _allowed_from_vertices(dense.linkage, candidates)
+    restore(dense.linkage, dense.state)
+    return dense, allowed
+
+
 def run_sparsify(case_path, out_dir, options: SparsifyOptions = SparsifyOptions(), *, candidates=None,
                  angle_deg=None, progress=True, dense: DenseDeployment | None = None) -> dict:
     """Sparse actuation of a case; writes ``result.json``, ``torques.txt`` and ``actuators.png`` into ``out_dir``.
@@ -146,11 +155,8 @@ def run_sparsify(case_path, out_dir, options: SparsifyOptions = SparsifyOptions(
     Returns the ``result.json`` content. Ctrl-C during the optimization keeps
     and writes the last accepted iterate.
     """
-    os.makedirs(out_dir, exist_ok=True)
-    dense = dense or dense_deployment(case_path, angle_deg=angle_deg, progress=progress)
+    dense, allowed = _start(case_path, out_dir, dense, angle_deg, progress, candidates)
     L = dense.linkage
-    allowed = _allowed_from_vertices(L, candidates)
-    restore(L, dense.state)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -283,11 +289,8 @@ def run_selection(case_path, out_dir, options: SelectionOptions = SelectionOptio
     into ``out_dir``; returns the ``result.json`` content. Ctrl-C keeps and
     writes the best answer found so far.
     """
-    os.makedirs(out_dir, exist_ok=True)
-    dense = dense or dense_deployment(case_path, angle_deg=angle_deg, progress=progress)
+    dense, allowed = _start(case_path, out_dir, dense, angle_deg, progress, candidates)
     L = dense.linkage
-    allowed = _allowed_from_vertices(L, candidates)
-    restore(L, dense.state)
     bar = None
     if progress:
         from tqdm import tqdm
