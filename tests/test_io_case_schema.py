@@ -17,7 +17,7 @@ from xshells.errors import InputError
 from xshells.io.case_schema import CaseFile, json_schema, markdown, validate_case
 from xshells.io.design import read_design
 
-from data_paths import EXAMPLES, REPO
+from data_paths import DATA, EXAMPLES, REPO, needs_data
 
 DOCS = REPO / "docs"
 BUNDLED_CASES = sorted(EXAMPLES.rglob("case.json"))
@@ -246,3 +246,11 @@ def test_zero_counts_are_refused_not_replaced_by_the_default(tmp_path, capsys, a
     argv = [str(EXAMPLES / "manta_ray.obj") if a == "M" else a for a in argv]
     code, err = _cli(capsys, argv + ["--out", str(tmp_path / "o"), "--no-progress"])
     assert code == 2 and match in err and len(err.splitlines()) == 1, err
+
+
+@needs_data
+def test_every_entry_of_the_papers_cases_json_is_a_valid_case():
+    cases = json.loads((DATA / "cases.json").read_text())["cases"]
+    for c in cases:
+        jsonschema.validate(c, json_schema())
+        validate_case(c, c["name"])

@@ -23,7 +23,7 @@ import difflib
 import json
 import math
 import sys
-from typing import Literal, Optional
+from typing import Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -88,7 +88,10 @@ class CaseFile(_Strict):
     # informational keys of the paper's cases.json, kept so that its entries load as they are
     figure: Optional[str] = Field(None, description="informational: the paper's figure")
     description: Optional[str] = Field(None, description="informational: free text")
-    reference_sparse_torques: Optional[list[str]] = Field(None, description="informational: the reference's torque files")
+    note: Optional[str] = Field(None, description="informational: free text")
+    angle_deg_note: Optional[str] = Field(None, description="informational: where the angle comes from")
+    reference_sparse_torques: Optional[Union[str, list[str]]] = Field(
+        None, description="informational: the reference's torque file(s)")
 
     @model_validator(mode="after")
     def _one_angle(self):
