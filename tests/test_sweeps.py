@@ -17,7 +17,7 @@ from xshells.sweeps.tasks import REGISTRY, register_task
 
 from data_paths import EXAMPLES
 
-ANGLES = [60, 65, 70, 75, 80, 85, 90, 185]  # 185°: out of reach, fails inside the task at run time
+ANGLES = [60, 65, 70, 75, 80, 85, 90, 179.9]  # 179.9°: a joint inverts on the way, the task ends "diverged"
 RESULTS = ("energy", "average_angle_deg", "max_abs_z", "torque", "flat_energy")
 
 
@@ -56,8 +56,8 @@ def test_two_worker_cluster_finishes_and_records_the_failure(cluster_run):
     spec, out, report, seen = cluster_run
     assert len(spec.tasks) == 8 and report.ran == 8 and not report.stopped
     by_angle = {r["params"]["angle_deg"]: r for r in report.records}
-    assert by_angle[185.0]["status"] == "failed"
-    assert "out of reach" in by_angle[185.0]["error"] and "\n" not in by_angle[185.0]["error"]
+    assert by_angle[179.9]["status"] == "diverged"
+    assert "inverts" in by_angle[179.9]["result"]["message"]
     for a in ANGLES[:-1]:
         assert by_angle[float(a)]["status"] == "ok", by_angle[float(a)]["error"]
         assert abs(by_angle[float(a)]["result"]["average_angle_deg"] - a) < 1e-6
@@ -66,7 +66,7 @@ def test_two_worker_cluster_finishes_and_records_the_failure(cluster_run):
     with open(out / "results.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["id"] for r in rows] == [t.id for t in spec.tasks]
-    assert [r["status"] for r in rows].count("failed") == 1
+    assert [r["status"] for r in rows].count("diverged") == 1
     for t in spec.tasks:
         assert (out / "tasks" / t.id / "task.json").is_file()
     assert (out / "tasks" / spec.tasks[0].id / "deployed.png").is_file()
@@ -170,12 +170,14 @@ def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
 
 @pytest.mark.parametrize("data, key", [
     ({"base": {"file": "grid.obj"}, "axis": {}}, "axis: unknown key"),
-    ({"base": {"file": "grid.obj", "angel_deg": 70}}, "base.angel_deg: unknown key"),
+    ({"base": {"file": "grid.obj", "angel_deg": 70}}, "base.angel_deg: unknown key (did you mean 'angle_deg'?)"),
     ({"base": {"file": "grid.obj"}, "axes": {"angle_deg": []}}, "axes.angle_deg: empty axis"),
     ({"base": {"file": "missing.obj"}}, "base.file: no such file 'missing.obj'"),
     ({"base": {"file": "grid.obj"}, "axes": {"file": ["*.msh"]}}, "axes.file[0]: no file matches"),
-    ({"base": {"file": "grid.obj", "steps": "ten"}}, "base.steps: must be a whole number"),
-    ({"base": {"file": "grid.obj"}, "axes": {"E": [2000, -1]}}, "axes.E[1]: must be > 0"),
+    ({"base": {"file": "grid.obj", "steps": "ten"}}, "base.steps: Input should be a valid integer"),
+    ({"base": {"file": "grid.obj"}, "axes": {"E": [2000, -1]}}, "axes.E[1]: Input should be greater than 0"),
+    ({"base": {"file": "grid.obj"}, "axes": {"angle_deg": [60, 185]}}, "axes.angle_deg[1]: Input should be less than 180"),
+    ({"base": {"file": "grid.obj", "angle_deg": 60, "open_by_deg": 10}}, "give one of angle_deg, angle_rad, open_by_deg"),
     ({"base": {"file": "grid.obj", "material": {"type": "rectangle", "parms": [1, 2]}}}, "base.material.parms: unknown key"),
     ({"base": {"file": "grid.obj"}, "axes": {"eta": [0.1]}}, "axes.eta: unknown key"),
     ({"task": "sparsify", "base": {"file": "grid.obj"}, "axes": {"p": [0.5, 2]}}, "axes.p[1]: must be ≤ 1"),

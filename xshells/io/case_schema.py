@@ -142,6 +142,29 @@ def validate_case(data, path="<case>") -> CaseFile:
         raise InputError(_one_line(path, exc, data)) from None
 
 
+def field_check(name: str):
+    """A check of one case key's value (``"angle_deg"``, ``"material.E"``): returns the value or raises ValueError.
+
+    Sweep specs check their ``base``, ``cases`` and ``axes`` values with these, so that a sweep
+    and a case file accept exactly the same values.
+    """
+    from typing import Annotated
+
+    from pydantic import TypeAdapter
+
+    model, key = (MaterialSpec, name.split(".", 1)[1]) if name.startswith("material.") else (CaseFile, name)
+    info = model.model_fields[key]
+    adapter = TypeAdapter(Annotated[info.annotation, info])
+
+    def check(value):
+        try:
+            return adapter.validate_python(value, strict=True)
+        except ValidationError as exc:
+            raise ValueError(exc.errors()[0]["msg"].removeprefix("Value error, ")) from None
+
+    return check
+
+
 def json_schema() -> dict:
     """The published JSON Schema of a case file."""
     schema = CaseFile.model_json_schema()

@@ -18,6 +18,7 @@ A sweep file (YAML or JSON) holds::
       - {}
       - {material.E: 2000}
 
+Case keys are checked by the case files' schema (:mod:`xshells.io.case_schema`).
 Axis and case keys are dotted paths into the case (``material.E``; ``E``,
 ``nu`` and ``params`` are short for ``material.*``) or task parameters
 (``eta``, ``p`` for sparsify; ``gamma``, ``beta`` for optimize). Every error
@@ -34,6 +35,7 @@ import os
 from dataclasses import dataclass
 
 from ..errors import InputError
+from ..io.case_schema import field_check, validate_case
 from . import tasks as T
 
 TOP_KEYS = ("name", "task", "base", "axes", "cases")
@@ -42,24 +44,13 @@ ALIASES = {"E": "material.E", "young": "material.E", "nu": "material.nu", "param
 PATH_KEYS = ("file", "rest_lengths", "material.contour_file", "target_surface")
 ANGLE_KEYS = ("angle_deg", "angle_rad", "open_by_deg")
 
-CASE_CHECKS = {
-    "name": T.text,
-    "file": T.text,
-    "rest_lengths": T.optional(T.text),
-    "subdivision": T.number(1, integer=True),
-    "steps": T.number(1, integer=True),
-    "angle_deg": T.number(),
-    "angle_rad": T.number(),
-    "open_by_deg": T.number(),
-    "direction": T.choice("up", "down"),
-    "start": T.choice("auto", "average", "central-joint"),
-    "material.type": T.text,
-    "material.E": T.number(0, open_min=True),
-    "material.nu": T.number(-1, 0.5, open_min=True),
-    "material.params": T.number_list,
-    "material.stiff_axis": T.optional(T.choice("D1", "D2")),
-    "material.contour_file": T.text,
-}
+# The case keys are checked by the case files' own schema (xshells.io.case_schema), one field at a
+# time here and as a whole case once expanded; direction and start are the deploy task's options.
+CASE_KEYS = ("name", "file", "rest_lengths", "subdivision", "steps", "angle_deg", "angle_rad", "open_by_deg",
+             "material.type", "material.E", "material.nu", "material.params", "material.stiff_axis",
+             "material.contour_file")
+CASE_CHECKS = {k: field_check(k) for k in CASE_KEYS}
+CASE_CHECKS.update({"direction": T.choice("up", "down"), "start": T.choice("auto", "average", "central-joint")})
 
 
 @dataclass(frozen=True)
@@ -200,6 +191,8 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> Sweep
             if "file" not in p:
                 raise InputError("base.file: missing (give a design file in base, an axis or every case)")
         _check_profiles(points)
+        for i, p in enumerate(points):  # the whole case, as a case file: the rules across keys too
+            validate_case(_nest({k: v for k, v in p.items() if k in CASE_KEYS}), f"sweep task {i}")
     order = _ordered_keys([{k: None for k, _ in axis_values}] + points)  # axes first, in the spec's order
     varying = tuple(k for k in order if len({_canon(p.get(k)) for p in points}) > 1)
     tasks = []
@@ -221,16 +214,26 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> Sweep
 # ---------------------------------------------------------------- helpers
 
 
+def _unknown_key(where: str, raw, known) -> InputError:
+    """'unknown key', with the nearest known name when there is one (as for case files)."""
+    import difflib
+
+    names = [k.split(".")[-1] for k in known] + list(known)
+    close = difflib.get_close_matches(str(raw).split(".")[-1], names, n=1, cutoff=0.6)
+    hint = f"did you mean '{close[0]}'?" if close else f"known: {', '.join(sorted(known))}"
+    return InputError(f"{where}: unknown key ({hint})")
+
+
 def _unknown(d: dict, known, prefix: str) -> None:
     for k in d:
         if k not in known:
-            raise InputError(f"{prefix}{k}: unknown key (known: {', '.join(known)})")
+            raise _unknown_key(f"{prefix}{k}", k, known)
 
 
 def _key(raw, allowed: dict, where: str) -> str:
     key = ALIASES.get(raw, raw) if isinstance(raw, str) else raw
     if key not in allowed:
-        raise InputError(f"{where}: unknown key (known: {', '.join(sorted(allowed))})")
+        raise _unknown_key(where, raw, allowed)
     return key
 
 
