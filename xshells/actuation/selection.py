@@ -146,7 +146,6 @@ class _Refit:
     def __init__(self, fit: TorqueFit, ub: np.ndarray):
         self.fit = fit
         self.ub = ub
-        L = fit.L
         self.sw = np.sqrt(fit.weights)[:, None] / fit.l0
         self.solves = 0
 
