@@ -180,12 +180,12 @@ def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
     ({"base": {"file": "grid.obj", "angle_deg": 60, "open_by_deg": 10}}, "give one of angle_deg, angle_rad, open_by_deg"),
     ({"base": {"file": "grid.obj", "material": {"type": "rectangle", "parms": [1, 2]}}}, "base.material.parms: unknown key"),
     ({"base": {"file": "grid.obj"}, "axes": {"eta": [0.1]}}, "axes.eta: unknown key"),
-    ({"task": "sparsify", "base": {"file": "grid.obj"}, "axes": {"p": [0.5, 2]}}, "axes.p[1]: must be ≤ 1"),
+    ({"task": "sparsify", "base": {"file": "grid.obj"}, "axes": {"p": [0.5, 2]}}, "axes.p[1]: Input should be less than or equal to 1, got 2"),
     ({"task": "explode", "base": {"file": "grid.obj"}}, "task: unknown task 'explode'"),
     ({"base": {"file": "grid.obj"}, "cases": [{"material": {"type": "recangle"}}]}, "material: unknown cross-section type"),
     ({"base": {"file": "grid.obj"}, "axes": {"params": [[4, 1.5], [4]]}}, "material: rectangle takes 2 parameters"),
     ({"axes": {"angle_deg": [70]}}, "base.file: missing"),
-    ({"base": {"file": "grid.obj", "start": "joint"}}, "base.start: must be one of"),
+    ({"base": {"file": "grid.obj", "start": "joint"}}, "base.start: Input should be 'auto', 'average' or 'central-joint'"),
 ])
 def test_spec_errors_name_the_key(tmp_path, data, key):
     small_grid(tmp_path / "grid.obj")

@@ -29,52 +29,90 @@ from ..errors import InputError
 # ---------------------------------------------------------------- value checks
 # A check takes a value from the spec and returns it normalised (so that 80
 # and 80.0 hash to the same task), or raises ValueError with a short reason.
+# The checks are pydantic type adapters, as the case files' schema; each also
+# carries its JSON Schema (``check.json_schema``) for docs/sweep.schema.json.
+
+
+def _adapter_check(annotation, normalise=None) -> Callable:
+    from pydantic import TypeAdapter, ValidationError
+
+    adapter = TypeAdapter(annotation)
+
+    def check(v):
+        if normalise is not None:
+            v = normalise(v)
+        try:
+            return adapter.validate_python(v, strict=True)
+        except ValidationError as exc:
+            raise ValueError(f"{exc.errors()[0]['msg'].removeprefix('Value error, ')}, got {v!r}") from None
+
+    check.json_schema = adapter.json_schema()
+    return check
+
+
+def _whole(v):
+    # 8.0 (YAML, JSON) is the whole number 8; 8.5 stays a float and is refused
+    return int(v) if isinstance(v, float) and math.isfinite(v) and v == int(v) else v
 
 
 def number(minimum=None, maximum=None, *, open_min=False, integer=False) -> Callable:
     """A check for a finite number (``integer``: a whole number) within bounds."""
-    def check(v):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ValueError(f"must be a {'whole ' if integer else ''}number, got {v!r}")
-        if integer and float(v) != int(v):
-            raise ValueError(f"must be a whole number, got {v!r}")
-        v = int(v) if integer else float(v)
-        if minimum is not None and (v <= minimum if open_min else v < minimum):
-            raise ValueError(f"must be {'>' if open_min else '≥'} {minimum:g}, got {v:g}")
-        if maximum is not None and v > maximum:
-            raise ValueError(f"must be ≤ {maximum:g}, got {v:g}")
-        return v
-    return check
+    from typing import Annotated
+
+    from pydantic import Field
+
+    bounds = {}
+    if minimum is not None:
+        bounds["gt" if open_min else "ge"] = minimum
+    if maximum is not None:
+        bounds["le"] = maximum
+    kind = int if integer else float
+    return _adapter_check(Annotated[kind, Field(allow_inf_nan=False, **bounds)], _whole if integer else None)
 
 
 def choice(*options) -> Callable:
-    def check(v):
-        if v not in options:
-            raise ValueError(f"must be one of {', '.join(map(repr, options))}, got {v!r}")
-        return v
-    return check
+    from typing import Literal
+
+    return _adapter_check(Literal[options])
 
 
-def text(v):
-    if not isinstance(v, str) or not v:
-        raise ValueError(f"must be a non-empty string, got {v!r}")
-    return v
+def _text_check():
+    from typing import Annotated
+
+    from pydantic import Field
+
+    return _adapter_check(Annotated[str, Field(min_length=1)])
+
+
+text = _text_check()
 
 
 def optional(check: Callable) -> Callable:
-    return lambda v: None if v is None else check(v)
+    def opt(v):
+        return None if v is None else check(v)
+
+    opt.json_schema = {"anyOf": [check.json_schema, {"type": "null"}]}
+    return opt
 
 
-def number_list(v):
-    if not isinstance(v, (list, tuple)) or not v:
-        raise ValueError(f"must be a non-empty list of numbers, got {v!r}")
-    return [number(0, open_min=True)(x) for x in v]
+def _number_list_check():
+    from typing import Annotated
+
+    from pydantic import Field
+
+    return _adapter_check(Annotated[list[Annotated[float, Field(gt=0, allow_inf_nan=False)]], Field(min_length=1)])
 
 
-def flag(v):
-    if not isinstance(v, (bool, str)):
-        raise ValueError(f"must be true/false or a message, got {v!r}")
-    return v
+number_list = _number_list_check()
+
+
+def _flag_check():
+    from typing import Union
+
+    return _adapter_check(Union[bool, str])
+
+
+flag = _flag_check()
 
 
 # ---------------------------------------------------------------- registry
