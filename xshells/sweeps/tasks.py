@@ -336,3 +336,4 @@ register_task("optimize", optimize_task, requires=("xshells.design.run:run_optim
               params={"gamma": number(0, 1), "beta": number(0), "max_iterations": number(1, integer=True),
                       "target_surface": text})
 register_task("noop", noop_task, case=False, params={"sleep_s": number(0), "fail": flag})
+BUILTIN_TASKS = tuple(REGISTRY)  # the tasks registered here (the published schema lists these)
