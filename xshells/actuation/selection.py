@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -57,9 +57,6 @@ FOLD_LS_WEIGHT = 1.0
 excess costs 7.6e-3, about 150 times the fit term at a 1 % mean deviation."""
 
 UNHOLDABLE = "the dense torques do not hold the deployed shape"
-
-TRIAL_NEWTON_ITERATIONS = 100
-"""Newton iterations allowed to the equilibrium at a re-fit's trial torques (see :meth:`_Refit.evaluate`)."""
 
 
 @dataclass(frozen=True)
@@ -149,19 +146,9 @@ class _Refit:
         self.sw = np.sqrt(fit.weights)[:, None] / fit.l0
         self.solves = 0
 
-    def evaluate(self, t, max_newton: int | None = None) -> tuple[np.ndarray, float]:
-        """Residual ``r`` (3n + n,) and the mean deviation at the equilibrium under ``t``; raises ArithmeticError.
-
-        ``max_newton`` caps the equilibrium's Newton iterations. (Accepted trial steps take
-        3–10, rejected ones 30–100; but a cap of 20 made more steps fail and cost more in all.)
-        """
-        newton = self.fit.newton
-        if max_newton is not None:
-            self.fit.newton = replace(newton, max_iterations=max_newton)
-        try:
-            self.fit.evaluate(t)
-        finally:
-            self.fit.newton = newton
+    def evaluate(self, t) -> tuple[np.ndarray, float]:
+        """Residual ``r`` (3n + n,) and the mean deviation at the equilibrium under ``t``; raises ArithmeticError."""
+        self.fit.evaluate(t)
         self.solves += 1
         _, dev = self.fit.fit_terms()
         excess = self.fit.fold_excess()
@@ -229,7 +216,9 @@ class _Refit:
                 trial[active] += step
                 newton0 = self.fit.equilibrium_iterations
                 try:
-                    r_trial, fm_trial = self.evaluate(trial, max_newton=TRIAL_NEWTON_ITERATIONS)
+                    # (measured: accepted trials take 3–10 Newton iterations, rejected ones 30–100, but
+                    # capping Newton at 20 made more steps fail and cost more in all)
+                    r_trial, fm_trial = self.evaluate(trial)
                     F_trial = 0.5 * float(r_trial @ r_trial)
                 except ArithmeticError:
                     F_trial = np.inf
@@ -263,45 +252,54 @@ class _Refit:
         return t, r, fit_mean
 
 
+def _least_squares(J, r, t_active):
+    """The linear model's least-squares torques ``x`` (for the residual ``r + J (x − t)``) and ``G⁻¹ = (JᵀJ)⁻¹``."""
+    k = J.shape[1]
+    G = J.T @ J
+    G += (1e-10 * np.trace(G) / k + 1e-300) * np.eye(k)  # a ridge at round-off level: nearby joints' columns are alike
+    Ginv = np.linalg.inv(G)
+    return t_active - Ginv @ (J.T @ r), Ginv
+
+
+def _cut_costs(x, ginv_diag):
+    """The residual's rise ``xᵢ² / (G⁻¹)ᵢᵢ`` when actuator ``i`` is dropped and the others re-fitted.
+
+    A negative least-squares torque helps nothing that a motor can do: its cost is −1, first to go.
+    """
+    cost = x**2 / ginv_diag
+    cost[x <= 0] = -1.0
+    return cost
+
+
+def _drop(x, Ginv, i):
+    """``x`` re-fitted without actuator ``i`` (rank-one downdate; ``x[i]`` becomes 0)."""
+    out = x - Ginv[:, i] * (x[i] / Ginv[i, i])
+    out[i] = 0.0
+    return out
+
+
 def _linear_cuts(J, r, t_active, count, ub_active):
     """Indices (into the active set) of ``count`` actuators to drop, cheapest first, and the re-fitted torques.
 
-    Linear model: residual ``r + J (x − t)``; dropping ``i`` from the LS
-    solution ``x`` raises ``|·|²`` by ``xᵢ² / (G⁻¹)ᵢᵢ``.
+    One at a time: after each cut the others are re-fitted and ``G⁻¹`` downdated.
     """
-    k = J.shape[1]
-    G = J.T @ J
-    G += (1e-10 * np.trace(G) / k + 1e-300) * np.eye(k)
-    Ginv = np.linalg.inv(G)
-    x = t_active - Ginv @ (J.T @ r)
-    keep = list(range(k))
+    x, Ginv = _least_squares(J, r, t_active)
+    keep = list(range(J.shape[1]))
     dropped = []
     for _ in range(count):
         kk = np.array(keep)
-        d = np.diag(Ginv)[kk]
-        score = x[kk] ** 2 / d
-        score[x[kk] <= 0] = -1.0  # a negative LS torque helps nothing that a motor can do
-        j = int(np.argmin(score))
-        i = kk[j]
-        col = Ginv[:, i].copy()
-        x -= col * (x[i] / Ginv[i, i])
-        Ginv -= np.outer(col, col) / Ginv[i, i]
-        x[i] = 0.0
+        i = int(kk[np.argmin(_cut_costs(x[kk], np.diag(Ginv)[kk]))])
+        x = _drop(x, Ginv, i)
+        Ginv = Ginv - np.outer(Ginv[:, i], Ginv[:, i]) / Ginv[i, i]
         keep.remove(i)
         dropped.append(i)
-    x = np.clip(x, 0.0, ub_active)
-    return dropped, x
+    return dropped, np.clip(x, 0.0, ub_active)
 
 
 def _ranked_single_cuts(J, r, t_active):
-    """All active actuators, cheapest single cut first (linear model)."""
-    k = J.shape[1]
-    G = J.T @ J + (1e-10 * np.trace(J.T @ J) / k + 1e-300) * np.eye(k)
-    Ginv = np.linalg.inv(G)
-    x = t_active - Ginv @ (J.T @ r)
-    score = x**2 / np.diag(Ginv)
-    score[x <= 0] = -1.0
-    return np.argsort(score, kind="stable"), x, Ginv
+    """All active actuators, cheapest single cut first (linear model), with ``x`` and ``G⁻¹``."""
+    x, Ginv = _least_squares(J, r, t_active)
+    return np.argsort(_cut_costs(x, np.diag(Ginv)), kind="stable"), x, Ginv
 
 
 def _proposals(J, r, t_active, ub_active, batch: int, candidates: int):
@@ -315,9 +313,7 @@ def _proposals(J, r, t_active, ub_active, batch: int, candidates: int):
         batch = max(1, batch // 3)
     order, x0, Ginv = _ranked_single_cuts(J, r, t_active)
     for i in order[:candidates]:
-        x = x0 - Ginv[:, i] * (x0[i] / Ginv[i, i])
-        x[i] = 0.0
-        yield [int(i)], np.clip(x, 0.0, ub_active)
+        yield [int(i)], np.clip(_drop(x0, Ginv, i), 0.0, ub_active)
 
 
 def _refit_cut(refit: _Refit, trial, trial_active, iterations, good_enough, give_up_above):
