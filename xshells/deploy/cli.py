@@ -64,8 +64,6 @@ def _deploy(args) -> int:
                   target_angle=np.radians(args.angle) if args.angle is not None else None,
                   rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input))
         design = args.input
-    if kw["steps"] < 1:
-        raise InputError(f"--steps must be at least 1, got {kw['steps']}")
     result = run_deployment(design, material, out_dir=args.out, direction=args.direction, start=args.start, progress=not args.no_progress, **kw)
     _print_summary(result, args.out, warned=not args.no_progress)
     return 0 if result["reached"] else 1
