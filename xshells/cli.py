@@ -26,6 +26,7 @@ SUBCOMMANDS = [
     "xshells.sweeps.cli",
     "xshells.app.cli",
     "xshells.design.cli",
+    "xshells.inverse.cli",
 ]
 
 

@@ -63,7 +63,7 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
 
         bar = tqdm(total=case.steps, desc=f"dense deployment of {case.name}", unit="step")
     try:
-        res = deploy(L, target, DeployOptions(steps=case.steps), callback=(lambda rec: bar.update(1) and False) if bar else None)
+        res = deploy(L, target, DeployOptions(steps=case.steps, direction=case.direction), callback=(lambda rec: bar.update(1) and False) if bar else None)
     finally:
         if bar is not None:
             bar.close()

@@ -39,6 +39,8 @@ class Project:
     target_angle_deg : float or None
         Deployed average opening angle (None: flat + 60°, as ``xshells deploy``).
     rest_lengths : ndarray or None
+    direction : {"up", "down"}
+        Which way the flat state buckles (a case's ``direction``).
     """
 
     name: str
@@ -47,6 +49,7 @@ class Project:
     subdivision: int = 8
     target_angle_deg: float | None = None
     rest_lengths: np.ndarray | None = None
+    direction: str = "up"
 
 
 def open_path(path: str) -> Project:
@@ -63,7 +66,7 @@ def open_path(path: str) -> Project:
         design = read_design(case.design_path)
         p = read_rest_lengths(case.rest_lengths_path, design.num_segments) if case.rest_lengths_path else None
         angle = np.degrees(case.angle_rad) if case.angle_rad is not None else None
-        return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p)
+        return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p, case.direction)
     if ext in DESIGN_SUFFIXES:
         design = read_design(path)
         layout = layout_from_design(design)

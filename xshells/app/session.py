@@ -257,7 +257,10 @@ class Session:
             from .sim import Cancelled
             raise Cancelled()
         self._emit("progress", (0.1, f"assembly state ({layout.num_segments} segments)…"))
-        sim = Simulation(layout, material, k, rest_lengths=p, cancel=cancel)
+        from .sim import SimSettings
+
+        direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
+        sim = Simulation(layout, material, k, rest_lengths=p, settings=SimSettings(direction=direction), cancel=cancel)
         with self._lock:
             self.sim, self._sim_key = sim, key
         self._emit("flat", self._view(sim, time.perf_counter()))

@@ -28,6 +28,7 @@ class Case:
     open_by_rad: float | None = None
     steps: int = 40
     rest_lengths_path: str | None = None
+    direction: str = "up"
 
 
 DEFAULT_MATERIAL = {"type": "rectangle", "E": 20000.0, "nu": 0.3, "params": [10.0, 7.0]}
@@ -65,6 +66,7 @@ def load_case(path) -> Case:
         open_by_rad=float(np.radians(case.open_by_deg)) if case.open_by_deg is not None else None,
         steps=case.steps,
         rest_lengths_path=rel(case.rest_lengths) if case.rest_lengths else None,
+        direction=case.direction or "up",
     )
 
 

@@ -21,7 +21,8 @@ def register(subparsers) -> None:
     p.add_argument("--steps", type=int, help="deployment increments (default 40)")
     p.add_argument("--subdivision", type=int, help="edges per segment (default 10)")
     p.add_argument("--rest-lengths", help="per-segment rest lengths file (skips the rest-length solve)")
-    p.add_argument("--direction", choices=["up", "down"], default="up", help="which way the flat state buckles: up = its middle rises along the layout normal")
+    p.add_argument("--direction", choices=["up", "down"], help="which way the flat state buckles: up = its middle rises along the layout normal "
+                   "(default: the case's direction, else up)")
     p.add_argument("--start", choices=["auto", "average", "central-joint"], default="auto",
                    help="how the assembly state is held while it first relaxes: at its average angle, or by the central "
                         "joint's angle alone (auto: the average, unless that folds a joint at once)")
@@ -55,16 +56,17 @@ def _deploy(args) -> int:
         kw = dict(subdivision=case.subdivision if args.subdivision is None else args.subdivision,
                   steps=case.steps if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else case.angle_rad,
-                  open_by=case.open_by_rad, rest_lengths_path=args.rest_lengths or case.rest_lengths_path, name=case.name)
+                  open_by=case.open_by_rad, rest_lengths_path=args.rest_lengths or case.rest_lengths_path, name=case.name,
+                  direction=args.direction or case.direction)
         design = case.design_path
     else:
         material = _material_from_args(args)
         kw = dict(subdivision=10 if args.subdivision is None else args.subdivision,
                   steps=40 if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else None,
-                  rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input))
+                  rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input), direction=args.direction or "up")
         design = args.input
-    result = run_deployment(design, material, out_dir=args.out, direction=args.direction, start=args.start, progress=not args.no_progress, **kw)
+    result = run_deployment(design, material, out_dir=args.out, start=args.start, progress=not args.no_progress, **kw)
     _print_summary(result, args.out, warned=not args.no_progress)
     return 0 if result["reached"] else 1
 

@@ -48,8 +48,11 @@ def _write_outputs(out_dir: str, tag: str, linkage: Linkage, vmax: float | None 
 
 
 def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,
-                   rest_lengths_path=None, direction="up", progress=True, name=None, start="auto") -> dict:
+                   rest_lengths_path=None, direction="up", progress=True, name=None, start="auto", states=None) -> dict:
     """Build the linkage, find its assembly state, deploy it and write the outputs into ``out_dir``.
+
+    ``states``, a dict if given, receives copies of the ``"flat"`` and
+    ``"deployed"`` linkages (for callers that check them further).
 
     Returns the ``result.json`` content. Interrupting (Ctrl-C) keeps and
     writes the steps finished so far.
@@ -72,6 +75,10 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         minimize(linkage, fixed=linkage.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
     t_rest = time.perf_counter() - t1
     flat = _state_summary(linkage)
+    if states is not None:
+        import copy
+
+        states["flat"] = copy.deepcopy(linkage)
     _write_outputs(out_dir, "flat", linkage)
     if linkage.graph.is_planar:  # fabrication drawings of the flat layout with its rest lengths
         from ..io.fabrication import write_drawings
@@ -104,6 +111,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
             bar.close()
     t_deploy = time.perf_counter() - t2
     deployed = _state_summary(linkage)
+    if states is not None:
+        states["deployed"] = linkage
     if res is not None:
         deployed["torque"] = res.torque
         deployed["min_hessian_eigenvalue"] = res.min_hessian_eigenvalue

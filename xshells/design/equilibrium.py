@@ -15,13 +15,63 @@ one Cholesky factor of ``H + ρ a aᵀ`` (one of them, with ``a``, cached).
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 
 from ..linkage.derivatives import hessian_derivative_product
 from ..solve import NewtonOptions, NotPositiveDefinite, SparseCholesky, minimize
+
+
+@dataclass(frozen=True)
+class Tether:
+    """Springs ``½ k Σ (x_r − t_r)²`` pulling the variables ``rows`` toward ``targets``.
+
+    Attributes
+    ----------
+    k : float
+        Stiffness (force per length for position variables).
+    rows : (r,) int
+    targets : (r,) float
+    """
+
+    k: float
+    rows: np.ndarray
+    targets: np.ndarray
+
+    def energy(self, x) -> float:
+        d = x[self.rows] - self.targets
+        return 0.5 * self.k * float(d @ d)
+
+    def gradient(self, x) -> np.ndarray:
+        g = np.zeros(len(x))
+        g[self.rows] = self.k * (x[self.rows] - self.targets)
+        return g
+
+    def diagonal(self, n: int) -> sp.csr_matrix:
+        """``k`` on the tethered rows of an (n, n) matrix."""
+        return sp.csr_matrix((np.full(len(self.rows), self.k), (self.rows, self.rows)), shape=(n, n))
+
+
+class _Tethered:
+    """A linkage plus a tether, as a Newton problem (the rest is the linkage's)."""
+
+    def __init__(self, linkage, tether: Tether):
+        self._L, self._t = linkage, tether
+
+    def __getattr__(self, name):
+        return getattr(self._L, name)
+
+    def energy(self):
+        return self._L.energy() + self._t.energy(self._L.get_vars())
+
+    def gradient(self):
+        return np.asarray(self._L.gradient(), float) + self._t.gradient(self._L.get_vars())
+
+    def hessian(self):
+        H = self._L.hessian()
+        return (H + self._t.diagonal(H.shape[0])).tocsr()
 
 
 class ConstrainedEquilibrium:
@@ -58,6 +108,13 @@ class ConstrainedEquilibrium:
         # long escape to a state the optimizer will reject anyway.
         self.stop_on_indefinite = False
         self.trial_iterations: int | None = None
+        # A dead load (generalized force, shape (n,)) the state is in equilibrium with: ∇E = load. It does
+        # not depend on x or p, so the sensitivities and adjoints below are those of the unloaded problem.
+        self.load: np.ndarray | None = None
+        # Springs ½ k |x_r − t_r|² on some variables (a Tether): they add k to the Hessian's diagonal and
+        # nothing else (no p dependence, no third derivatives). Inverse design holds a first deployed state
+        # on the target with them and lets it go in steps.
+        self.tether: Tether | None = None
 
     @property
     def nx(self) -> int:
@@ -69,7 +126,9 @@ class ConstrainedEquilibrium:
         if self.trial_iterations is not None:
             options = replace(options, max_iterations=min(options.max_iterations, self.trial_iterations))
         stop = (lambda it, rep: rep.indefinite_events > 0) if self.stop_on_indefinite else None
-        report = minimize(self.L, fixed=self.pins, constraint=(self.a, self.angle), options=options, callback=stop)
+        problem = self.L if self.tether is None else _Tethered(self.L, self.tether)
+        report = minimize(problem, fixed=self.pins, force=self.load, constraint=(self.a, self.angle), options=options,
+                          callback=stop)
         self.newton_iterations += report.iterations
         if not report.converged:
             if report.message == "stopped by callback":
@@ -82,6 +141,8 @@ class ConstrainedEquilibrium:
         """Hessian blocks at the current state and the Cholesky factor of ``H + ρ a aᵀ`` (free variables)."""
         nx = self.nx
         Hfull = self.L.hessian(with_rest_lengths=True).tocsr()
+        if self.tether is not None:
+            Hfull = (Hfull + self.tether.diagonal(Hfull.shape[0])).tocsr()
         self.Hfull = Hfull
         self.Hxp = Hfull[:nx, nx:].tocsr()
         self.Hpx = Hfull[nx:, :nx].tocsr()

@@ -276,8 +276,11 @@ def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
     if V.shape[1] == 2:
         V = np.c_[V, np.zeros(len(V))]
     F = np.concatenate(tris)
-    if F.min() < 0 or F.max() >= len(V) or not np.isfinite(V).all():
-        raise InputError(f"{path}: the target surface has invalid vertex indices or coordinates")
+    if F.min() < 0 or F.max() >= len(V):
+        raise InputError(f"{path}: the target surface has a triangle with a vertex index out of range")
+    if not np.isfinite(V).all():
+        bad = int(np.flatnonzero(~np.isfinite(V).all(axis=1))[0])
+        raise InputError(f"{path}: the target surface's vertex {bad + 1} has a non-finite coordinate")
     return V, F
 
 

@@ -125,6 +125,10 @@ class DesignProblem:
         the deployment).
     deploy_steps : int
         Angle increments for the initial deployment.
+    deployed_load : (n,) array, optional
+        A dead load holding the deployed state (see :meth:`set_deployed_load`).
+    deployed_tether : Tether, optional
+        Springs holding the deployed state (see :meth:`set_deployed_tether`).
 
     Attributes ``flat_note`` (why ᾱ₀ differs from the drawn angle, or "") and
     ``input_warnings`` (:meth:`Linkage.input_warnings`) are set by whoever
@@ -136,7 +140,8 @@ class DesignProblem:
     fresh_copy = None  # set by design.run.build_problem(keep_copy=True): a callable giving the same problem anew
 
     def __init__(self, linkage, target_angle: float, weights: DesignWeights = DesignWeights(), fitting=None,
-                 flat_angle: float | None = None, deployed=None, deploy_steps: int = 20, direction: str = "up"):
+                 flat_angle: float | None = None, deployed=None, deploy_steps: int = 20, direction: str = "up",
+                 deployed_load=None, deployed_tether=None):
         self.w = weights
         self.p0 = linkage.rest_lengths
         flat_angle = linkage.average_angle() if flat_angle is None else float(flat_angle)
@@ -149,6 +154,9 @@ class DesignProblem:
             if not res.converged:
                 raise InputError(f"the initial design does not deploy to {np.degrees(target_angle):.2f}° ({res.message})")
         self.deployed = ConstrainedEquilibrium(deployed, target_angle)
+        if deployed_load is not None:
+            self.deployed.load = np.array(deployed_load, float)
+        self.deployed.tether = deployed_tether
         self.flat.solve()
         self.deployed.solve()
         n = linkage.num_joints
@@ -220,6 +228,26 @@ class DesignProblem:
         return _StateTerm(value, gradient, hessian_vector)
 
     # -------------------------------------------------------------- updates
+    def set_deployed_load(self, load) -> None:
+        """Hold the deployed state under a dead load ``load`` (shape (n,), or None) and re-solve it there.
+
+        The load changes the state, not the design: the objective and its
+        derivatives are then those of the loaded equilibrium.
+        """
+        self.deployed.load = None if load is None else np.array(load, float)
+        self.deployed.solve()
+        self._cache = {}
+
+    def set_deployed_tether(self, tether) -> None:
+        """Hold the deployed state with springs (a :class:`~.equilibrium.Tether`, or None) and re-solve it.
+
+        The springs change the state, not the design or the energy that
+        ``J`` counts: their stiffness only enters the state's Hessian.
+        """
+        self.deployed.tether = tether
+        self.deployed.solve()
+        self._cache = {}
+
     def set_q(self, q) -> None:
         """Move both equilibria to the design ``p = q p₀`` (second-order predictor, then Newton)."""
         q = np.asarray(q, float)

@@ -67,7 +67,7 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
 
         bar = tqdm(total=steps, desc=f"deploying {case.name}", unit="step")
     try:
-        res = deploy(D, target, DeployOptions(steps=steps), callback=(lambda rec: bar.update(1) and False) if bar else None)
+        res = deploy(D, target, DeployOptions(steps=steps, direction=case.direction), callback=(lambda rec: bar.update(1) and False) if bar else None)
     finally:
         if bar is not None:
             bar.close()

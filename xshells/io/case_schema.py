@@ -85,6 +85,8 @@ class CaseFile(_Strict):
                                          description="open by this much from the assembly state, degrees (default 60 when no angle is given)")
     rest_lengths: Optional[str] = Field(None, min_length=1,
                                         description="a file of per-segment rest lengths (design parameters) that replaces the rest-length solve")
+    direction: Optional[Literal["up", "down"]] = Field(
+        None, description="which way the flat state buckles: up (default) = its middle rises along the layout normal")
     # informational keys of the paper's cases.json, kept so that its entries load as they are
     figure: Optional[str] = Field(None, description="informational: the paper's figure")
     description: Optional[str] = Field(None, description="informational: free text")

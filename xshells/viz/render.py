@@ -27,6 +27,16 @@ def _save(fig, path) -> None:
         raise
 
 
+def _equal_axes(ax, points: np.ndarray) -> None:
+    """One scale on all three axes (a cube around the points), and the views' common camera."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
+    ax.set_xlim(c[0] - r, c[0] + r)
+    ax.set_ylim(c[1] - r, c[1] + r)
+    ax.set_zlim(c[2] - r, c[2] + r)
+    ax.view_init(elev=28, azim=-60)
+
+
 def render_linkage(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray, title: str = "",
                    label: str = "√(bending energy density)", vmax: float | None = None) -> None:
     """Save a 3D view of rod centerlines coloured per edge.
@@ -52,12 +62,7 @@ def render_linkage(path, points: np.ndarray, edges: np.ndarray, vertex_values: n
     if vmax is not None:
         lc.set_clim(0.0, vmax)
     ax.add_collection3d(lc)
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[1] - r, c[1] + r)
-    ax.set_zlim(c[2] - r, c[2] + r)
-    ax.view_init(elev=28, azim=-60)
+    _equal_axes(ax, points)
     fig.colorbar(lc, ax=ax, shrink=0.6, label=label)
     ax.set_title(title)
     _save(fig, path)
@@ -112,13 +117,7 @@ def render_actuators(path, linkage, actuated, torques, reference=None, title: st
         size = 30 + 170 * tau / tau.max()
         ax.scatter(P[actuated, 0], P[actuated, 1], P[actuated, 2], s=size, c="tab:red", edgecolors="k",
                    depthshade=False, label="actuators (area ∝ torque)")
-    pts = rods.points
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[1] - r, c[1] + r)
-    ax.set_zlim(c[2] - r, c[2] + r)
-    ax.view_init(elev=28, azim=-60)
+    _equal_axes(ax, rods.points)
     ax.legend(loc="upper left", fontsize=8)
     ax.set_title(title)
     _save(fig, path)
@@ -194,6 +193,61 @@ def plot_convergence(path, curves: dict, title: str = "") -> None:
     ax.set_yscale("log")
     ax.grid(alpha=0.3)
     ax.legend()
+    ax.set_title(title)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def render_fit(path, V: np.ndarray, F: np.ndarray, points: np.ndarray, edges: np.ndarray, distances: np.ndarray,
+               title: str = "", label: str = "distance to the surface") -> None:
+    """The deployed beams over the translucent target surface, coloured by their distance to it.
+
+    Parameters
+    ----------
+    V, F : (n, 3), (m, 3)
+        The target surface.
+    points : (k, 3), edges : (e, 2)
+        Rod centerlines (placed in the surface's frame).
+    distances : (k,)
+        Per rod vertex; each edge shows the mean of its endpoints.
+    """
+    plt = _pyplot()
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    fig = plt.figure(figsize=(7.5, 5.8))
+    ax = fig.add_subplot(projection="3d")
+    ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=F, color="0.75", alpha=0.25, linewidth=0, shade=True)
+    vals = 0.5 * (distances[edges[:, 0]] + distances[edges[:, 1]])
+    lc = Line3DCollection(points[edges], array=vals, cmap="plasma", linewidths=1.8)
+    lc.set_clim(0.0, max(float(vals.max()), 1e-12))
+    ax.add_collection3d(lc)
+    _equal_axes(ax, np.vstack([V, points]))
+    fig.colorbar(lc, ax=ax, shrink=0.6, label=label)
+    ax.set_title(title)
+    _save(fig, path)
+    plt.close(fig)
+
+
+def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray | None = None, title: str = "",
+                label: str = "√(bending energy density)") -> None:
+    """A top view (x, y, equal scale) of a flat layout's rod centerlines, optionally coloured per edge."""
+    plt = _pyplot()
+    from matplotlib.collections import LineCollection
+
+    fig, ax = plt.subplots(figsize=(7.5, 5.5))
+    segs = points[edges][:, :, :2]
+    if vertex_values is None:
+        lc = LineCollection(segs, colors="0.2", linewidths=1.4)
+    else:
+        vals = 0.5 * (vertex_values[edges[:, 0]] + vertex_values[edges[:, 1]])
+        lc = LineCollection(segs, array=vals, cmap="viridis", linewidths=1.4)
+        fig.colorbar(lc, ax=ax, shrink=0.7, label=label)
+    ax.add_collection(lc)
+    ax.autoscale()
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
     ax.set_title(title)
     fig.tight_layout()
     _save(fig, path)

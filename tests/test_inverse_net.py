@@ -1,0 +1,59 @@
+"""Beam nets on a surface: spacing, crossing angle, valence, and the flat positions that keep the lengths."""
+import numpy as np
+import pytest
+
+from test_inverse_surface import grid
+from xshells.errors import InputError
+from xshells.inverse.net import read_net, surface_net
+from xshells.inverse.scissor import scissor_map
+from xshells.inverse.surface import check_target
+
+
+@pytest.fixture(scope="module")
+def plane_net():
+    s = check_target(*grid(n=13, size=1200.0))
+    m = scissor_map(s, np.radians(90), np.radians(20))
+    return s, surface_net(s, m, np.radians(90), 100.0)
+
+
+def test_segments_are_spacing_long_and_cross_at_the_angle(plane_net):
+    s, net = plane_net
+    L = net.segment_lengths()
+    assert np.allclose(L, 100.0, rtol=1e-6)  # a plane: exact
+    deg = np.bincount(net.segments.ravel(), minlength=net.num_joints)
+    assert deg.max() <= 4 and deg.min() >= 2
+    a = [net.joints[b] - net.joints[a] for a, b in net.segments[net.family == 0][:1]]
+    c = [net.joints[b] - net.joints[a] for a, b in net.segments[net.family == 1][:1]]
+    cosang = abs(np.dot(a[0], c[0])) / (np.linalg.norm(a[0]) * np.linalg.norm(c[0]))
+    assert np.degrees(np.arccos(cosang)) == pytest.approx(90.0, abs=1e-6)
+
+
+def test_flat_positions_keep_the_lengths_and_close_the_angle(plane_net):
+    s, net = plane_net
+    assert np.allclose(net.segment_lengths(flat=True), net.segment_lengths(), rtol=1e-6)
+    f0 = net.flat[net.segments[net.family == 0][0]]
+    f1 = net.flat[net.segments[net.family == 1][0]]
+    u, v = f0[1] - f0[0], f1[1] - f1[0]
+    ang = np.degrees(np.arccos(abs(u @ v) / np.linalg.norm(u) / np.linalg.norm(v)))
+    assert ang == pytest.approx(20.0, abs=1e-6)
+
+
+def test_the_net_covers_the_surface(plane_net):
+    s, net = plane_net
+    assert np.ptp(net.joints[:, 0]) > 0.8 * 1200 and np.ptp(net.joints[:, 1]) > 0.8 * 1200
+
+
+def test_read_net_accepts_quads_and_lines_and_refuses_other_faces(tmp_path):
+    p = tmp_path / "q.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nf 1 2 3 4\nf 2 5 6 3\n")
+    V, S = read_net(p)
+    assert len(V) == 6 and len(S) == 7
+    t = tmp_path / "t.obj"
+    t.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n")
+    with pytest.raises(InputError, match=r"t.obj:4: a face with 3 sides"):
+        read_net(t)
+    star = tmp_path / "star.obj"
+    star.write_text("v 0 0 0\n" + "".join(f"v {np.cos(a):.3f} {np.sin(a):.3f} 0\n" for a in np.linspace(0, 6, 5)) +
+                    "".join(f"l 1 {k}\n" for k in range(2, 7)))
+    with pytest.raises(InputError, match="vertex 1 has 5 segments"):
+        read_net(star)

@@ -1,0 +1,93 @@
+"""``xshells inverse`` end to end on the bundled spherical cap (coarse spacing, to stay quick)."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from data_paths import EXAMPLES
+from xshells.cli import main
+
+CAP = EXAMPLES / "targets" / "spherical_cap_R2000_30deg.obj"
+DIAG = float(np.linalg.norm([1918.0, 1918.0, 266.0]))
+
+
+@pytest.fixture(scope="module")
+def cap_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cap")
+    code = main(["inverse", str(CAP), "--spacing", f"{DIAG / 8:.3f}", "--out", str(out), "--no-progress"])
+    with open(out / "result.json") as fh:
+        return code, out, json.load(fh)
+
+
+def test_the_result_is_a_valid_physical_state(cap_run):
+    code, out, r = cap_run
+    assert r["valid"], r["message"]
+    assert r["flat_planarity"] <= 1e-6
+    assert not r["folded"] and not r["overlap"]
+    assert r["min_eigenvalue_at_fixed_angle"] >= 0
+    assert r["min_flat_angle_deg"] > 5
+    assert r["coverage"] >= 0.9
+    assert code == (0 if r["status"] == "complete" else 1)
+    for name in ("flat_design.obj", "design_parameters.txt", "case.json", "fit.png", "flat.png", "flat_layout.svg",
+                 "flat_layout.dxf"):
+        assert (out / name).is_file(), name
+    for key in ("fit_mean", "fit_max", "coverage", "placement", "segments", "joints", "energy_flat", "energy_deployed",
+                "min_flat_angle_deg", "time_s", "stage_times_s"):
+        assert key in r, key
+
+
+def test_it_rises_and_fits_the_cap_roughly_even_at_coarse_spacing(cap_run):
+    _, _, r = cap_run
+    P = np.array(r["deployed_joints"])
+    assert np.ptp(P[:, 2]) > 100  # the joints span 140 of the cap's 266 in height: a flat shell placed on it spans ~0
+    assert r["fit_mean"] < 0.02 and r["fit_max"] < 0.04
+
+
+def test_xshells_deploy_of_the_case_reproduces_the_reported_joints(cap_run, tmp_path):
+    _, out, r = cap_run
+    assert main(["deploy", str(out / "case.json"), "--out", str(tmp_path), "--no-progress"]) in (0, 1)
+    with open(tmp_path / "result.json") as fh:
+        Y = np.array(json.load(fh)["deployed"]["joint_positions"])
+    T = np.array(r["placement"])
+    X = Y @ T[:3, :3].T + T[:3, 3]
+    assert np.abs(X - np.array(r["deployed_joints"])).max() <= 1e-6 * DIAG
+
+
+def test_the_case_loads_where_cases_load(cap_run):
+    from xshells.app.loading import open_path
+    from xshells.deploy.case import load_case
+
+    _, out, _ = cap_run
+    case = load_case(out / "case.json")
+    assert case.rest_lengths_path and case.direction == "up"
+    assert open_path(str(out / "case.json")).direction == "up"
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--angle", "10"], "strictly between 20° and 160°"),
+    (["--angle", "170"], "strictly between 20° and 160°"),
+    (["--spacing", "5000"], "larger than the surface allows"),
+    (["--spacing", "5"], "more than 5000"),
+    (["--spacing", "-3"], "positive length"),
+])
+def test_bad_options_get_one_line(tmp_path, capsys, args, words):
+    assert main(["inverse", str(CAP), "--out", str(tmp_path / "o"), "--no-progress", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err and "Traceback" not in err
+
+
+def test_bad_meshes_and_nets_get_one_line(tmp_path, capsys):
+    closed = tmp_path / "tet.obj"
+    closed.write_text("v 0 0 0\nv 1000 0 0\nv 0 1000 0\nv 0 0 1000\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    assert main(["inverse", str(closed), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    assert "closed" in capsys.readouterr().err
+    tri = tmp_path / "net.obj"
+    tri.write_text("v 0 0 0\nv 100 0 0\nv 0 100 0\nf 1 2 3\n")
+    assert main(["inverse", str(CAP), "--net", str(tri), "--out", str(tmp_path / "o2"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "not a quad net" in err or "quad net" in err
+    nan = tmp_path / "nan.obj"
+    nan.write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
+    assert main(["inverse", str(nan), "--out", str(tmp_path / "o3"), "--no-progress"]) == 2
+    assert "vertex 3 has a non-finite coordinate" in capsys.readouterr().err

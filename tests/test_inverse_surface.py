@@ -1,0 +1,58 @@
+"""Target surfaces for inverse design: every defect is one clear line; good meshes come out oriented."""
+import numpy as np
+import pytest
+
+from xshells.errors import InputError
+from xshells.inverse.surface import check_target, load_target
+
+
+def grid(n=6, size=1000.0, height=None):
+    x, y = np.meshgrid(np.linspace(-size / 2, size / 2, n), np.linspace(-size / 2, size / 2, n), indexing="ij")
+    z = np.zeros_like(x) if height is None else height(x, y)
+    V = np.c_[x.ravel(), y.ravel(), z.ravel()]
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    return V, F
+
+
+def test_a_grid_is_accepted_with_its_diagonal_area_and_one_boundary():
+    V, F = grid()
+    s = check_target(V, F)
+    assert s.diagonal == pytest.approx(np.sqrt(2) * 1000.0)
+    assert s.area == pytest.approx(1e6)
+    assert s.boundary_loops == 1
+
+
+def test_faces_are_oriented_consistently_and_upward():
+    V, F = grid(height=lambda x, y: -1e-4 * (x**2 + y**2))
+    F = F.copy()
+    F[::3] = F[::3, ::-1]  # mixed orientation, as some exporters write
+    s = check_target(V, F)
+    n = s.face_normals
+    assert (n[:, 2] > 0).all()
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda: (np.zeros((0, 3)), np.zeros((0, 3), int)), "empty"),
+    (lambda: (np.where(np.arange(36)[:, None] == 7, np.nan, grid()[0]), grid()[1]), "non-finite"),
+    (lambda: (grid()[0], np.r_[grid()[1], [[0, 1, 7]]]), "not manifold"),
+    (lambda: (np.r_[grid()[0], grid()[0] + 5000.0], np.r_[grid()[1], grid()[1] + 36]), "separate pieces"),
+    (lambda: (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])), "closed"),
+    (lambda: (np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0], [0, 1, 0]]), np.array([[0, 1, 2], [0, 1, 3]])), "zero area"),
+])
+def test_bad_meshes_get_one_line_naming_the_problem(make, words):
+    V, F = make()
+    with pytest.raises(InputError) as exc:
+        check_target(V, F, "t.obj")
+    msg = str(exc.value)
+    assert msg.startswith("t.obj:") and words in msg and "\n" not in msg
+
+
+def test_unreadable_and_triangle_free_files(tmp_path):
+    p = tmp_path / "lines.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nl 1 2\n")
+    with pytest.raises(InputError, match="no triangles"):
+        load_target(p)
+    with pytest.raises(InputError, match="cannot read"):
+        load_target(tmp_path / "missing.obj")

@@ -1,0 +1,55 @@
+"""``xshells inverse``: a flat X-shell that deploys onto a given surface."""
+from __future__ import annotations
+
+from ..errors import InputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "inverse", help="design a flat X-shell that deploys onto a target surface",
+        description="Target-first design: lays a beam net on the surface, flattens and closes it, deploys it, and "
+                    "optimizes its rest lengths (paper eq. 5) while a load that first holds it on the surface is let go. "
+                    "Writes a case that `xshells deploy` reproduces. Units follow the surface (lengths) and the "
+                    "material (Young's modulus): the bundled data use mm and MPa.")
+    p.add_argument("surface", help="the target: a triangle mesh (OBJ, PLY, STL or gmsh .msh) in design units")
+    p.add_argument("--spacing", type=float, help="joint spacing along the beams (default: 1/12 of the surface's diagonal)")
+    p.add_argument("--angle", type=float, default=90.0, help="deployed average opening angle, degrees, in (20, 160) (default 90)")
+    p.add_argument("--orientation", type=float, default=0.0,
+                   help="turns the beam families on the surface, degrees (0: their bisector along the surface's longest axis)")
+    p.add_argument("--flat-angle", type=float, default=20.0, help="opening angle of the flat, closed layout, degrees (default 20)")
+    p.add_argument("--net", help="a 3D quad net (OBJ: quad faces or beam lines) drawn on or near the surface, used "
+                                 "instead of the automatic one")
+    p.add_argument("--direction", choices=("up", "down"), default="up",
+                   help="which way the flat layout buckles (written into the case; default up)")
+    p.add_argument("--material", help="TYPE:P1,P2,... (e.g. rectangle:10,7) or a cross-section JSON file (default rectangle 10 × 7)")
+    p.add_argument("--young", type=float, help="Young's modulus (default 20000, as in the paper, MPa)")
+    p.add_argument("--poisson", type=float, help="Poisson's ratio (default 0.3)")
+    p.add_argument("--subdivision", type=int, default=8, help="edges per segment (default 8)")
+    p.add_argument("--steps", type=int, default=30, help="deployment increments (default 30)")
+    p.add_argument("--max-iters", type=int, default=20,
+                   help="design-optimization iterations once the holding load is gone (default 20)")
+    p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
+    p.add_argument("--out", default="inverse_out", help="output folder")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_inverse)
+
+
+def _inverse(args) -> int:
+    from ..deploy.case import check_counts, material_spec_from_option
+    from .run import InverseOptions, run_inverse
+
+    check_counts(args.subdivision, args.steps)
+    if args.max_iters < 1:
+        raise InputError(f"--max-iters must be at least 1, got {args.max_iters}")
+    spec = material_spec_from_option(args.material, args.young, args.poisson)
+    opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
+                          direction=args.direction, subdivision=args.subdivision, steps=args.steps,
+                          max_iters=args.max_iters, force=args.force)
+    r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
+    if r["status"] in ("complete", "missed", "invalid"):
+        print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "
+              f"max {100 * r['fit_max']:.2f}% of the diagonal; coverage {100 * r['coverage']:.1f}% "
+              f"({r['time_s']:.0f} s)")
+    print(f"  {r['status']}: {r['message']}")
+    print(f"  outputs in {args.out}/ (xshells deploy {args.out}/case.json reproduces the deployment)")
+    return 0 if r["status"] == "complete" else 1

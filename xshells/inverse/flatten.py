@@ -1,0 +1,109 @@
+"""The flat, closed layout of a designer's own net (``--net``), by least squares.
+
+Each joint starts at the scissor map's image of its closest surface point
+(:mod:`.scissor`); the layout is then fitted, with ``scipy.optimize.least_squares``,
+to three kinds of residuals:
+
+* every segment keeps its length on the surface (weight 1, relative to the median length);
+* every beam turns little at each joint (weight 0.05 per radian): smooth beams;
+* every joint closes to the flat angle α₀ (weight 0.05 per radian).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .net import Net, read_net
+
+
+def beam_neighbours(graph) -> np.ndarray:
+    """``[joint, beam, side]``: the joint before (0) and after (1) each joint along beam A (0) / B (1), or −1."""
+    sj = graph.segment_joints
+    nj = len(graph.joint_vertex)
+    nbr = -np.ones((nj, 2, 2), np.int64)
+    for j in range(nj):
+        for b in range(2):
+            for side in range(2):
+                s = graph.joint_segments[j, b, side]
+                if s >= 0:
+                    a, c = sj[s]
+                    other = c if a == j else a
+                    nbr[j, b, side] = other
+    return nbr
+
+
+def flatten_layout(lengths_3d: np.ndarray, segments: np.ndarray, nbr: np.ndarray, flat_angle: float, start: np.ndarray,
+                   smooth: float = 0.05, angle_weight: float = 0.05) -> np.ndarray:
+    """Planar joint positions (k, 2) near ``start`` with the given segment lengths, smooth beams, angles α₀.
+
+    ``segments`` are joint pairs (s, 2); ``nbr`` as :func:`beam_neighbours`.
+    """
+    from scipy.optimize import least_squares
+
+    n = len(start)
+    scale = float(np.median(lengths_3d))
+    trip = np.array([(nbr[k, f, 0], k, nbr[k, f, 1]) for k in range(n) for f in (0, 1)
+                     if nbr[k, f, 0] >= 0 and nbr[k, f, 1] >= 0], np.int64).reshape(-1, 3)
+    both = np.array([k for k in range(n) if (nbr[k, 0] >= 0).any() and (nbr[k, 1] >= 0).any()], np.int64)
+
+    def tangent(q, f):
+        p, nx = nbr[both, f, 0], nbr[both, f, 1]
+        ahead = np.where((nx >= 0)[:, None], q[np.maximum(nx, 0)], q[both])
+        behind = np.where((p >= 0)[:, None], q[np.maximum(p, 0)], q[both])
+        return ahead - behind
+
+    def cross(a, b):
+        return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+
+    def residual(z):
+        q = z.reshape(-1, 2)
+        e = q[segments[:, 1]] - q[segments[:, 0]]
+        r = [(np.linalg.norm(e, axis=1) - lengths_3d) / scale]
+        if len(trip):
+            e1, e2 = q[trip[:, 1]] - q[trip[:, 0]], q[trip[:, 2]] - q[trip[:, 1]]
+            r.append(smooth * np.arctan2(cross(e1, e2), (e1 * e2).sum(1)))
+        if len(both):
+            ta, tb = tangent(q, 0), tangent(q, 1)
+            r.append(angle_weight * (np.abs(np.arctan2(cross(ta, tb), (ta * tb).sum(1))) - flat_angle))
+        return np.concatenate(r)
+
+    sol = least_squares(residual, np.asarray(start, float).ravel(), method="trf", x_scale=scale, max_nfev=500)
+    return sol.x.reshape(-1, 2)
+
+
+def net_from_file(path, surface, smap, flat_angle: float) -> Net:
+    """A designer's quad net (:func:`.net.read_net`) with its flat layout."""
+    import igl
+
+    from ..io.design import design_from_arrays
+    from ..linkage.graph import analyze
+
+    X, segments = read_net(path)
+    try:
+        graph = analyze(design_from_arrays(X, segments, source=str(path)))
+    except InputError as exc:
+        raise InputError(f"{path}: not a quad net of beams: {exc}") from None
+    span = float(np.linalg.norm(np.ptp(X, axis=0)))
+    sq, fi, C = igl.point_mesh_squared_distance(X, surface.V, surface.F)
+    far = np.sqrt(np.asarray(sq)) > 0.05 * surface.diagonal
+    if far.any():
+        v = int(np.flatnonzero(far)[0])
+        raise InputError(f"{path}: vertex {v + 1} lies {np.sqrt(sq[v]):.4g} from the surface (more than 5% of its "
+                         f"diagonal {surface.diagonal:.4g}): draw the net on or near the surface")
+    fi = np.asarray(fi, np.int64)
+    F = surface.F
+    bc = igl.barycentric_coordinates(np.asarray(C, float), surface.V[F[fi, 0]], surface.V[F[fi, 1]], surface.V[F[fi, 2]])
+    start = np.einsum("nk,nkd->nd", bc, smap.flat[F[fi]])
+    jv = np.asarray(graph.joint_vertex)
+    sj = graph.segment_joints
+    inner = (sj >= 0).all(axis=1)  # joint-to-joint segments carry the flattening
+    lengths = np.linalg.norm(X[segments[inner, 1]] - X[segments[inner, 0]], axis=1)
+    q = start.copy()
+    q[jv] = flatten_layout(lengths, sj[inner], beam_neighbours(graph), flat_angle, start[jv])
+    # free ends: along their beam's direction at the joint, at their length on the surface
+    for v in np.asarray(graph.free_end_vertex):
+        s = int(np.flatnonzero((segments == v).any(axis=1))[0])
+        other = segments[s][segments[s] != v][0]
+        d = start[v] - start[other]
+        q[v] = q[other] + np.linalg.norm(X[v] - X[other]) * d / max(np.linalg.norm(d), 1e-12 * span)
+    return Net(X, q, segments, np.asarray(graph.segment_labels)[:, 0].clip(0))

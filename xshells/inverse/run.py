@@ -1,0 +1,409 @@
+"""The job behind ``xshells inverse``: from a target surface to a flat X-shell that deploys onto it.
+
+Stages (each timed, each with a progress bar on the command line):
+
+1. **net**: the scissor map of the surface (:mod:`.scissor`) and a beam net
+   along its directions (:mod:`.net`), or the designer's ``--net``;
+2. **flatten**: the net's flat, closed positions from the same map (or, for
+   a given net, least squares on its lengths, :mod:`.flatten`);
+3. **deploy**: the rest-length solve and a first deployment;
+4. **hold**: springs pull the deployed state onto the target (:mod:`.guide`);
+5. **optimize**: design optimization (eq. 5, 0.9 of the fit on the surface,
+   0.1 on the target joints) while the holding load is let go;
+6. **verify**: the written case is deployed exactly as ``xshells deploy
+   case.json`` does, and everything reported is measured on that deployment.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.export import atomic_write_text
+from .guide import GuideOptions
+
+MAX_SEGMENTS = 5000
+# What "deployed onto the surface" means (issue 18's bar for analytic targets): mean and largest joint
+# distance to the surface, relative to its bounding-box diagonal, and the area share within 0.75 spacing.
+REACH = {"fit_mean": 0.01, "fit_max": 0.03, "coverage": 0.90}
+
+
+@dataclass(frozen=True)
+class InverseOptions:
+    """Settings of :func:`run_inverse` (angles in degrees, lengths in the surface's units).
+
+    Attributes
+    ----------
+    spacing : float or None
+        Joint spacing along the beams (default: 1/12 of the surface's diagonal).
+    angle : float
+        Deployed average opening angle, in (20, 160).
+    orientation : float
+        Turns the beams' bisector from the surface's longest principal axis.
+    flat_angle : float
+        The flat state's opening angle α₀ (uniform by construction).
+    direction : {"up", "down"}
+        Which way the flat layout buckles (written into the case).
+    subdivision : int
+    steps : int
+        Deployment increments (written into the case).
+    max_iters : int
+        Design-optimization iterations after the load is gone.
+    force : bool
+        Allow more than 5,000 segments.
+    gamma, beta : float
+        The weights of eq. 5 (:class:`~xshells.design.objective.DesignWeights`).
+    guide : GuideOptions
+    """
+
+    spacing: float | None = None
+    angle: float = 90.0
+    orientation: float = 0.0
+    flat_angle: float = 20.0
+    direction: str = "up"
+    subdivision: int = 8
+    steps: int = 30
+    max_iters: int = 20
+    force: bool = False
+    gamma: float = 0.9
+    beta: float = 1000.0
+    guide: GuideOptions = field(default_factory=GuideOptions)
+
+
+def check_options(options: InverseOptions, surface) -> float:
+    """One-line errors for options that cannot work on ``surface``; returns the spacing to use."""
+    if not (np.isfinite(options.angle) and 20.0 < options.angle < 160.0):
+        raise InputError(f"--angle {options.angle:g}: the deployed angle must lie strictly between 20° and 160°")
+    if not (np.isfinite(options.flat_angle) and 0.0 < options.flat_angle < options.angle):
+        raise InputError(f"--flat-angle {options.flat_angle:g}: the flat angle must lie between 0° and the deployed "
+                         f"angle {options.angle:g}°")
+    if not np.isfinite(options.orientation):
+        raise InputError("--orientation must be a finite angle in degrees")
+    if options.direction not in ("up", "down"):
+        raise InputError(f"--direction must be up or down, got {options.direction!r}")
+    spacing = options.spacing if options.spacing is not None else surface.diagonal / 12.0
+    if not (np.isfinite(spacing) and spacing > 0):
+        raise InputError(f"--spacing {spacing:g}: the spacing must be a positive length")
+    from .net import estimate_segments
+
+    extent = np.sort(np.ptp(surface.V, axis=0))[::-1]
+    if spacing >= 0.5 * extent[1] or estimate_segments(surface, spacing, np.radians(options.angle)) < 8:
+        raise InputError(f"--spacing {spacing:.4g} is larger than the surface allows (its extents are "
+                         f"{extent[0]:.4g} × {extent[1]:.4g}): use at most {0.25 * extent[1]:.4g}")
+    n = estimate_segments(surface, spacing, np.radians(options.angle))
+    if n > MAX_SEGMENTS and not options.force:
+        raise InputError(f"--spacing {spacing:.4g} gives about {n} segments, more than {MAX_SEGMENTS}: give a larger "
+                         f"spacing, or --force")
+    return float(spacing)
+
+
+def _stage_bar(progress, total, desc, unit="it"):
+    if not progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit)
+
+
+def _design_from_flat(flat_xy: np.ndarray, segments: np.ndarray, mirror: bool):
+    from ..io.design import design_from_arrays
+
+    V = np.c_[flat_xy, np.zeros(len(flat_xy))]
+    if mirror:
+        V[:, 1] *= -1.0
+    return design_from_arrays(V, segments)
+
+
+def _fitting_weights(linkage):
+    """The paper's split (§5): 0.9 spread over the joints on the surface, 0.1 on the target joints, corners 10×."""
+    n = linkage.num_joints
+    valence = np.asarray(linkage.graph.valence)[np.asarray(linkage.graph.joint_vertex)]
+    w = np.where(valence == 2, 10.0, 1.0)
+    return 0.1 * w / w.sum(), np.full(n, 0.9 / n)
+
+
+def _bulge_sign(flat_joints: np.ndarray, heights: np.ndarray) -> float:
+    """+1 when ``heights`` rise where the deployment's "up" bulge does (its middle), −1 when they sink."""
+    r2 = np.sum((flat_joints - flat_joints.mean(axis=0)) ** 2, axis=1)
+    return float(np.sign(np.dot(r2.mean() - r2, heights - heights.mean())) or 1.0)
+
+
+def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOptions = InverseOptions(),
+                net_path=None, progress: bool = True) -> dict:
+    """Inverse design of an X-shell for a target surface; writes every output into ``out_dir``.
+
+    Returns the ``result.json`` content. Ctrl-C keeps and writes the best
+    design found so far (then re-raises KeyboardInterrupt).
+    """
+    from ..deploy.case import material_from_spec
+    from .surface import load_target
+
+    t_start = time.perf_counter()
+    times = {}
+    os.makedirs(out_dir, exist_ok=True)
+    surface = load_target(surface_path)
+    spacing = check_options(options, surface)
+    material = material_from_spec(material_spec)
+    theta, alpha0 = np.radians(options.angle), np.radians(options.flat_angle)
+
+    # 1-2. net and flat layout -------------------------------------------------------------
+    t = time.perf_counter()
+    from .scissor import scissor_map
+
+    smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation))
+    if net_path is None:
+        from .net import surface_net
+
+        net = surface_net(surface, smap, theta, spacing)
+    else:
+        from .flatten import net_from_file
+
+        net = net_from_file(net_path, surface, smap, alpha0)
+    times["net_s"] = time.perf_counter() - t
+    if net.num_segments > MAX_SEGMENTS and not options.force:
+        raise InputError(f"the net has {net.num_segments} segments, more than {MAX_SEGMENTS}: give a larger spacing, or --force")
+    width = float(np.ptp(material.outline[0], axis=0).max()) if material.outline else 0.0
+    gap = float(np.min(net.segment_lengths(flat=True))) * np.sin(alpha0)
+    if width > 0 and gap < width:
+        raise InputError(f"--flat-angle {options.flat_angle:g}°: closed that far, neighbouring beams "
+                         f"({width:.3g} wide) would overlap (gap {gap:.3g}): open it, or use a larger spacing")
+
+    # 3. rest lengths and a first deployment ----------------------------------------------------
+    from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
+    from ..linkage.linkage import Linkage
+    from .metrics import apply, kabsch, place, surface_distances
+
+    t = time.perf_counter()
+    mirror = False
+    for attempt in range(2):
+        design = _design_from_flat(net.flat, net.segments, mirror)
+        L = Linkage(design, material, subdivision=options.subdivision)
+        rest_length_solve(L)
+        D = copy.deepcopy(L)
+        bar = _stage_bar(progress, options.steps, "deploying the first layout", "step")
+        try:
+            res = deploy(D, theta, DeployOptions(steps=options.steps, direction=options.direction),
+                         callback=(lambda rec: bar.update(1) and False) if bar else None)
+        finally:
+            if bar is not None:
+                bar.close()
+        if not res.converged:
+            raise InputError(f"{surface.path}: the first layout does not deploy to {options.angle:g}° ({res.message})")
+        # the target in the linkage's frame (a proper motion: the net and the layout correspond joint by joint)
+        jv = np.asarray(L.graph.joint_vertex)  # free ends (net points on one segment) are not joints
+        T0 = kabsch(net.joints[jv], D.joint_positions())
+        targets = apply(T0, net.joints[jv])
+        if _bulge_sign(L.joint_positions(), targets @ L.graph.layout_normal) == (1.0 if options.direction == "up" else -1.0):
+            break
+        mirror = not mirror  # the mirrored layout's deployment is the other one's mirror image
+    times["deploy_s"] = time.perf_counter() - t
+
+    # 4-5. hold on the target, then design optimization while the holding load is let go ---------------
+    from ..design.fitting import FittingTerm
+    from ..design.objective import DesignProblem, DesignWeights
+    from .guide import Hold, StageRecord, guided_optimization, hold_on_target, holding_load, segment_stiffness
+
+    t = time.perf_counter()
+    w, ws = _fitting_weights(D)
+    fitting = FittingTerm(targets, w, ws, (apply(T0, surface.V), surface.F))
+    unit = segment_stiffness(L, spacing)
+    g = options.guide
+    held = copy.deepcopy(D)
+    tether, held_rms = hold_on_target(held, targets, theta, spacing, g, unit=unit)
+    problem = None
+    # The held state must be stable under the dead load (a load has no stiffness of its own): where it
+    # is not, springs toward the held state steady it; they carry no force there.
+    for steady in (0.0, 0.1, 0.3, 1.0, 3.0):
+        from ..design.equilibrium import Tether
+
+        hold = Hold(holding_load(held, tether),
+                    Tether(steady * tether.k, tether.rows, held.get_vars()[tether.rows]) if steady else None)
+        try:
+            problem = DesignProblem(L, theta, DesignWeights(gamma=options.gamma, beta=options.beta), fitting=fitting,
+                                    deployed=copy.deepcopy(held), deployed_load=hold.load, deployed_tether=hold.steady)
+            break
+        except ArithmeticError:
+            continue
+    if problem is None:
+        raise InputError(f"{surface.path}: the deployed layout cannot be held on the surface (every hold was "
+                         f"unstable): the surface is out of this net's reach; try another --orientation or --angle")
+    times["hold_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    ks0 = problem.min_angle(problem._q)
+    eps = max(ks0 - np.radians(0.5), 0.5 * ks0) if ks0 > 0 else ks0 - np.radians(0.5)
+    g = options.guide
+    g = GuideOptions(**{**asdict(g), "final_iterations": g.iterations})
+    total = sum(g.iterations for _ in g.schedule[:-1]) + g.final_iterations
+    bar = _stage_bar(progress, total, "optimizing while letting go")
+
+    def on_iter(mu, rec):
+        if bar is not None and rec.iteration:
+            bar.set_postfix(load=f"{mu:g}", J=f"{rec.J:.4g}")
+            bar.update(1)
+        return False
+
+    # After each stage, deploy the design as it stands from its flat state, without any hold: the
+    # design whose own deployment fits best is kept (a held state can end on a branch that a
+    # deployment from flat never reaches).
+    best = {"fit": np.inf}
+    Tinv = np.linalg.inv(T0)
+
+    def after_stage(mu):
+        from ..solve import NewtonOptions, minimize
+
+        fwd = copy.deepcopy(problem.flat.L)
+        # as `xshells deploy` treats a case with rest lengths: the flat state settles with its angles free
+        minimize(fwd, fixed=fwd.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+        res = deploy(fwd, theta, DeployOptions(steps=options.steps, direction=options.direction))
+        if not res.converged:
+            return
+        guess = apply(Tinv, problem.deployed.L.joint_positions())
+        Y = fwd.joint_positions()
+        placed = apply(place(surface, Y, guess), Y)
+        fit = float(np.mean(surface_distances(surface, placed)))
+        if fit < best["fit"]:
+            best.update(fit=fit, mu=mu, flat=copy.deepcopy(problem.flat.L), tracked=placed)
+
+    interrupted = False
+    stages = []
+    try:
+        stages = guided_optimization(problem, hold, g, min_angle=eps, callback=on_iter, after_stage=after_stage)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+    released = bool(stages) and stages[-1].load_factor == 0.0 and not interrupted and "flat" in best
+    times["optimize_s"] = time.perf_counter() - t
+
+    # outputs of the design ------------------------------------------------------------------------
+    from ..io.design import design_from_arrays
+    from ..io.fabrication import write_drawings
+
+    flat_L = best.get("flat", problem.flat.L)
+    Pf = vertex_positions(flat_L)
+    Pf = Pf - Pf.mean(axis=0)
+    Pf[:, 2] = 0.0  # planar to round-off (checked below on the verification's flat state)
+    final_design = design_from_arrays(Pf, design.edges)
+    p = np.asarray(flat_L.rest_lengths, float)
+    _write_design(out_dir, final_design, p)
+    case = {"name": os.path.splitext(os.path.basename(str(surface_path)))[0] + "_xshell",
+            "file": "flat_design.obj", "rest_lengths": "design_parameters.txt", "material": material_spec,
+            "subdivision": options.subdivision, "steps": options.steps, "angle_deg": float(options.angle),
+            "direction": options.direction}
+    atomic_write_text(os.path.join(out_dir, "case.json"), json.dumps(case, indent=1) + "\n")
+    write_drawings(out_dir, "flat_layout", final_design, p)
+
+    result = {"surface": str(surface_path), "units": "those of the surface file (lengths) and of the material "
+              "(Young's modulus): the bundled data use mm and MPa", "spacing": spacing, "angle_deg": options.angle,
+              "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "direction": options.direction,
+              "mirrored_layout": mirror, "scissor_residual": smap.residual, "held_rms": held_rms, "steadying_springs": steady if hold.steady is not None else 0.0,
+              "segments": int(final_design.num_segments), "joints": int(flat_L.num_joints),
+              "stages": [asdict(s) for s in stages], "load_released": released,
+              "chosen_stage_load": best.get("mu"), "chosen_stage_fit_mean": best["fit"] / surface.diagonal}
+    if interrupted or not released:
+        result.update(status="interrupted" if interrupted else "stopped",
+                      message="interrupted by the user: the design so far is written, not verified" if interrupted
+                      else f"the holding load could not be let go ({stages[-1].message if stages else 'no stage ran'})")
+        times["total_s"] = time.perf_counter() - t_start
+        result["time_s"], result["stage_times_s"] = times["total_s"], times
+        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+        if interrupted:
+            raise KeyboardInterrupt
+        return result
+
+    # 6. verify: deploy the case as `xshells deploy case.json` does --------------------------------
+    t = time.perf_counter()
+    result.update(_verify(out_dir, surface, net, material, options, spacing, width, best["tracked"], progress))
+    times["verify_s"] = time.perf_counter() - t
+    times["total_s"] = time.perf_counter() - t_start
+    result["time_s"], result["stage_times_s"] = times["total_s"], times
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    return result
+
+
+def vertex_positions(linkage) -> np.ndarray:
+    """Current positions (n, 3) of every design vertex: joints, and free ends from their rods' end points."""
+    g = linkage.graph
+    V = np.array(g.design.vertices, float)
+    V[np.asarray(g.joint_vertex)] = linkage.joint_positions()
+    rods, E = linkage.rods, g.design.edges
+    for v in np.asarray(g.free_end_vertex):
+        s = int(np.flatnonzero((E == v).any(axis=1))[0])  # one rod per segment, from edges[s, 0] to edges[s, 1]
+        a, b = rods.vertex_offsets[s], rods.vertex_offsets[s + 1]
+        V[v] = rods.points[a] if E[s, 0] == v else rods.points[b - 1]
+    return V
+
+
+def _write_design(out_dir, design, p) -> None:
+    lines = [f"v {x:.17g} {y:.17g} 0\n" for x, y, _ in design.vertices]
+    lines += [f"l {a + 1} {b + 1}\n" for a, b in design.edges]
+    atomic_write_text(os.path.join(out_dir, "flat_design.obj"),
+                      "# xshells inverse: the flat assembly state (joints), one line per beam segment\n" + "".join(lines))
+    atomic_write_text(os.path.join(out_dir, "design_parameters.txt"), "".join(f"{v:.17g}\n" for v in p))
+
+
+def _verify(out_dir, surface, net, material, options, spacing, width, guess, progress) -> dict:
+    from ..deploy.run import run_deployment
+    from ..deploy.simulate import folded_joint
+    from ..viz.render import render_fit
+    from .metrics import apply, beam_overlaps, coverage, place, surface_distances
+
+    states = {}
+    dep = run_deployment(os.path.join(out_dir, "flat_design.obj"), material, out_dir=os.path.join(out_dir, "deploy"),
+                         subdivision=options.subdivision, target_angle=np.radians(options.angle), steps=options.steps,
+                         rest_lengths_path=os.path.join(out_dir, "design_parameters.txt"), direction=options.direction,
+                         progress=progress, name="inverse design", states=states)
+    flat, deployed = states["flat"], states["deployed"]
+    Y = deployed.joint_positions()
+    # ``guess``: where the optimizer's deployed joints lie in the surface's frame, for the placement to start from
+    T = place(surface, Y, guess)
+    Xp = apply(T, Y)
+    d = surface_distances(surface, Xp) / surface.diagonal
+    rods = apply(T, deployed.rods.points)
+    rod_d = surface_distances(surface, rods)
+    cov = coverage(surface, rods, deployed.rods.edges, 0.75 * spacing)
+    span = float(np.ptp(flat.rods.points, axis=0).max())
+    flat_z = float(np.abs(flat.rods.points[:, 2] - flat.rods.points[:, 2].mean()).max()) / span
+    folded = folded_joint(flat) or folded_joint(deployed)
+    overlap = beam_overlaps(flat, width) if width > 0 else ""
+    tracked = float(np.sqrt(np.mean(np.sum((Xp - guess) ** 2, axis=1)))) / surface.diagonal
+    from ..deploy.run import bending_field
+    from ..viz.render import render_flat
+
+    render_fit(os.path.join(out_dir, "fit.png"), surface.V, surface.F, rods, deployed.rods.edges, rod_d,
+               title=f"fit: mean {100 * d.mean():.2f}%, max {100 * d.max():.2f}% of the diagonal",
+               label="distance to the surface (surface units)")
+    render_flat(os.path.join(out_dir, "flat.png"), flat.rods.points, flat.rods.edges, bending_field(flat),
+                title=f"flat layout: {flat.num_segments} segments, closed to {np.degrees(flat.average_angle()):.1f}° "
+                      f"on average")
+    eig = dep["deployed"].get("min_eigenvalue_at_fixed_angle", float("nan"))
+    valid = dep["reached"] and not folded and not overlap and flat_z <= 1e-6 and eig >= 0
+    reached = d.mean() <= REACH["fit_mean"] and d.max() <= REACH["fit_max"] and cov >= REACH["coverage"]
+    ok = valid and reached
+    why = [] if ok else [m for m in (
+        "" if dep["reached"] else f"the deployment stopped: {dep['message']}", folded, overlap,
+        f"the flat state leaves the plane by {flat_z:.2g} of its span" if flat_z > 1e-6 else "",
+        f"the deployed state is not stable (smallest eigenvalue {eig:.3g})" if not eig >= 0 else "",
+        "" if reached else (f"the deployment does not reach the surface (fit mean {100 * d.mean():.2f}%, max "
+                            f"{100 * d.max():.2f}% of the diagonal, coverage {100 * cov:.1f}%; the bar is "
+                            f"{100 * REACH['fit_mean']:g}%, {100 * REACH['fit_max']:g}%, {100 * REACH['coverage']:g}%)")) if m]
+    return {
+        "status": "complete" if ok else ("missed" if valid else "invalid"),
+        "valid": bool(valid), "reached": bool(reached),
+        "message": "deployed onto the surface" if ok else "; ".join(why),
+        "fit_mean": float(d.mean()), "fit_max": float(d.max()), "coverage": cov,
+        "placement": T.tolist(),
+        "deployed_joints": Xp.tolist(),
+        "tracked_rms": tracked,
+        "energy_flat": float(flat.energy()), "energy_deployed": float(deployed.energy()),
+        "min_flat_angle_deg": float(np.degrees(flat.joint_angles().min())),
+        "flat_planarity": flat_z, "folded": folded, "overlap": overlap,
+        "min_eigenvalue_at_fixed_angle": eig,
+        "deploy": {"reached": dep["reached"], "message": dep["message"], "time_s": dep["timings_s"]["total"]},
+    }
