@@ -70,8 +70,25 @@ def load_case(path) -> Case:
     )
 
 
-def material_spec_from_option(option: str | None, young: float | None = None, poisson: float | None = None) -> dict:
-    """A case's material object from a ``--material`` option: ``TYPE:P1,P2,...`` or a cross-section JSON file."""
+def material_spec_from_option(option: str | None, young: float | None = None, poisson: float | None = None,
+                              grade: str | None = None, density: float | None = None, strength: float | None = None) -> dict:
+    """A case's material object from a ``--material`` option: ``TYPE:P1,P2,...`` or a cross-section JSON file,
+    with ``--grade``, ``--density``, ``--strength`` where given."""
+    extra = {k: v for k, v in (("grade", grade), ("density", density), ("strength", strength)) if v is not None}
+    if extra:
+        from ..analysis.materials import named_material
+        from ..analysis.stress import check_strength
+
+        check_strength(strength, "--strength")
+        if density is not None and not (np.isfinite(density) and density >= 0):
+            raise InputError(f"--density must be a non-negative mass per volume (t/mm³ for a design in mm), got {density:g}")
+        if grade is not None:
+            named_material(grade)
+        spec = material_spec_from_option(option, young, poisson)
+        if grade is not None:  # the grade's E and ν unless given on the line
+            spec = {k: v for k, v in spec.items() if not (k in ("E", "nu") and {"E": young, "nu": poisson}[k] is None)}
+        spec.update(extra)
+        return spec
     option = option or "rectangle:10,7"
     if option.endswith(".json"):  # the section file has its own E and ν: override only what is given
         spec = {"type": "contour", "contour_file": os.path.abspath(option)}
@@ -99,18 +116,39 @@ def case_for_design(design_path: str, material: dict, *, subdivision: int = 10, 
     return case
 
 
+def resolve_grade(spec: dict) -> dict:
+    """The material object with a named ``grade``'s E, ν, density and strength filled in where not given."""
+    if not spec.get("grade"):
+        return spec
+    from ..analysis.materials import named_material
+
+    m = named_material(spec["grade"])
+    out = {"E": m.E, "nu": m.nu, "density": m.density, "strength": m.strength}
+    out.update({k: v for k, v in spec.items() if v is not None})
+    return out
+
+
+def material_strength(spec: dict) -> float | None:
+    """The allowable stress of a case's material object (its own, or its grade's), or None."""
+    s = resolve_grade(spec).get("strength")
+    return None if s is None else float(s)
+
+
 def material_from_spec(spec: dict):
     """A :class:`xshells.section.Material` from a case's material object."""
     from ..section import Material
 
+    spec = resolve_grade(spec)
+    density = float(spec.get("density", 1.0)) if spec.get("density") is not None else 1.0
     kind = spec.get("type", "rectangle")
     axis = spec.get("stiff_axis")
     if kind == "contour" and str(spec["contour_file"]).endswith(".json"):  # E and ν from the file unless given
-        return Material.from_file(spec["contour_file"], young=spec.get("E"), poisson=spec.get("nu"), stiff_axis=axis)
+        return Material.from_file(spec["contour_file"], young=spec.get("E"), poisson=spec.get("nu"), stiff_axis=axis,
+                                  density=density)
     E, nu = float(spec.get("E", 20000.0)), float(spec.get("nu", 0.3))
     if kind == "contour":
-        return Material.from_file(spec["contour_file"], young=E, poisson=nu, stiff_axis=axis)
-    return Material.uniform(kind, spec.get("params", []), E=E, nu=nu, stiff_axis=axis)
+        return Material.from_file(spec["contour_file"], young=E, poisson=nu, stiff_axis=axis, density=density)
+    return Material.uniform(kind, spec.get("params", []), E=E, nu=nu, stiff_axis=axis, density=density)
 
 
 def target_angle(case: Case, linkage, angle_deg=None) -> float:

@@ -17,6 +17,10 @@ def register(subparsers) -> None:
     p.add_argument("--material", help="TYPE:P1,P2,... (e.g. rectangle:10,7) or a cross-section JSON file")
     p.add_argument("--young", type=float, help="Young's modulus (default 20000, as in the paper, MPa)")
     p.add_argument("--poisson", type=float, help="Poisson's ratio (default 0.3)")
+    p.add_argument("--grade", help="a named material: gfrp-e23, softwood-c24, aluminium-6063-t6, birch-plywood "
+                                   "(E, ν, density and strength; docs/analysis.md)")
+    p.add_argument("--strength", type=float, help="allowable stress for the utilization (MPa for a design in mm)")
+    p.add_argument("--density", type=float, help="density (t/mm³ for a design in mm: 4.2e-10 is 420 kg/m³)")
     p.add_argument("--angle", type=float, help="target average opening angle, degrees")
     p.add_argument("--steps", type=int, help="deployment increments (default 40)")
     p.add_argument("--subdivision", type=int, help="edges per segment (default 10)")
@@ -37,14 +41,15 @@ def register(subparsers) -> None:
     d.set_defaults(func=_demo)
 
 
-def _material_from_args(args):
-    from .case import material_from_spec, material_spec_from_option
+def _material_spec_from_args(args) -> dict:
+    from .case import material_spec_from_option
 
-    return material_from_spec(material_spec_from_option(args.material, args.young, args.poisson))
+    return material_spec_from_option(args.material, args.young, args.poisson, grade=getattr(args, "grade", None),
+                                     density=getattr(args, "density", None), strength=getattr(args, "strength", None))
 
 
 def _deploy(args) -> int:
-    from .case import check_counts, load_case, material_from_spec
+    from .case import check_counts, load_case, material_from_spec, material_spec_from_option, material_strength
     from .run import run_deployment
 
     check_counts(args.subdivision, args.steps)
@@ -52,7 +57,14 @@ def _deploy(args) -> int:
         if args.material:
             raise InputError("--material contradicts the case file's material; edit the case file instead")
         case = load_case(args.input)
-        material = material_from_spec(case.material)
+        spec = dict(case.material)
+        given = {k: v for k, v in (("grade", args.grade), ("density", args.density), ("strength", args.strength)) if v is not None}
+        if given:  # checked as on the command line, then laid over the case's values
+            material_spec_from_option(None, grade=args.grade, density=args.density, strength=args.strength)
+            if args.grade is not None:
+                spec = {k: v for k, v in spec.items() if k not in ("E", "nu", "density", "strength")}
+            spec.update(given)
+        material = material_from_spec(spec)
         kw = dict(subdivision=case.subdivision if args.subdivision is None else args.subdivision,
                   steps=case.steps if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else case.angle_rad,
@@ -60,13 +72,15 @@ def _deploy(args) -> int:
                   direction=args.direction or case.direction)
         design = case.design_path
     else:
-        material = _material_from_args(args)
+        spec = _material_spec_from_args(args)
+        material = material_from_spec(spec)
         kw = dict(subdivision=10 if args.subdivision is None else args.subdivision,
                   steps=40 if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else None,
                   rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input), direction=args.direction or "up")
         design = args.input
-    result = run_deployment(design, material, out_dir=args.out, start=args.start, progress=not args.no_progress, **kw)
+    result = run_deployment(design, material, out_dir=args.out, start=args.start, progress=not args.no_progress,
+                            strength=material_strength(spec), **kw)
     _print_summary(result, args.out, warned=not args.no_progress)
     return 0 if result["reached"] else 1
 
@@ -91,6 +105,12 @@ def _print_summary(result, out, warned=False) -> None:
     print(f"  flat:     energy {f['energy']:.6g}, average angle {f['average_angle_deg']:.2f}°")
     print(f"  deployed: energy {d['energy']:.6g}, average angle {d['average_angle_deg']:.2f}°, max |z| {d['max_abs_z']:.4g}, torque {d.get('torque', float('nan')):.4g}")
     print(f"  {result['message']}; {result['newton_iterations']} Newton iterations, {result['timings_s']['total']:.1f} s")
+    st = result.get("stress") or {}
+    if st.get("strength") is not None:
+        ff = st.get("first_failure")
+        print(f"  stress: largest von Mises {st['max_von_mises']:.4g}, utilization {st['utilization_max']:.3g} of "
+              f"strength {st['strength']:.4g}" + (f"; a beam would break at {ff['angle_deg']:.1f}° (beam {ff['beam']}, "
+                                                  f"near joint {ff['nearest_joint']})" if ff else "; no beam breaks"))
     for w in [] if warned else result.get("warnings", []):
         print(f"  warning: {w}")
     print(f"  outputs in {out}/")

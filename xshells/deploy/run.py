@@ -47,12 +47,50 @@ def _write_outputs(out_dir: str, tag: str, linkage: Linkage, vmax: float | None 
                    title=f"{tag}: average angle {np.degrees(linkage.average_angle()):.1f}°", vmax=vmax)
 
 
+def _stress_row(linkage, strength) -> dict:
+    """The largest stress of a state and where it is (its beam, the joint nearest to it)."""
+    from ..analysis.stress import beam_report, rod_stresses
+
+    st = rod_stresses(linkage, strength)
+    k = int(np.argmax(st.von_mises))
+    beams = beam_report(linkage, st)
+    worst = max(beams, key=lambda b: b["max_von_mises"]) if beams else {"beam": -1, "nearest_joint": -1}
+    return {"max_von_mises": st.max_von_mises, "utilization_max": st.max_utilization, "rod_vertex": k,
+            "beam": worst["beam"], "nearest_joint": worst["nearest_joint"]}
+
+
+def _stress_summary(steps_out, stress_rows, strength, linkage) -> dict:
+    """Stress results of a deployment: the largest over its steps, and the first step at which a beam would break."""
+    from ..analysis.stress import beam_report, rod_stresses
+
+    first = None
+    for row, extra in zip(steps_out, stress_rows):
+        if strength is not None and extra["utilization_max"] >= 1.0:
+            first = {"angle_deg": row["average_angle_deg"], "beam": extra["beam"], "nearest_joint": extra["nearest_joint"],
+                     "utilization": extra["utilization_max"]}
+            break
+    final = rod_stresses(linkage, strength)
+    return {
+        "strength": strength,
+        "max_von_mises": max([r["max_von_mises"] for r in stress_rows], default=final.max_von_mises),
+        "utilization_max": (max([r["utilization_max"] for r in stress_rows], default=final.max_utilization)
+                            if strength is not None else None),
+        "first_failure": first,
+        "deployed_beams": beam_report(linkage, final),
+        "note": "von Mises of the largest normal and torsion shear stresses at each rod vertex (an upper bound); "
+                "units: the design's stress unit (MPa for millimetres)",
+    }
+
+
 def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,
-                   rest_lengths_path=None, direction="up", progress=True, name=None, start="auto", states=None) -> dict:
+                   rest_lengths_path=None, direction="up", progress=True, name=None, start="auto", states=None,
+                   strength=None) -> dict:
     """Build the linkage, find its assembly state, deploy it and write the outputs into ``out_dir``.
 
     ``states``, a dict if given, receives copies of the ``"flat"`` and
     ``"deployed"`` linkages (for callers that check them further).
+    ``strength`` (allowable stress) adds the utilization to every step and
+    the first angle at which a beam would break (docs/analysis.md).
 
     Returns the ``result.json`` content. Interrupting (Ctrl-C) keeps and
     writes the steps finished so far.
@@ -93,7 +131,13 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
 
         bar = tqdm(total=steps, desc=f"deploying {name or os.path.basename(str(design_path))}", unit="step")
 
+    from ..analysis.stress import check_strength
+
+    strength = check_strength(strength)
+    stress_rows = []
+
     def on_step(rec):
+        stress_rows.append(_stress_row(linkage, strength))
         if bar is not None:
             bar.set_postfix(angle=f"{rec.average_angle_deg:.1f}°", z=f"{rec.max_abs_z:.3g}")
             bar.update(1)
@@ -120,6 +164,9 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
     _write_outputs(out_dir, "deployed", linkage)
     steps_out = [asdict(s) for s in (res.steps if res is not None else [])]
+    for row, extra in zip(steps_out, stress_rows):
+        row.update({k: v for k, v in extra.items() if k in ("max_von_mises", "utilization_max")})
+    stress = _stress_summary(steps_out, stress_rows, strength, linkage)
     result = {
         "name": name,
         "segments": linkage.num_segments,
@@ -137,6 +184,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         "steps": steps_out,
         "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy, "total": time.perf_counter() - t0},
         "newton_iterations": res.newton_iterations if res is not None else 0,
+        "stress": stress,
+        "utilization_max": stress["utilization_max"],
         "warnings": warnings,
     }
     if res is not None:
@@ -153,7 +202,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         from ..viz.render import plot_deployment
 
         plot_deployment(os.path.join(out_dir, "deployment.png"), [s["average_angle_deg"] for s in steps_out],
-                        [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], title=name or "")
+                        [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], title=name or "",
+                        utilization=[s["utilization_max"] for s in steps_out] if strength is not None else None)
     if interrupted:
         raise KeyboardInterrupt
     return result

@@ -51,10 +51,22 @@ class MaterialSpec(_Strict):
                                         description="for type 'contour': a cross-section file (.obj, .msh or .json), relative to the case file")
     stiff_axis: Optional[Literal["D1", "D2"]] = Field(
         None, description="which material director the larger bending stiffness is about")
+    grade: Optional[str] = Field(None, min_length=1, description="a named material (E, ν, density, strength; "
+                                 "docs/analysis.md): gfrp-e23, softwood-c24, aluminium-6063-t6, birch-plywood; "
+                                 "keys given here override its values")
+    density: Optional[float] = Field(None, ge=0, allow_inf_nan=False,
+                                     description="mass per volume, in the design's units (t/mm³ for millimetres: 1.9e-9 is 1900 kg/m³)")
+    strength: Optional[float] = Field(None, gt=0, allow_inf_nan=False,
+                                      description="allowable stress for the utilization, in the stress unit (MPa for millimetres)")
 
     @model_validator(mode="after")
     def _consistent(self):
         from ..section.profiles import TYPE_ALIASES
+
+        if self.grade is not None:
+            from ..analysis.materials import named_material
+
+            named_material(self.grade)  # one line naming the known grades
 
         if self.type.strip().lower() not in set(TYPE_ALIASES) | {"contour"}:
             known = ", ".join(sorted(set(TYPE_ALIASES.values()), key=str.lower))

@@ -482,6 +482,36 @@ class ElasticRods:
         return f
 
     # ------------------------------------------------------- visualization
+    def strain_fields(self) -> dict:
+        """Per-vertex strains of the centerline and its frame, each (V,), relative to the rest state.
+
+        ``axial``: the mean stretch strain ``|e|/ℓ̄ − 1`` of the vertex's edges;
+        ``kappa1``, ``kappa2``: bending curvature changes (per length) in the
+        material frame, ``κ1 = κb·d2`` and ``κ2 = −κb·d1`` less their rest
+        values, the stencil's integrated curvature over its Voronoi length
+        (for the per-edge-frame bending energy, the mean of the two edges');
+        ``twist``: twist rate change (per length). End vertices of a rod (no
+        stencil) have zero bending and twist.
+        """
+        V = self.num_vertices
+        n = np.linalg.norm(self.points[self.edges[:, 1]] - self.points[self.edges[:, 0]], axis=1)
+        cnt = np.bincount(self.edges.ravel(), minlength=V)
+        out = {"axial": np.bincount(self.edges.ravel(), weights=np.repeat(n / self.rest_lengths - 1.0, 2), minlength=V) / cnt}
+        k1, k2, tw = np.zeros(V), np.zeros(V), np.zeros(V)
+        if self.num_stencils:
+            sv = self.stencil_vertices[:, 1]
+            ell = 0.5 * (self.rest_lengths[self.stencil_edges[:, 0]] + self.rest_lengths[self.stencil_edges[:, 1]])
+            kappa, twist, _ = stencils.vertex_strains(tuple(self._vertex_q()), tuple(self._vertex_params()), self.bending_energy)
+            dk = np.stack([np.asarray(k) for k in kappa]) - self.kappa_bar.T
+            if self.bending_energy == "2008":
+                c1, c2 = 0.5 * (dk[0] + dk[2]), 0.5 * (dk[1] + dk[3])
+            else:
+                c1, c2 = dk[0], dk[1]
+            k1[sv], k2[sv] = c1 / ell, c2 / ell
+            tw[sv] = (np.asarray(twist) - self.twist_bar) / ell
+        out.update(kappa1=k1, kappa2=k2, twist=tw)
+        return out
+
     def stress_measures(self, young=None, shear=None, fibre=None) -> dict:
         """Per-vertex scalar fields for visualization, each (V,).
 

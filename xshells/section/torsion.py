@@ -287,3 +287,55 @@ def _refine_uniformly(profile, centroid, rtol, max_levels) -> TorsionResult:
         if _converged(history, rtol):
             break
     return TorsionResult(solution.torsion_constant, solution, history, _converged(history, rtol))
+
+
+# ------------------------------------------------------------ shear stress
+def _split_loop(loop: np.ndarray, h: float) -> np.ndarray:
+    """``loop`` (n, 2) with every edge split into pieces no longer than ``h`` (straight edges)."""
+    out = []
+    nxt = np.roll(loop, -1, axis=0)
+    for a, b in zip(loop, nxt):
+        k = max(1, int(np.ceil(np.linalg.norm(b - a) / h)))
+        out.append(a + (b - a) * (np.arange(k) / k)[:, None])
+    return np.concatenate(out)
+
+
+def boundary_shear_factor(solution: WarpingSolution) -> float:
+    """``max |∇ψ + (−y, x)|`` over the boundary's quadrature points: τ_max = G θ′ times this.
+
+    The Saint-Venant shear stress is ``τ = G θ′ (∇ψ + (−y, x))``; being
+    harmonic, its magnitude peaks on the boundary.
+    """
+    from skfem import FacetBasis
+
+    fb = FacetBasis(solution.basis.mesh, solution.basis.elem)
+    g = fb.interpolate(solution.psi).grad  # (2, facets, points)
+    x, y = np.asarray(fb.global_coordinates())
+    return float(np.sqrt((g[0] - y) ** 2 + (g[1] + x) ** 2).max())
+
+
+def shear_stress_factor(profile: Profile, centroid: np.ndarray, rtol: float = 1e-3, max_levels: int = 7):
+    """``k_τ`` with ``τ_max = G θ′ k_τ`` (a length), refining uniformly until it changes by less than ``rtol``.
+
+    Returns ``(k_τ, converged)``. Re-entrant corners (L, I, + sections)
+    make the exact shear stress singular there, so it does not converge on
+    them: the value returned is then the finest mesh's (extent / 512), and
+    ``converged`` is False.
+    """
+    loops = profile.loops
+    extent = float(min(np.ptp(np.concatenate(loops), axis=0)))
+    previous, value = None, float("nan")
+    for level in range(max_levels):
+        h = extent / (8 * 2**level)
+        if profile.projector is not None:
+            base = [loop[::4] for loop in loops]
+            factor = max(1, int(np.ceil(max(np.linalg.norm(np.roll(b, -1, axis=0) - b, axis=1).max() for b in base) / h)))
+            ring = [subdivide_loop(b, factor, profile.projector) for b in base]
+        else:
+            ring = [_split_loop(loop, h) for loop in loops]
+        mesh = triangulate_loops(ring, max_area=h * h)
+        value = boundary_shear_factor(solve_warping(skfem_mesh(mesh, centroid, profile.projector)))
+        if previous is not None and abs(value - previous) <= rtol * value:
+            return value, True
+        previous = value
+    return value, False

@@ -69,16 +69,26 @@ def render_linkage(path, points: np.ndarray, edges: np.ndarray, vertex_values: n
     plt.close(fig)
 
 
-def plot_deployment(path, angles_deg, energies, torques, title: str = "") -> None:
-    """Energy and actuation torque against the average opening angle."""
+def plot_deployment(path, angles_deg, energies, torques, title: str = "", utilization=None) -> None:
+    """Energy and actuation torque against the average opening angle; below them the largest
+    utilization (stress / strength) where given, with the breaking line at 1."""
     plt = _pyplot()
-    fig, ax1 = plt.subplots(figsize=(6.5, 4))
+    if utilization is None:
+        fig, ax1 = plt.subplots(figsize=(6.5, 4))
+    else:
+        fig, (ax1, ax3) = plt.subplots(2, 1, figsize=(6.5, 6.2), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+        ax3.plot(angles_deg, utilization, "d-", color="tab:purple", ms=3)
+        ax3.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax3.set_ylabel("largest utilization")
+        ax3.set_xlabel("average opening angle (°)")
     ax1.plot(angles_deg, energies, "o-", color="tab:blue", ms=3, label="elastic energy")
     ax1.set_xlabel("average opening angle (°)")
     ax1.set_ylabel("energy", color="tab:blue")
     ax2 = ax1.twinx()
     ax2.plot(angles_deg, torques, "s-", color="tab:red", ms=3, label="torque per joint")
     ax2.set_ylabel("torque per actuated joint", color="tab:red")
+    if utilization is not None:
+        ax1.set_xlabel("")
     ax1.set_title(title)
     fig.tight_layout()
     _save(fig, path)
