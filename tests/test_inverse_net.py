@@ -57,3 +57,33 @@ def test_read_net_accepts_quads_and_lines_and_refuses_other_faces(tmp_path):
                     "".join(f"l 1 {k}\n" for k in range(2, 7)))
     with pytest.raises(InputError, match="vertex 1 has 5 segments"):
         read_net(star)
+
+
+def test_a_designers_net_is_flattened_with_its_lengths_and_closed_to_the_flat_angle(tmp_path):
+    from xshells.inverse.flatten import net_from_file
+
+    s = check_target(*grid(n=13, size=1200.0, height=lambda x, y: -(x**2 + y**2) / 6000.0))
+    m = scissor_map(s, np.radians(90), np.radians(20))
+    auto = surface_net(s, m, np.radians(90), 150.0)
+    path = tmp_path / "net.obj"
+    path.write_text("".join("v %.9g %.9g %.9g\n" % tuple(p) for p in auto.joints) +
+                    "".join(f"l {a + 1} {b + 1}\n" for a, b in auto.segments))
+    net = net_from_file(path, s, m, np.radians(20))
+    ratio = net.segment_lengths(flat=True) / net.segment_lengths()
+    assert np.abs(ratio - 1).max() < 0.01
+    a = net.flat[net.segments[net.family == 0][0]]
+    b = net.flat[net.segments[net.family == 1][0]]
+    u, v = a[1] - a[0], b[1] - b[0]
+    ang = np.degrees(np.arccos(abs(u @ v) / np.linalg.norm(u) / np.linalg.norm(v)))
+    assert 15 < ang < 25
+
+
+def test_a_net_far_from_the_surface_is_refused(tmp_path):
+    from xshells.inverse.flatten import net_from_file
+
+    s = check_target(*grid(n=7, size=1000.0))
+    m = scissor_map(s, np.radians(90), np.radians(20))
+    path = tmp_path / "far.obj"
+    path.write_text("v 0 0 500\nv 100 0 500\nv 100 100 500\nv 0 100 500\nf 1 2 3 4\n")
+    with pytest.raises(InputError, match="vertex 1 lies 500 from the surface"):
+        net_from_file(path, s, m, np.radians(20))

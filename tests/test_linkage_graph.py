@@ -19,8 +19,9 @@ def _linkage_files() -> list[Path]:
     found = [*EXAMPLES.rglob("*.obj"), *EXAMPLES.rglob("*.msh")]
     if DATA.is_dir():
         found += [*DATA.rglob("*.obj"), *DATA.rglob("*.msh")]
-    # Cross-section contours and a triangle mesh (see test_io_design) are not linkages.
-    return sorted(p for p in found if "cross_sections" not in p.parts and p.name != "target_surface_0.msh")
+    # Cross-section contours, target surfaces and a triangle mesh (see test_io_design) are not linkages.
+    return sorted(p for p in found if "cross_sections" not in p.parts and "targets" not in p.parts
+                  and p.name != "target_surface_0.msh")
 
 
 def _cross_section_files() -> list[Path]:

@@ -137,7 +137,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     stress_rows = []
 
     def on_step(rec):
-        stress_rows.append(_stress_row(linkage, strength))
+        if strength is not None:  # the utilization along the way; without a strength, the final state's stresses only
+            stress_rows.append(_stress_row(linkage, strength))
         if bar is not None:
             bar.set_postfix(angle=f"{rec.average_angle_deg:.1f}°", z=f"{rec.max_abs_z:.3g}")
             bar.update(1)

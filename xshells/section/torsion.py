@@ -300,30 +300,54 @@ def _split_loop(loop: np.ndarray, h: float) -> np.ndarray:
     return np.concatenate(out)
 
 
-def boundary_shear_factor(solution: WarpingSolution) -> float:
+def reentrant_corners(loops: list[np.ndarray]) -> np.ndarray:
+    """Vertices (k, 2) where the region bounded by ``loops`` (outer first, then holes) has an interior angle > 180°."""
+    out = []
+    for i, loop in enumerate(loops):
+        orient = np.sign(signed_area(loop))
+        e_in = loop - np.roll(loop, 1, axis=0)
+        e_out = np.roll(loop, -1, axis=0) - loop
+        turn = e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0]
+        # the outer loop turns against its orientation at a re-entrant corner; a hole's convex corners are re-entrant
+        mask = turn * orient < -1e-12 * np.abs(turn).max() if i == 0 else turn * orient > 1e-12 * np.abs(turn).max()
+        out.append(loop[mask])
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
+def boundary_shear_factor(solution: WarpingSolution, corners: np.ndarray | None = None, radius: float = 0.0) -> float:
     """``max |∇ψ + (−y, x)|`` over the boundary's quadrature points: τ_max = G θ′ times this.
 
     The Saint-Venant shear stress is ``τ = G θ′ (∇ψ + (−y, x))``; being
-    harmonic, its magnitude peaks on the boundary.
+    harmonic, its magnitude peaks on the boundary. Points within ``radius``
+    of a ``corners`` point (mesh coordinates) are left out.
     """
     from skfem import FacetBasis
 
     fb = FacetBasis(solution.basis.mesh, solution.basis.elem)
     g = fb.interpolate(solution.psi).grad  # (2, facets, points)
     x, y = np.asarray(fb.global_coordinates())
-    return float(np.sqrt((g[0] - y) ** 2 + (g[1] + x) ** 2).max())
+    mag = np.sqrt((g[0] - y) ** 2 + (g[1] + x) ** 2)
+    if corners is not None and len(corners) and radius > 0:
+        d = np.min(np.hypot(x[..., None] - corners[:, 0], y[..., None] - corners[:, 1]), axis=-1)
+        mag = np.where(d > radius, mag, 0.0)
+    return float(mag.max())
 
 
-def shear_stress_factor(profile: Profile, centroid: np.ndarray, rtol: float = 1e-3, max_levels: int = 7):
+CORNER_EXCLUSION = 1.0 / 20.0
+
+
+def shear_stress_factor(profile: Profile, centroid: np.ndarray, rtol: float = 1e-3, max_levels: int = 6):
     """``k_τ`` with ``τ_max = G θ′ k_τ`` (a length), refining uniformly until it changes by less than ``rtol``.
 
-    Returns ``(k_τ, converged)``. Re-entrant corners (L, I, + sections)
-    make the exact shear stress singular there, so it does not converge on
-    them: the value returned is then the finest mesh's (extent / 512), and
-    ``converged`` is False.
+    Returns ``(k_τ, converged)``. At re-entrant corners (L, I, + and most
+    custom sections) the exact shear stress is infinite; the maximum is
+    taken outside disks of radius ``CORNER_EXCLUSION`` × the section's
+    smallest extent around them, as a fillet of that radius would spread it.
     """
     loops = profile.loops
     extent = float(min(np.ptp(np.concatenate(loops), axis=0)))
+    corners = reentrant_corners(loops) - centroid if profile.projector is None else np.zeros((0, 2))
+    radius = CORNER_EXCLUSION * extent
     previous, value = None, float("nan")
     for level in range(max_levels):
         h = extent / (8 * 2**level)
@@ -334,7 +358,7 @@ def shear_stress_factor(profile: Profile, centroid: np.ndarray, rtol: float = 1e
         else:
             ring = [_split_loop(loop, h) for loop in loops]
         mesh = triangulate_loops(ring, max_area=h * h)
-        value = boundary_shear_factor(solve_warping(skfem_mesh(mesh, centroid, profile.projector)))
+        value = boundary_shear_factor(solve_warping(skfem_mesh(mesh, centroid, profile.projector)), corners, radius)
         if previous is not None and abs(value - previous) <= rtol * value:
             return value, True
         previous = value

@@ -245,14 +245,17 @@ def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.n
     plt = _pyplot()
     from matplotlib.collections import LineCollection
 
-    fig, ax = plt.subplots(figsize=(7.5, 5.5))
+    span = np.ptp(points[:, :2], axis=0)
+    aspect = float(span[1] / max(span[0], 1e-300))
+    fig, ax = plt.subplots(figsize=(9.0, float(np.clip(9.0 * aspect, 2.2, 9.0)) + 1.8))
     segs = points[edges][:, :, :2]
     if vertex_values is None:
         lc = LineCollection(segs, colors="0.2", linewidths=1.4)
     else:
         vals = 0.5 * (vertex_values[edges[:, 0]] + vertex_values[edges[:, 1]])
         lc = LineCollection(segs, array=vals, cmap="viridis", linewidths=1.4)
-        fig.colorbar(lc, ax=ax, shrink=0.7, label=label)
+        fig.colorbar(lc, ax=ax, orientation="horizontal" if aspect < 0.6 else "vertical", shrink=0.6, pad=0.18,
+                     label=label)
     ax.add_collection(lc)
     ax.autoscale()
     ax.set_aspect("equal")
