@@ -27,6 +27,7 @@ SUBCOMMANDS = [
     "xshells.app.cli",
     "xshells.design.cli",
     "xshells.inverse.cli",
+    "xshells.analysis.cli",
 ]
 
 

@@ -104,6 +104,18 @@ def material_spec_from_option(option: str | None, young: float | None = None, po
     return {"type": kind, "params": values, "E": E, "nu": nu}
 
 
+def with_material_options(spec: dict, grade=None, density=None, strength=None) -> dict:
+    """A case's material object with ``--grade``/``--density``/``--strength`` laid over it (checked first;
+    a grade replaces the case's E, ν, density and strength unless those are given too)."""
+    given = {k: v for k, v in (("grade", grade), ("density", density), ("strength", strength)) if v is not None}
+    if not given:
+        return dict(spec)
+    material_spec_from_option(None, grade=grade, density=density, strength=strength)  # the same checks
+    out = {k: v for k, v in spec.items() if grade is None or k not in ("E", "nu", "density", "strength")}
+    out.update(given)
+    return out
+
+
 def case_for_design(design_path: str, material: dict, *, subdivision: int = 10, steps: int = 40,
                     angle_deg: float | None = None, rest_lengths_path: str | None = None) -> dict:
     """A case object (as in a case file) for a bare design file, with absolute paths."""

@@ -49,7 +49,7 @@ def _material_spec_from_args(args) -> dict:
 
 
 def _deploy(args) -> int:
-    from .case import check_counts, load_case, material_from_spec, material_spec_from_option, material_strength
+    from .case import check_counts, load_case, material_from_spec, material_strength, with_material_options
     from .run import run_deployment
 
     check_counts(args.subdivision, args.steps)
@@ -57,13 +57,7 @@ def _deploy(args) -> int:
         if args.material:
             raise InputError("--material contradicts the case file's material; edit the case file instead")
         case = load_case(args.input)
-        spec = dict(case.material)
-        given = {k: v for k, v in (("grade", args.grade), ("density", args.density), ("strength", args.strength)) if v is not None}
-        if given:  # checked as on the command line, then laid over the case's values
-            material_spec_from_option(None, grade=args.grade, density=args.density, strength=args.strength)
-            if args.grade is not None:
-                spec = {k: v for k, v in spec.items() if k not in ("E", "nu", "density", "strength")}
-            spec.update(given)
+        spec = with_material_options(case.material, args.grade, args.density, args.strength)
         material = material_from_spec(spec)
         kw = dict(subdivision=case.subdivision if args.subdivision is None else args.subdivision,
                   steps=case.steps if args.steps is None else args.steps,

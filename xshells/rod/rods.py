@@ -457,18 +457,20 @@ class ElasticRods:
         return self._assemblers[key]
 
     # ------------------------------------------------------------ mass, loads
-    def vertex_masses(self) -> np.ndarray:
-        """Lumped mass of each vertex: half of each incident edge's ``ρ A L̄``, (V,)."""
-        m_edge = self.density * self.area * self.rest_lengths
+    def vertex_masses(self, density=None) -> np.ndarray:
+        """Lumped mass of each vertex: half of each incident edge's ``ρ A L̄``, (V,) (``density``: per edge, default the rods')."""
+        rho = self.density if density is None else density
+        m_edge = rho * self.area * self.rest_lengths
         return np.bincount(self.edges.ravel(), weights=np.repeat(0.5 * m_edge, 2), minlength=self.num_vertices)
 
-    def mass_matrix(self) -> sp.dia_matrix:
+    def mass_matrix(self, density=None) -> sp.dia_matrix:
         """Lumped (diagonal) mass matrix over the variables.
 
         Positions get their vertex mass; each angle gets its edge's
-        rotational inertia ``ρ ∫r²dA L̄``.
+        rotational inertia ``ρ ∫r²dA L̄``. ``density`` (per edge) replaces the rods' own.
         """
-        diag = np.concatenate([np.repeat(self.vertex_masses(), 3), self.density * self.polar_moment * self.rest_lengths])
+        rho = self.density if density is None else density
+        diag = np.concatenate([np.repeat(self.vertex_masses(rho), 3), rho * self.polar_moment * self.rest_lengths])
         return sp.diags(diag)
 
     def gravity_force(self, g=(0.0, 0.0, -9.81)) -> np.ndarray:

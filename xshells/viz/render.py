@@ -265,3 +265,24 @@ def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.n
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
+
+
+def render_analysis(path, points0: np.ndarray, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray,
+                    scale: float, label: str = "utilization", title: str = "") -> None:
+    """The loaded shell: the unloaded centerlines in grey and the displaced ones (displacement × ``scale``),
+    coloured per edge by ``vertex_values`` (e.g. the utilization)."""
+    plt = _pyplot()
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    shown = points0 + scale * (points - points0)
+    fig = plt.figure(figsize=(7.5, 5.8))
+    ax = fig.add_subplot(projection="3d")
+    ax.add_collection3d(Line3DCollection(points0[edges], colors="0.75", linewidths=0.8))
+    vals = 0.5 * (vertex_values[edges[:, 0]] + vertex_values[edges[:, 1]])
+    lc = Line3DCollection(shown[edges], array=vals, cmap="inferno_r", linewidths=1.8)
+    ax.add_collection3d(lc)
+    _equal_axes(ax, np.vstack([points0, shown]))
+    fig.colorbar(lc, ax=ax, shrink=0.6, label=label)
+    ax.set_title(title)
+    _save(fig, path)
+    plt.close(fig)

@@ -1,0 +1,49 @@
+"""``xshells analyze`` end to end on a small design, and its one-line errors."""
+import json
+
+import pytest
+
+from data_paths import EXAMPLES
+from xshells.cli import main
+
+DESIGN = str(EXAMPLES / "nonuniform_linkage.obj")  # unit-sized: a section to match
+BASE = [DESIGN, "--material", "rectangle:0.05,0.035", "--angle", "60", "--steps", "6", "--subdivision", "5",
+        "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("an")
+    code = main(["analyze", *BASE, "--density", "1.9e-9", "--supports", "lowest:4", "--load", "self-weight",
+                 "--load", "point:3:0,0,-1e-3", "--strength", "200", "--out", str(out)])
+    return code, out, json.loads((out / "result.json").read_text())
+
+
+def test_the_analysis_reports_and_writes_what_it_should(run):
+    code, out, r = run
+    assert code == 0 and r["status"] == "complete"
+    for key in ("max_displacement", "max_utilization", "reactions", "reactions_total", "total_load", "stable",
+                "critical_load_factor", "critical_method", "buckled"):
+        assert key in r, key
+    assert len(r["reactions"]) == 4
+    assert r["equilibrium_error"] <= 1e-8
+    assert r["stable"] and not r["buckled"]
+    for name in ("analysis.png", "beams.csv", "loaded.ply", "deploy/result.json"):
+        assert (out / name).is_file(), name
+    assert "utilization" in (out / "loaded.ply").read_bytes()[:2000].decode("latin-1")
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--supports", "joints:0,999", "--load", "point:3:0,0,-1"], "vertex 999 does not exist"),
+    (["--supports", "lowest:4", "--load", "point:999:0,0,-1"], "point load at vertex 999"),
+    (["--supports", "lowest:4", "--load", "self-weight"], "needs a density"),
+    (["--supports", "lowest:4", "--load", "point:3:0,0,-1", "--strength=-5"], "--strength must be a positive"),
+    (["--supports", "lowest:4", "--load", "point:3:0,0,-1", "--density=-1"], "--density must be a non-negative"),
+    (["--supports", "lowest:1", "--load", "point:3:0,0,-1"], "rigid motion(s) free"),
+    (["--supports", "under:3", "--load", "point:3:0,0,-1"], "use lowest:N or joints:"),
+    (["--supports", "lowest:4", "--load", "wind:3"], "use self-weight, point:"),
+])
+def test_bad_inputs_get_one_line(tmp_path, capsys, args, words):
+    assert main(["analyze", *BASE, "--out", str(tmp_path / "o"), *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err and "Traceback" not in err

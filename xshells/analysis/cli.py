@@ -1,0 +1,80 @@
+"""``xshells analyze``: the deployed shell on supports, under loads: stresses, reactions, stability."""
+from __future__ import annotations
+
+import os
+
+from ..errors import InputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "analyze", help="support and load the deployed shell: stresses, reactions, stability, critical load factor",
+        description="Deploys a case or design (as xshells deploy), then solves its nonlinear equilibrium on supports "
+                    "under dead loads, with large displacements. Units follow the input (N, mm, MPa for the bundled data).")
+    p.add_argument("input", help="a case file (.json) or a design (.obj, .msh)")
+    p.add_argument("--supports", required=True, help="lowest:N (the N lowest vertices) or joints:i,j,… (input vertex indices)")
+    p.add_argument("--support-type", choices=("pinned", "clamped"), default="pinned")
+    p.add_argument("--joints", choices=("locked", "free"), default="locked",
+                   help="locked: the joints keep their deployed angles (as built); free: they turn, the actuation torque held")
+    p.add_argument("--load", action="append", default=[], metavar="LOAD",
+                   help="self-weight | point:VERTEX:FX,FY,FZ | area:Q (vertical, per horizontal projected area); repeatable")
+    p.add_argument("--load-factor", type=float, default=1.0)
+    p.add_argument("--no-critical", action="store_true", help="skip the critical load factor")
+    p.add_argument("--angle", type=float, help="deploy to this average angle, degrees (default: the case's)")
+    p.add_argument("--material", help="TYPE:P1,P2,... or a cross-section JSON (for a bare design)")
+    p.add_argument("--young", type=float)
+    p.add_argument("--poisson", type=float)
+    p.add_argument("--grade", help="a named material (docs/analysis.md)")
+    p.add_argument("--strength", type=float, help="allowable stress (MPa for a design in mm)")
+    p.add_argument("--density", type=float, help="density (t/mm³ for a design in mm)")
+    p.add_argument("--steps", type=int, help="deployment increments")
+    p.add_argument("--subdivision", type=int)
+    p.add_argument("--out", default="analyze_out")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_analyze)
+
+
+def _analyze(args) -> int:
+    import numpy as np
+
+    from ..deploy.case import (check_counts, load_case, material_from_spec, material_spec_from_option,
+                               material_strength, resolve_grade, with_material_options)
+    from .run import parse_load, parse_supports, run_analysis
+
+    check_counts(args.subdivision, args.steps)
+    supports = parse_supports(args.supports)
+    loads = [parse_load(t) for t in args.load]
+    if args.input.endswith(".json"):
+        if args.material:
+            raise InputError("--material contradicts the case file's material; edit the case file instead")
+        case = load_case(args.input)
+        spec = with_material_options(case.material, args.grade, args.density, args.strength)
+        kw = dict(subdivision=case.subdivision if args.subdivision is None else args.subdivision,
+                  steps=case.steps if args.steps is None else args.steps,
+                  target_angle=np.radians(args.angle) if args.angle is not None else case.angle_rad,
+                  open_by=case.open_by_rad, rest_lengths_path=case.rest_lengths_path, name=case.name,
+                  direction=case.direction)
+        design = case.design_path
+    else:
+        spec = material_spec_from_option(args.material, args.young, args.poisson, grade=args.grade,
+                                         density=args.density, strength=args.strength)
+        kw = dict(subdivision=10 if args.subdivision is None else args.subdivision,
+                  steps=40 if args.steps is None else args.steps,
+                  target_angle=np.radians(args.angle) if args.angle is not None else None,
+                  name=os.path.basename(args.input))
+        design = args.input
+    density_given = resolve_grade(spec).get("density") is not None
+    r = run_analysis(design, material_from_spec(spec), out_dir=args.out, supports_spec=supports,
+                     support_type=args.support_type, loads=loads, joints=args.joints, load_factor=args.load_factor,
+                     strength=material_strength(spec), density_given=density_given, progress=not args.no_progress,
+                     critical=not args.no_critical, **kw)
+    print(f"{r['name']}: max displacement {r['max_displacement']:.4g} (vertex {r['max_displacement_vertex']}), "
+          f"largest von Mises {r['max_von_mises']:.4g}" +
+          (f", utilization {r['max_utilization']:.3g}" if r["max_utilization"] is not None else ""))
+    print(f"  total load {np.round(r['total_load'], 6).tolist()}, reactions {np.round(r['reactions_total'], 6).tolist()}; "
+          f"{'stable' if r['stable'] else 'UNSTABLE'}" +
+          (f", critical load factor {r['critical_load_factor']:.4g}" if r["critical_load_factor"] is not None else
+           (f", no instability up to {r['critical_searched_to']:.3g}× the load" if r["critical_searched_to"] else "")) +
+          ("; BUCKLED" if r["buckled"] else ""))
+    print(f"  outputs in {args.out}/")
+    return 0 if r["status"] == "complete" else 1

@@ -1,0 +1,225 @@
+"""The job behind ``xshells analyze``: deploy, then support, load and check the shell (docs/analysis.md)."""
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import json
+import os
+import time
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.export import atomic_write_text
+from .static import Load, StaticOptions, Support
+
+
+def parse_supports(text: str, kind: str = "pinned"):
+    """``lowest:N`` → ("lowest", N); ``joints:i,j,…`` → ("joints", [i, j, …]) (input vertex indices)."""
+    head, _, rest = str(text).partition(":")
+    try:
+        if head == "lowest":
+            n = int(rest)
+            return "lowest", n
+        if head == "joints":
+            return "joints", [int(v) for v in rest.split(",") if v.strip()]
+    except ValueError:
+        pass
+    raise InputError(f"--supports {text}: use lowest:N or joints:i,j,… (input vertex indices)")
+
+
+def parse_load(text: str) -> Load:
+    """``self-weight``, ``point:VERTEX:FX,FY,FZ`` or ``area:Q``."""
+    t = str(text).strip()
+    if t == "self-weight":
+        return Load("self-weight")
+    parts = t.split(":")
+    try:
+        if parts[0] == "point" and len(parts) == 3:
+            vec = tuple(float(v) for v in parts[2].split(","))
+            if len(vec) != 3 or not np.all(np.isfinite(vec)):
+                raise ValueError
+            return Load("point", vertex=int(parts[1]), vector=vec)
+        if parts[0] == "area" and len(parts) == 2:
+            q = float(parts[1])
+            if not np.isfinite(q):
+                raise ValueError
+            return Load("area", q=q)
+    except ValueError:
+        pass
+    raise InputError(f"--load {text}: use self-weight, point:VERTEX:FX,FY,FZ or area:Q")
+
+
+def run_analysis(design_path, material, *, out_dir, supports_spec, support_type="pinned", loads=(), joints="locked",
+                 load_factor=1.0, strength=None, density_given=True, subdivision=10, target_angle=None, open_by=None,
+                 steps=40, rest_lengths_path=None, direction="up", name=None, progress=True, critical=True) -> dict:
+    """Deploy (as ``xshells deploy``, outputs in ``out_dir/deploy``), then analyse under the loads."""
+    from ..deploy.run import run_deployment
+    from .static import (critical_load_factor, free_rigid_modes, held_variables, load_vector, lowest_supports,
+                         reactions, smallest_eigenvalue, solve_loaded)
+    from .stress import beam_report, check_strength, rod_stresses
+
+    t0 = time.perf_counter()
+    strength = check_strength(strength)
+    if not np.isfinite(load_factor) or load_factor <= 0:
+        raise InputError(f"--load-factor must be a positive number, got {load_factor:g}")
+    if not loads:
+        raise InputError("give at least one --load (self-weight, point:VERTEX:FX,FY,FZ or area:Q)")
+    if any(l.kind == "self-weight" for l in loads) and not density_given:
+        raise InputError("--load self-weight needs a density: give --density, a --grade, or the material's density")
+    from ..io import read_design
+
+    design = read_design(design_path)  # supports and loads are checked before the deployment's work
+    used = set(design.edges.ravel().tolist())
+    n = design.num_vertices
+    if supports_spec[0] == "joints":
+        for v in supports_spec[1]:
+            if v not in used:
+                raise InputError(f"--supports: vertex {v} does not exist (the design's segments use vertices 0 to {n - 1})")
+    for load in loads:
+        if load.kind == "point" and load.vertex not in used:
+            raise InputError(f"point load at vertex {load.vertex}: no such vertex in the design (0 to {n - 1})")
+    os.makedirs(out_dir, exist_ok=True)
+    states = {}
+    dep = run_deployment(design_path, material, out_dir=os.path.join(out_dir, "deploy"), subdivision=subdivision,
+                         target_angle=target_angle, open_by=open_by, steps=steps, rest_lengths_path=rest_lengths_path,
+                         direction=direction, progress=progress, name=name, states=states, strength=strength)
+    if not dep["reached"]:
+        raise InputError(f"the deployment did not reach its angle ({dep['message']}): nothing to analyse")
+    L = states["deployed"]
+    from .static import translate, vertex_positions
+
+    origin = vertex_positions(L).mean(axis=0)
+    translate(L, -origin)  # about the origin: less round-off (results are shift-invariant; outputs are shifted back)
+    t_dep = time.perf_counter() - t0
+    mode, arg = supports_spec
+    vertices = lowest_supports(L, arg) if mode == "lowest" else arg
+    n = L.graph.design.num_vertices
+    for v in vertices:
+        if not (0 <= v < n):
+            raise InputError(f"--supports: vertex {v} does not exist (the design has vertices 0 to {n - 1})")
+    supports = [Support(int(v), support_type) for v in vertices]
+    modes = free_rigid_modes(L, supports)
+    if modes:
+        raise InputError(f"the supports ({len(supports)}, {support_type}) leave {modes} rigid motion(s) free: the "
+                         f"structure is a mechanism; add supports")
+    opts = StaticOptions(joints=joints)
+    held = held_variables(L, supports, joints)
+    base = None
+    if joints == "free":  # the actuation torque stays: the deployed state is in equilibrium with it
+        base = np.zeros(L.num_vars)
+        rows = L.angle_indices()
+        base[rows] = L.gradient()[rows]
+    f, resultant = load_vector(L, loads, opts.gravity)
+    unloaded = copy.deepcopy(L)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=opts.load_steps, desc="loading", unit="step")
+    t1 = time.perf_counter()
+    try:
+        st = solve_loaded(L, f, held, load_factor, opts, base_force=base,
+                          callback=(lambda k, lam: bar.update(1) and False) if bar else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    total_force = (base if base is not None else 0.0) + load_factor * f
+    reac, reac_total = reactions(L, supports, total_force, held)
+    mu = smallest_eigenvalue(L, held)
+    stresses = rod_stresses(L, strength)
+    t_load = time.perf_counter() - t1
+    crit = None
+    t2 = time.perf_counter()
+    if critical:
+        crit = critical_load_factor(unloaded, f, held, opts, base_force=base, start=load_factor)
+    t_crit = time.perf_counter() - t2
+    disp = np.linalg.norm(st.displacement, axis=1)
+    beams = beam_report(L, stresses)
+    result = {
+        "name": name, "status": "complete" if st.converged else "stopped", "message": st.message,
+        "segments": int(L.num_segments), "joints": int(L.num_joints),
+        "units": "those of the input: N, mm and MPa for the bundled data",
+        "supports": [{"vertex": s.vertex, "kind": s.kind} for s in supports], "joints": joints,
+        "loads": [l.__dict__ for l in loads], "load_factor": load_factor, "load_factor_reached": st.load_factor,
+        "max_displacement": float(disp.max()), "max_displacement_vertex": int(np.argmax(disp)),
+        "max_von_mises": stresses.max_von_mises, "max_utilization": stresses.max_utilization, "strength": strength,
+        "reactions": reac, "reactions_total": reac_total.tolist(), "total_load": (load_factor * resultant).tolist(),
+        "equilibrium_error": float(np.linalg.norm(reac_total + load_factor * resultant) / max(np.linalg.norm(load_factor * resultant), 1e-300)),
+        "min_eigenvalue": mu, "stable": bool(mu >= 0),
+        "critical_load_factor": None if crit is None else crit.factor,
+        "critical_bracket": None if crit is None else list(crit.bracket),
+        "critical_method": None if crit is None else crit.method,
+        "critical_searched_to": None if crit is None else crit.searched_to,
+        "buckled": bool(crit is not None and crit.factor is not None and load_factor > crit.factor) or not mu >= 0,
+        "deployment": {"reached": dep["reached"], "angle_deg": dep["deployed"]["average_angle_deg"],
+                       "utilization_max": dep.get("utilization_max")},
+        "timings_s": {"deploy": t_dep, "load": t_load, "critical": t_crit, "total": time.perf_counter() - t0},
+    }
+    for b in beams:
+        b["position"] = (np.asarray(b["position"]) + origin).tolist()
+    result["origin_shift"] = origin.tolist()
+    _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, base, opts, result, origin)
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    return result
+
+
+def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, base, opts, result, origin) -> None:
+    from ..io.sweep import write_ply
+    from ..linkage.export import swept_mesh
+    from .static import translate
+    from ..viz.render import render_analysis
+
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["beam", "max_von_mises", "max_utilization", "segment", "nearest_joint", "x", "y", "z"])
+    for b in beams:
+        w.writerow([b["beam"], b["max_von_mises"], b["max_utilization"], b["segment"], b["nearest_joint"], *b["position"]])
+    atomic_write_text(os.path.join(out_dir, "beams.csv"), buf.getvalue())
+    fields = {"von_mises": stresses.von_mises, "normal_stress": stresses.normal, "shear_stress": stresses.shear}
+    if stresses.utilization is not None:
+        fields["utilization"] = stresses.utilization
+    shown = copy.deepcopy(L)
+    translate(shown, origin)  # back in the design's frame
+    write_ply(os.path.join(out_dir, "loaded.ply"), swept_mesh(shown, fields))
+    d = L.rods.points - unloaded.rods.points
+    span = float(np.ptp(unloaded.rods.points, axis=0).max())
+    dmax = float(np.linalg.norm(d, axis=1).max())
+    scale = 0.1 * span / dmax if dmax > 0 else 1.0
+    value = stresses.utilization if stresses.utilization is not None else stresses.von_mises
+    render_analysis(os.path.join(out_dir, "analysis.png"), unloaded.rods.points, L.rods.points, L.rods.edges, value,
+                    scale, label="utilization" if stresses.utilization is not None else "von Mises stress",
+                    title=f"max displacement {result['max_displacement']:.3g}, shown ×{scale:.3g}")
+    if crit is not None and crit.factor is not None:
+        mode = _buckling_mode(unloaded, f, held, base, opts, crit.bracket[0])
+        if mode is not None:
+            md = mode.reshape(-1, 3)
+            s2 = 0.1 * span / max(float(np.linalg.norm(md, axis=1).max()), 1e-300)
+            render_analysis(os.path.join(out_dir, "buckling_mode.png"), unloaded.rods.points,
+                            unloaded.rods.points + s2 * md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
+                            label="mode amplitude", title=f"buckling mode at load factor {crit.factor:.4g}")
+
+
+def _buckling_mode(unloaded, f, held, base, opts, factor):
+    """The rod points' displacement (3V,) of the lowest mode of the loaded Hessian at ``factor``."""
+    import scipy.sparse.linalg as spla
+
+    from .static import solve_loaded
+
+    work = copy.deepcopy(unloaded)
+    st = solve_loaded(work, f, held, factor, opts, base_force=base, escape=False)
+    if not st.converged:
+        return None
+    free = np.setdiff1d(np.arange(work.num_vars), held)
+    H = work.hessian()[free][:, free].tocsc()
+    M = work.mass_matrix()[free][:, free].tocsc()
+    try:
+        shift = 1e-8 * abs(spla.eigsh(H, k=1, M=M, which="LM", return_eigenvectors=False)[0])
+        _, vec = spla.eigsh(H, k=1, M=M, sigma=-shift, which="LM")
+    except Exception:
+        return None
+    x = np.zeros(work.num_vars)
+    x[free] = vec[:, 0]
+    J = work._jacobian()
+    return (J @ x)[: 3 * work.rods.num_vertices]

@@ -1,0 +1,408 @@
+"""The deployed shell under loads: supports, loads, the nonlinear equilibrium, reactions, stability.
+
+Supports hold design vertices (joints or free ends):
+
+* **pinned**: the vertex's position (3 variables);
+* **clamped**: its position and rotation — at a joint the rotation ω of its
+  frame (3 more), at a free end the next rod vertex and the end edge's
+  material angle as well.
+
+``joints="locked"`` holds every joint's opening angle α at its deployed
+value (riveted and braced as built); ``"free"`` lets the joints turn while
+the deployment's actuation torque stays applied (``τ S_α`` as a dead load).
+
+Loads are dead loads: self-weight (lumped gravity on the rods, density ×
+area × length), point forces at vertices, and a vertical load per unit of
+horizontal projected area distributed to the joints by tributary area (a
+third of each triangle of the deployed joint quads). The equilibrium
+``∇E(x) = λ f`` is solved by Newton with load stepping, from the unloaded
+deployed state, with large displacements. Units follow the input (N, mm,
+MPa for the bundled data).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+
+GRAVITY = (0.0, 0.0, -9810.0)  # mm/s²: with densities in t/mm³, forces in N
+
+
+@dataclass(frozen=True)
+class Support:
+    """A support at design vertex ``vertex`` (0-based, the input file's order)."""
+
+    vertex: int
+    kind: str = "pinned"
+
+    def __post_init__(self):
+        if self.kind not in ("pinned", "clamped"):
+            raise InputError(f"support type must be pinned or clamped, got {self.kind!r}")
+
+
+@dataclass(frozen=True)
+class Load:
+    """A load: ``kind`` "self-weight", "point" (``vertex``, ``vector``) or "area" (``q``, per projected area)."""
+
+    kind: str
+    vertex: int | None = None
+    vector: tuple | None = None
+    q: float | None = None
+
+
+@dataclass(frozen=True)
+class StaticOptions:
+    """Settings of :func:`solve_loaded` and :func:`critical_load_factor`.
+
+    Attributes
+    ----------
+    joints : {"locked", "free"}
+    load_steps : int
+        Increments of the load factor up to the requested one.
+    gravity : (3,) float
+    max_factor : float
+        The critical load factor is searched up to this multiple of the load.
+    factor_tolerance : float
+        Relative bracket width of the critical factor.
+    """
+
+    joints: str = "locked"
+    load_steps: int = 10
+    gravity: tuple = GRAVITY
+    max_factor: float = 50.0
+    factor_tolerance: float = 1e-3
+
+    def __post_init__(self):
+        if self.joints not in ("locked", "free"):
+            raise InputError(f"--joints must be locked or free, got {self.joints!r}")
+        if self.load_steps < 1:
+            raise InputError(f"load steps must be at least 1, got {self.load_steps}")
+
+
+# ------------------------------------------------------------------- supports
+def _free_end_rod_vertex(linkage, v: int) -> tuple[int, int, int]:
+    """(rod vertex at the free end, its neighbour, the end edge) of free-end vertex ``v``."""
+    E = linkage.graph.design.edges
+    s = int(np.flatnonzero((E == v).any(axis=1))[0])  # one rod per segment, from edges[s, 0] to edges[s, 1]
+    a, b = linkage.rods.vertex_offsets[s], linkage.rods.vertex_offsets[s + 1]
+    e0 = linkage.rods.edge_offsets[s]
+    if E[s, 0] == v:
+        return int(a), int(a + 1), int(e0)
+    return int(b - 1), int(b - 2), int(linkage.rods.edge_offsets[s + 1] - 1)
+
+
+def _reduced_of_rod_vars(linkage, rod_vars: np.ndarray) -> np.ndarray:
+    lookup = dict(zip(linkage._free_rod.tolist(), linkage._free_reduced.tolist()))
+    missing = [r for r in rod_vars.tolist() if r not in lookup]
+    if missing:
+        raise InputError("internal: a free end's variables are not reduced variables")
+    return np.array([lookup[r] for r in rod_vars.tolist()], np.int64)
+
+
+def support_rows(linkage, support: Support) -> tuple[np.ndarray, np.ndarray]:
+    """(position rows (3,), all held rows) of one support in the reduced variables."""
+    g = linkage.graph
+    n = g.design.num_vertices
+    v = int(support.vertex)
+    if not (0 <= v < n):
+        raise InputError(f"support at vertex {v}: the design has vertices 0 to {n - 1}")
+    j = int(g.vertex_joint[v])
+    if j >= 0:
+        pos = 9 * j + np.arange(3)
+        held = pos if support.kind == "pinned" else 9 * j + np.arange(6)
+        return pos, held
+    if v not in set(np.asarray(g.free_end_vertex).tolist()):
+        raise InputError(f"support at vertex {v}: no segment uses that vertex")
+    rv, nb, edge = _free_end_rod_vertex(linkage, v)
+    V = linkage.rods.num_vertices
+    pos = _reduced_of_rod_vars(linkage, 3 * rv + np.arange(3))
+    if support.kind == "pinned":
+        return pos, pos
+    more = _reduced_of_rod_vars(linkage, np.r_[3 * nb + np.arange(3), 3 * V + edge])
+    return pos, np.r_[pos, more]
+
+
+def held_variables(linkage, supports, joints: str = "locked") -> np.ndarray:
+    """Every held reduced variable: the supports', and the joint angles when ``joints == "locked"``."""
+    rows = [support_rows(linkage, s)[1] for s in supports]
+    if joints == "locked":
+        rows.append(linkage.angle_indices())
+    return np.unique(np.concatenate(rows)) if rows else np.zeros(0, np.int64)
+
+
+def free_rigid_modes(linkage, supports) -> int:
+    """How many rigid motions (of 6) the supports leave free."""
+    P = vertex_positions(linkage)
+    rows = []
+    for s in supports:
+        p = P[s.vertex]
+        # δp = t + r × p for a rigid motion (t, r): the support fixes δp, and r as well when clamped
+        skew = np.array([[0, p[2], -p[1]], [-p[2], 0, p[0]], [p[1], -p[0], 0]])
+        rows.append(np.c_[np.eye(3), skew])
+        if s.kind == "clamped":
+            rows.append(np.c_[np.zeros((3, 3)), np.eye(3)])
+    if not rows:
+        return 6
+    A = np.vstack(rows)
+    scale = max(1.0, float(np.abs(P).max()))
+    A[:, 3:] /= scale
+    return int(6 - np.linalg.matrix_rank(A, tol=1e-9))
+
+
+def vertex_positions(linkage) -> np.ndarray:
+    """Current positions (n, 3) of every design vertex: joints, and free ends from their rods' end points."""
+    g = linkage.graph
+    V = np.array(g.design.vertices, float)
+    V[np.asarray(g.joint_vertex)] = linkage.joint_positions()
+    for v in np.asarray(g.free_end_vertex):
+        V[v] = linkage.rods.points[_free_end_rod_vertex(linkage, int(v))[0]]
+    return V
+
+
+def lowest_supports(linkage, count: int) -> list[int]:
+    """The ``count`` design vertices lowest along z (joints and free ends), lowest first."""
+    P = vertex_positions(linkage)
+    used = np.flatnonzero(np.asarray(linkage.graph.valence) > 0)
+    if not (1 <= count <= len(used)):
+        raise InputError(f"--supports lowest:{count}: choose between 1 and {len(used)} vertices")
+    return [int(v) for v in used[np.argsort(P[used, 2], kind="stable")[:count]]]
+
+
+# ---------------------------------------------------------------------- loads
+def load_vector(linkage, loads, gravity=GRAVITY) -> tuple[np.ndarray, np.ndarray]:
+    """The generalized force (num_vars,) of ``loads`` at the current state, and its resultant force (3,)."""
+    f = np.zeros(linkage.num_vars)
+    total = np.zeros(3)
+    n = linkage.graph.design.num_vertices
+    for load in loads:
+        if load.kind == "self-weight":  # the materials' densities as they are (the command line checks one was given)
+            f += linkage.gravity_force(gravity)
+            total += linkage.rods.gravity_force(gravity)[: 3 * linkage.rods.num_vertices].reshape(-1, 3).sum(axis=0)
+        elif load.kind == "point":
+            v = int(load.vertex)
+            if not (0 <= v < n) or linkage.graph.valence[v] == 0:
+                raise InputError(f"point load at vertex {v}: no such vertex in the design (0 to {n - 1})")
+            F = np.asarray(load.vector, float)
+            rows = support_rows(linkage, Support(v))[0]
+            f[rows] += F
+            total += F
+        elif load.kind == "area":
+            f_j, tot = area_load(linkage, float(load.q))
+            f += f_j
+            total += tot
+        else:
+            raise InputError(f"unknown load {load.kind!r}: use self-weight, point:VERTEX:FX,FY,FZ or area:Q")
+    return f, total
+
+
+def area_load(linkage, q: float):
+    """A vertical load ``q`` per unit of horizontal projected area, on the joints by tributary area."""
+    from ..design.fitting import joint_faces, triangulate_faces
+
+    P = linkage.joint_positions()
+    T = triangulate_faces(P, joint_faces(linkage))
+    A = 0.5 * np.abs(np.cross(P[T[:, 1], :2] - P[T[:, 0], :2], P[T[:, 2], :2] - P[T[:, 0], :2]))
+    share = np.zeros(len(P))
+    np.add.at(share, T.ravel(), np.repeat(A / 3.0, 3))
+    F = np.zeros((len(P), 3))
+    F[:, 2] = -q * share
+    return linkage.joint_force(F), F.sum(axis=0)
+
+
+# ------------------------------------------------------------------ equilibria
+@dataclass
+class LoadedState:
+    """The result of :func:`solve_loaded`.
+
+    Attributes
+    ----------
+    load_factor : float
+        The factor reached (the requested one when ``converged``).
+    converged : bool
+    message : str
+    displacement : (n, 3) float
+        Of every design vertex, from the unloaded state.
+    reactions : list of dict
+        Per support: ``vertex``, ``kind``, ``force`` (3,) (and ``moment`` info for clamped).
+    reactions_total : (3,) float
+    total_load : (3,) float
+        λ times the loads' resultant.
+    min_eigenvalue : float
+        Smallest eigenvalue of the loaded Hessian on the free variables (mass metric).
+    iterations : int
+    """
+
+    load_factor: float
+    converged: bool
+    message: str
+    displacement: np.ndarray = field(repr=False)
+    reactions: list = field(default_factory=list)
+    reactions_total: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    total_load: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    min_eigenvalue: float = float("nan")
+    iterations: int = 0
+
+
+def _newton_options(linkage):
+    from ..deploy.simulate import _gradient_scale, _noise_floor
+    from ..solve import NewtonOptions
+
+    scale = _gradient_scale(linkage) * np.sqrt(linkage.num_vars)
+    return NewtonOptions(gradient_tolerance=max(1e-12 * scale, _noise_floor(linkage)), max_iterations=200,
+                         saddle_gradient_factor=float("inf"))
+
+
+def smallest_eigenvalue(linkage, held) -> float:
+    """Smallest eigenvalue of the Hessian on the free variables, in the mass metric (< 0: unstable)."""
+    from ..solve.newton import smallest_eigenvalues
+
+    free = np.setdiff1d(np.arange(linkage.num_vars), held)
+    H = linkage.hessian()[free][:, free]
+    M = linkage.mass_matrix()[free][:, free]
+    return float(smallest_eigenvalues(H.tocsr(), M.tocsr(), k=1)[0])
+
+
+def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOptions = StaticOptions(),
+                 base_force=None, callback=None, escape: bool = True) -> LoadedState:
+    """Equilibrium of ``linkage`` (in place) under ``load_factor · f`` (+ ``base_force``), ``held`` variables fixed.
+
+    Load stepping in ``options.load_steps`` equal increments; ``callback(step,
+    factor)`` after each (return True to stop). ``base_force``: a force always
+    present (the actuation torque when the joints are free).
+    """
+    from ..solve import minimize
+
+    base = np.zeros(linkage.num_vars) if base_force is None else np.asarray(base_force, float)
+    P0 = vertex_positions(linkage)
+    opts = _newton_options(linkage)
+    if not escape:  # stay on the branch (a symmetric state past its critical load is kept, as a saddle)
+        from dataclasses import replace
+
+        opts = replace(opts, saddle_gradient_factor=0.0)
+    reached, its, message, ok = 0.0, 0, "", True
+    for k in range(1, options.load_steps + 1):
+        lam = load_factor * k / options.load_steps
+        rep = minimize(linkage, fixed=held, force=base + lam * f, options=opts)
+        linkage.update_source_frame()
+        its += rep.iterations
+        if not rep.converged:
+            ok, message = False, f"the equilibrium at load factor {lam:.4g} did not converge ({rep.message})"
+            break
+        reached = lam
+        if callback is not None and callback(k, lam):
+            ok, message = False, "stopped by request"
+            break
+    state = LoadedState(reached, ok, message or "converged", vertex_positions(linkage) - P0, iterations=its)
+    return state
+
+
+def reactions(linkage, supports, f_total, held) -> tuple[list, np.ndarray]:
+    """Support reactions from the equilibrium's residual at the held variables: ``r = ∇E − f`` there."""
+    g = np.asarray(linkage.gradient(), float) - f_total
+    out, total = [], np.zeros(3)
+    for s in supports:
+        pos, rows = support_rows(linkage, s)
+        force = g[pos]  # the support pushes with −(f − ∇E) = ∇E − f on the vertex... sign: reaction = ∇E − f
+        out.append({"vertex": int(s.vertex), "kind": s.kind, "force": force.tolist()})
+        total += force
+    return out, total
+
+
+@dataclass
+class CriticalFactor:
+    """The load factor at which the loaded equilibrium loses stability.
+
+    Attributes
+    ----------
+    factor : float or None
+        None when the structure is stable up to ``searched_to``.
+    bracket : (float, float)
+        Stable below, unstable (or no equilibrium) above.
+    method : str
+    searched_to : float
+    samples : list of (factor, smallest eigenvalue or nan)
+    """
+
+    factor: float | None
+    bracket: tuple
+    method: str
+    searched_to: float
+    samples: list = field(default_factory=list)
+
+
+def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOptions(), base_force=None,
+                         start: float = 1.0) -> CriticalFactor:
+    """Continuation in the load factor from the unloaded state (``linkage`` is left unchanged).
+
+    The smallest eigenvalue μ(λ) of the loaded Hessian is followed along the
+    loaded branch (Newton without saddle escapes, so a symmetric state that
+    passes its critical load stays on its branch, as a saddle); steps grow
+    from ``start`` by secant extrapolation of μ toward 0 (at most ×2), and the
+    first sign change (or the first load without an equilibrium: a limit
+    point) is bisected to ``factor_tolerance``.
+    """
+    import copy
+
+    from ..linkage.state import restore, snapshot
+
+    work = copy.deepcopy(linkage)
+    base_state = snapshot(work)
+    samples = []
+
+    def mu_at(lam, from_state):
+        restore(work, from_state)
+        st = solve_loaded(work, f, held, lam, StaticOptions(joints=options.joints, load_steps=max(1, options.load_steps // 2),
+                                                            gravity=options.gravity), base_force=base_force, escape=False)
+        if not st.converged:
+            samples.append((lam, float("nan")))
+            return None, None
+        mu = smallest_eigenvalue(work, held)
+        samples.append((lam, mu))
+        return mu, snapshot(work)
+
+    mu0 = smallest_eigenvalue(work, held)
+    samples.append((0.0, mu0))
+    lo, mu_lo, state_lo = 0.0, mu0, base_state
+    lam = start
+    hi = None
+    limit = options.max_factor * max(start, 1e-300)
+    while lam <= limit:
+        mu, st = mu_at(lam, state_lo)
+        if mu is None or mu < 0:
+            hi = lam
+            break
+        # secant toward μ = 0, at most doubling, at least 10 % further
+        slope = (mu - mu_lo) / (lam - lo) if lam > lo else 0.0
+        nxt = lam - mu / slope if slope < 0 else 2.0 * lam
+        lo, mu_lo, state_lo = lam, mu, st
+        lam = float(np.clip(nxt * 1.02, 1.1 * lam, 2.0 * lam))
+    if hi is None:
+        return CriticalFactor(None, (lo, float("inf")), "continuation in the load factor", limit, samples)
+    while hi - lo > options.factor_tolerance * hi:
+        mid = 0.5 * (lo + hi)
+        mu, st = mu_at(mid, state_lo)
+        if mu is None or mu < 0:
+            hi = mid
+        else:
+            lo, state_lo = mid, st
+    return CriticalFactor(0.5 * (lo + hi), (lo, hi), "continuation in the load factor, bisected", limit, samples)
+
+
+def translate(linkage, shift) -> None:
+    """Move ``linkage`` (in place) rigidly by ``shift`` (3,): joint positions and the free rod vertices.
+
+    The analysis works about the origin: designs drawn far from it (the
+    paper's sit 10⁴ mm away) carry round-off in the gradient proportional to
+    their coordinates, which the reactions' balance would show.
+    """
+    x = np.array(linkage.get_vars(), float)
+    shift = np.asarray(shift, float)
+    nj = linkage.num_joints
+    x[: 9 * nj].reshape(-1, 9)[:, 0:3] += shift
+    rod_vars = np.asarray(linkage._free_rod)
+    points = rod_vars < 3 * linkage.rods.num_vertices
+    x[np.asarray(linkage._free_reduced)[points]] += shift[rod_vars[points] % 3]
+    linkage.set_vars(x)
+    linkage.update_source_frame()
