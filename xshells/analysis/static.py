@@ -294,6 +294,23 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
         if callback is not None and callback(k, lam):
             ok, message = False, "stopped by request"
             break
+    if ok:  # polish the last equilibrium below the round-off estimate: the reactions' balance is what it leaves
+        from dataclasses import replace
+
+        from ..linkage.state import restore, snapshot
+
+        before = snapshot(linkage)
+        free = np.setdiff1d(np.arange(linkage.num_vars), held)
+        force = base + reached * f
+        g0 = float(np.linalg.norm((linkage.gradient() - force)[free]))
+        rep = minimize(linkage, fixed=held, force=force, options=replace(opts, gradient_tolerance=1e-3 * opts.gradient_tolerance,
+                                                                       max_iterations=4))
+        g1 = float(np.linalg.norm((linkage.gradient() - force)[free]))
+        if not g1 < g0:
+            restore(linkage, before)
+        else:
+            linkage.update_source_frame()
+            its += rep.iterations
     state = LoadedState(reached, ok, message or "converged", vertex_positions(linkage) - P0, iterations=its)
     return state
 
