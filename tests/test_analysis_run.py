@@ -47,3 +47,12 @@ def test_bad_inputs_get_one_line(tmp_path, capsys, args, words):
     assert main(["analyze", *BASE, "--out", str(tmp_path / "o"), *args]) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and "\n" not in err and "Traceback" not in err
+
+
+def test_free_joints_keep_the_deployed_state_with_its_actuation_torque(tmp_path):
+    # with the joints free, the actuation torque stays: a vanishing load leaves the deployed state where it is
+    code = main(["analyze", *BASE, "--supports", "lowest:4", "--joints", "free", "--load", "point:3:0,0,-1e-12",
+                 "--no-critical", "--out", str(tmp_path)])
+    assert code == 0
+    r = json.loads((tmp_path / "result.json").read_text())
+    assert r["joints"] == "free" and r["max_displacement"] < 1e-6

@@ -188,17 +188,22 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, bas
     dmax = float(np.linalg.norm(d, axis=1).max())
     scale = 0.1 * span / dmax if dmax > 0 else 1.0
     value = stresses.utilization if stresses.utilization is not None else stresses.von_mises
-    render_analysis(os.path.join(out_dir, "analysis.png"), unloaded.rods.points, L.rods.points, L.rods.edges, value,
+    render_analysis(os.path.join(out_dir, "analysis.png"), unloaded.rods.points + origin, L.rods.points + origin, L.rods.edges, value,
                     scale, label="utilization" if stresses.utilization is not None else "von Mises stress",
                     title=f"max displacement {result['max_displacement']:.3g}, shown ×{scale:.3g}")
-    if crit is not None and crit.factor is not None:
-        mode = _buckling_mode(unloaded, f, held, base, opts, crit.bracket[0])
-        if mode is not None:
-            md = mode.reshape(-1, 3)
-            s2 = 0.1 * span / max(float(np.linalg.norm(md, axis=1).max()), 1e-300)
-            render_analysis(os.path.join(out_dir, "buckling_mode.png"), unloaded.rods.points,
-                            unloaded.rods.points + s2 * md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
-                            label="mode amplitude", title=f"buckling mode at load factor {crit.factor:.4g}")
+    # the lowest mode at the critical factor where one was found, else at the load as analysed
+    found = crit is not None and crit.factor is not None
+    at = crit.bracket[0] if found else result["load_factor_reached"]
+    mode = _buckling_mode(unloaded, f, held, base, opts, at)
+    if mode is not None:
+        md = mode.reshape(-1, 3)
+        md = md / max(float(np.linalg.norm(md, axis=1).max()), 1e-300)  # largest amplitude 1
+        s2 = 0.1 * span
+        title = (f"buckling mode at load factor {crit.factor:.4g}" if found else
+                 f"lowest mode at load factor {at:.4g} (no instability up to {result['critical_searched_to'] or at:.3g}×)")
+        render_analysis(os.path.join(out_dir, "buckling_mode.png"), unloaded.rods.points + origin,
+                        unloaded.rods.points + origin + s2 * md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
+                        label="relative amplitude", title=title + f", shown at {s2:.3g}")
 
 
 def _buckling_mode(unloaded, f, held, base, opts, factor):
