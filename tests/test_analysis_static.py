@@ -170,3 +170,15 @@ def test_simply_supported_beams_under_a_midspan_load_against_M_c_over_I(section_
         peak = P / 4 * ARM * c / I
         assert np.abs(sigma[a:b][1:-1] - ref[1:-1]).max() <= 0.01 * peak
     assert sigma.max() == pytest.approx(P / 4 * ARM * c / I, rel=0.05)  # the peak, sampled half an edge off
+
+
+def test_a_clamped_joint_reports_the_cantilever_moment():
+    L, sup, held = plus(10)
+    P = 0.2
+    f, _ = load_vector(L, [Load("point", vertex=1, vector=(0, 0, -P))])
+    solve_loaded(L, f, held)
+    R, _ = reactions(L, sup, f, held)
+    M = np.array(R[0]["moment"])
+    # the arm along +x carries P at x = L: the clamp holds it with a moment of magnitude P·L about y
+    assert np.linalg.norm(M) == pytest.approx(P * ARM, rel=0.01)
+    assert abs(M[1]) == pytest.approx(P * ARM, rel=0.01)

@@ -321,8 +321,14 @@ def reactions(linkage, supports, f_total, held) -> tuple[list, np.ndarray]:
     out, total = [], np.zeros(3)
     for s in supports:
         pos, rows = support_rows(linkage, s)
-        force = g[pos]  # the support pushes with −(f − ∇E) = ∇E − f on the vertex... sign: reaction = ∇E − f
-        out.append({"vertex": int(s.vertex), "kind": s.kind, "force": force.tolist()})
+        force = g[pos]  # ∇E = f + R at a held variable: the support's reaction is R = ∇E − f
+        row = {"vertex": int(s.vertex), "kind": s.kind, "force": force.tolist(), "moment": None}
+        j = int(linkage.graph.vertex_joint[s.vertex])
+        if s.kind == "clamped" and j >= 0:
+            # ω is a rotation vector about the joint's current frame (reset to 0 after every solve), so its
+            # energy gradient is the moment the clamp applies
+            row["moment"] = g[9 * j + 3: 9 * j + 6].tolist()
+        out.append(row)
         total += force
     return out, total
 
