@@ -138,10 +138,19 @@ class ScissorMap:
 
 
 def _initial_director_uv(V, uv, orientation: float) -> np.ndarray:
-    """The direction in the LSCM plane of the surface's longest principal axis, turned by ``orientation``."""
+    """The direction in the LSCM plane of the surface's longest principal axis (the file's x axis where two
+    axes are within 5 %), turned by ``orientation``."""
     A = np.c_[uv - uv.mean(0), np.ones(len(uv))]
     coef, *_ = np.linalg.lstsq(A, V - V.mean(0), rcond=None)  # V ≈ uv @ coef[:2] + c
-    axis = np.linalg.svd(V - V.mean(0), full_matrices=False)[2][0]
+    _, sv, vt = np.linalg.svd(V - V.mean(0), full_matrices=False)
+    axis = vt[0]
+    if sv[1] > 0.95 * sv[0]:
+        # no clear longest axis (a square or round surface): the file's x axis in the mean plane, so that the
+        # choice does not hang on round-off
+        n = vt[2]
+        x = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        axis = x - (x @ n) * n
+        axis /= np.linalg.norm(axis)
     d = np.linalg.lstsq(coef[:2].T, axis, rcond=None)[0]
     d /= np.linalg.norm(d)
     c, s = np.cos(orientation), np.sin(orientation)
