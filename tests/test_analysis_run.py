@@ -55,4 +55,4 @@ def test_free_joints_keep_the_deployed_state_with_its_actuation_torque(tmp_path)
                  "--no-critical", "--out", str(tmp_path)])
     assert code == 0
     r = json.loads((tmp_path / "result.json").read_text())
-    assert r["joints"] == "free" and r["max_displacement"] < 1e-6
+    assert r["joint_mode"] == "free" and r["max_displacement"] < 1e-6

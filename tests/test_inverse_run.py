@@ -1,6 +1,5 @@
 """``xshells inverse`` end to end on the bundled spherical cap (coarse spacing, to stay quick)."""
 import json
-import os
 
 import numpy as np
 import pytest

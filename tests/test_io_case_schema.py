@@ -1,6 +1,5 @@
 """The case-file schema (xshells.io.case_schema), clean errors on every command, and nothing half-written."""
 import json
-import os
 import signal
 import subprocess
 import sys

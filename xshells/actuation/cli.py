@@ -64,7 +64,7 @@ def parse_fraction(text: str, what: str = "--max-fit") -> float:
 
 
 def _run(args, case_path) -> int:
-    from .run import DEFAULT_ETAS, DEFAULT_PS, run_selection, run_sparsify, run_sweep
+    from .run import DEFAULT_PS, run_selection, run_sparsify, run_sweep
     from .selection import SelectionOptions
     from .sparsify import SparsifyOptions
 

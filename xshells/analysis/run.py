@@ -88,9 +88,9 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     if not dep["reached"]:
         raise InputError(f"the deployment did not reach its angle ({dep['message']}): nothing to analyse")
     L = states["deployed"]
-    from .static import translate, vertex_positions
+    from .static import translate
 
-    origin = vertex_positions(L).mean(axis=0)
+    origin = L.vertex_positions().mean(axis=0)
     translate(L, -origin)  # about the origin: less round-off (results are shift-invariant; outputs are shifted back)
     t_dep = time.perf_counter() - t0
     mode, arg = supports_spec
@@ -141,7 +141,7 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
         "name": name, "status": "complete" if st.converged else "stopped", "message": st.message,
         "segments": int(L.num_segments), "joints": int(L.num_joints),
         "units": "those of the input: N, mm and MPa for the bundled data",
-        "supports": [{"vertex": s.vertex, "kind": s.kind} for s in supports], "joints": joints,
+        "supports": [{"vertex": s.vertex, "kind": s.kind} for s in supports], "joint_mode": joints,
         "loads": [l.__dict__ for l in loads], "load_factor": load_factor, "load_factor_reached": st.load_factor,
         "max_displacement": float(disp.max()), "max_displacement_vertex": int(np.argmax(disp)),
         "max_von_mises": stresses.max_von_mises, "max_utilization": stresses.max_utilization, "strength": strength,

@@ -82,17 +82,6 @@ class StaticOptions:
 
 
 # ------------------------------------------------------------------- supports
-def _free_end_rod_vertex(linkage, v: int) -> tuple[int, int, int]:
-    """(rod vertex at the free end, its neighbour, the end edge) of free-end vertex ``v``."""
-    E = linkage.graph.design.edges
-    s = int(np.flatnonzero((E == v).any(axis=1))[0])  # one rod per segment, from edges[s, 0] to edges[s, 1]
-    a, b = linkage.rods.vertex_offsets[s], linkage.rods.vertex_offsets[s + 1]
-    e0 = linkage.rods.edge_offsets[s]
-    if E[s, 0] == v:
-        return int(a), int(a + 1), int(e0)
-    return int(b - 1), int(b - 2), int(linkage.rods.edge_offsets[s + 1] - 1)
-
-
 def _reduced_of_rod_vars(linkage, rod_vars: np.ndarray) -> np.ndarray:
     lookup = dict(zip(linkage._free_rod.tolist(), linkage._free_reduced.tolist()))
     missing = [r for r in rod_vars.tolist() if r not in lookup]
@@ -115,7 +104,7 @@ def support_rows(linkage, support: Support) -> tuple[np.ndarray, np.ndarray]:
         return pos, held
     if v not in set(np.asarray(g.free_end_vertex).tolist()):
         raise InputError(f"support at vertex {v}: no segment uses that vertex")
-    rv, nb, edge = _free_end_rod_vertex(linkage, v)
+    rv, nb, edge = linkage.free_end_rod_vertex(v)
     V = linkage.rods.num_vertices
     pos = _reduced_of_rod_vars(linkage, 3 * rv + np.arange(3))
     if support.kind == "pinned":
@@ -134,7 +123,7 @@ def held_variables(linkage, supports, joints: str = "locked") -> np.ndarray:
 
 def free_rigid_modes(linkage, supports) -> int:
     """How many rigid motions (of 6) the supports leave free."""
-    P = vertex_positions(linkage)
+    P = linkage.vertex_positions()
     rows = []
     for s in supports:
         p = P[s.vertex]
@@ -151,19 +140,9 @@ def free_rigid_modes(linkage, supports) -> int:
     return int(6 - np.linalg.matrix_rank(A, tol=1e-9))
 
 
-def vertex_positions(linkage) -> np.ndarray:
-    """Current positions (n, 3) of every design vertex: joints, and free ends from their rods' end points."""
-    g = linkage.graph
-    V = np.array(g.design.vertices, float)
-    V[np.asarray(g.joint_vertex)] = linkage.joint_positions()
-    for v in np.asarray(g.free_end_vertex):
-        V[v] = linkage.rods.points[_free_end_rod_vertex(linkage, int(v))[0]]
-    return V
-
-
 def lowest_supports(linkage, count: int) -> list[int]:
     """The ``count`` design vertices lowest along z (joints and free ends), lowest first."""
-    P = vertex_positions(linkage)
+    P = linkage.vertex_positions()
     used = np.flatnonzero(np.asarray(linkage.graph.valence) > 0)
     if not (1 <= count <= len(used)):
         raise InputError(f"--supports lowest:{count}: choose between 1 and {len(used)} vertices")
@@ -275,7 +254,7 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
     from ..solve import minimize
 
     base = np.zeros(linkage.num_vars) if base_force is None else np.asarray(base_force, float)
-    P0 = vertex_positions(linkage)
+    P0 = linkage.vertex_positions()
     opts = _newton_options(linkage)
     if not escape:  # stay on the branch (a symmetric state past its critical load is kept, as a saddle)
         from dataclasses import replace
@@ -311,7 +290,7 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
         else:
             linkage.update_source_frame()
             its += rep.iterations
-    state = LoadedState(reached, ok, message or "converged", vertex_positions(linkage) - P0, iterations=its)
+    state = LoadedState(reached, ok, message or "converged", linkage.vertex_positions() - P0, iterations=its)
     return state
 
 

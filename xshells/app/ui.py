@@ -9,7 +9,6 @@ worker; callbacks here only forward actions, so the page never freezes.
 from __future__ import annotations
 
 import glob
-import io
 import os
 import threading
 import time

@@ -128,7 +128,7 @@ class DesignProblem:
     deployed_load : (n,) array, optional
         A dead load holding the deployed state (see :meth:`set_deployed_load`).
     deployed_tether : Tether, optional
-        Springs holding the deployed state (see :meth:`set_deployed_tether`).
+        Springs holding the deployed state (a :class:`~.equilibrium.Tether`; see ``deployed.tether``).
 
     Attributes ``flat_note`` (why ᾱ₀ differs from the drawn angle, or "") and
     ``input_warnings`` (:meth:`Linkage.input_warnings`) are set by whoever
@@ -235,16 +235,6 @@ class DesignProblem:
         derivatives are then those of the loaded equilibrium.
         """
         self.deployed.load = None if load is None else np.array(load, float)
-        self.deployed.solve()
-        self._cache = {}
-
-    def set_deployed_tether(self, tether) -> None:
-        """Hold the deployed state with springs (a :class:`~.equilibrium.Tether`, or None) and re-solve it.
-
-        The springs change the state, not the design or the energy that
-        ``J`` counts: their stiffness only enters the state's Hessian.
-        """
-        self.deployed.tether = tether
         self.deployed.solve()
         self._cache = {}
 

@@ -19,7 +19,7 @@ import copy
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -206,7 +206,7 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     # 4-5. hold on the target, then design optimization while the holding load is let go ---------------
     from ..design.fitting import FittingTerm
     from ..design.objective import DesignProblem, DesignWeights
-    from .guide import Hold, StageRecord, guided_optimization, hold_on_target, holding_load, segment_stiffness
+    from .guide import Hold, guided_optimization, hold_on_target, holding_load, segment_stiffness
 
     t = time.perf_counter()
     w, ws = _fitting_weights(D)
@@ -286,7 +286,7 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     from ..io.fabrication import write_drawings
 
     flat_L = best.get("flat", problem.flat.L)
-    Pf = vertex_positions(flat_L)
+    Pf = flat_L.vertex_positions()
     Pf = Pf - Pf.mean(axis=0)
     Pf[:, 2] = 0.0  # planar to round-off (checked below on the verification's flat state)
     final_design = design_from_arrays(Pf, design.edges)
@@ -325,19 +325,6 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     result["time_s"], result["stage_times_s"] = times["total_s"], times
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     return result
-
-
-def vertex_positions(linkage) -> np.ndarray:
-    """Current positions (n, 3) of every design vertex: joints, and free ends from their rods' end points."""
-    g = linkage.graph
-    V = np.array(g.design.vertices, float)
-    V[np.asarray(g.joint_vertex)] = linkage.joint_positions()
-    rods, E = linkage.rods, g.design.edges
-    for v in np.asarray(g.free_end_vertex):
-        s = int(np.flatnonzero((E == v).any(axis=1))[0])  # one rod per segment, from edges[s, 0] to edges[s, 1]
-        a, b = rods.vertex_offsets[s], rods.vertex_offsets[s + 1]
-        V[v] = rods.points[a] if E[s, 0] == v else rods.points[b - 1]
-    return V
 
 
 def _write_design(out_dir, design, p) -> None:

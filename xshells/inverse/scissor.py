@@ -50,6 +50,7 @@ class FaceFrames:
         Columns: the edges v₁−v₀ and v₂−v₀ in the frame.
     grad : (2m, n) sparse
         Rows 2f, 2f+1: the gradient of a P1 function in triangle f's frame.
+    faces : (m, 3) int
     """
 
     ex: np.ndarray = field(repr=False)
@@ -58,6 +59,7 @@ class FaceFrames:
     area: np.ndarray = field(repr=False)
     edges: np.ndarray = field(repr=False)
     grad: sp.csr_matrix = field(repr=False)
+    faces: np.ndarray = field(repr=False)
 
     def to_3d(self, d2: np.ndarray) -> np.ndarray:
         """Per-face 2D frame vectors (m, 2) as 3D vectors (m, 3)."""
@@ -65,7 +67,7 @@ class FaceFrames:
 
     def jacobians(self, values: np.ndarray) -> np.ndarray:
         """Per-face Jacobians (m, k, 2) of a P1 map with vertex values (n, k)."""
-        F = self._F
+        F = self.faces
         d = np.stack([values[F[:, 1]] - values[F[:, 0]], values[F[:, 2]] - values[F[:, 0]]], axis=2)
         return d @ np.linalg.inv(self.edges)
 
@@ -88,9 +90,7 @@ def face_frames(V: np.ndarray, F: np.ndarray) -> FaceFrames:
         cols += [F[:, 0], F[:, 1], F[:, 2]]
         vals += [-(C[:, 0, k] + C[:, 1, k]), C[:, 0, k], C[:, 1, k]]
     G = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(2 * m, len(V)))
-    frames = FaceFrames(ex, ey, n, 0.5 * twice, M, G)
-    object.__setattr__(frames, "_F", F)
-    return frames
+    return FaceFrames(ex, ey, n, 0.5 * twice, M, G, F)
 
 
 class PoissonSolver:

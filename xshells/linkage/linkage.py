@@ -39,7 +39,7 @@ from ..io.design import Design
 from ..rod import ElasticRods
 from ..rod import frames
 from ..rod import rods as _rods_module
-from ..sparse import BlockAssembler, VectorAssembler
+from ..sparse import VectorAssembler
 from . import joint_kernels as jk
 from . import joints as jmap
 from .graph import BEAM_A, INCOMING, OUTGOING, LinkageGraph, analyze
@@ -557,6 +557,25 @@ class Linkage:
     def joint_positions(self) -> np.ndarray:
         """(nj, 3) joint positions, in the input file's vertex order."""
         return self._x[: self.num_joint_vars].reshape(-1, 9)[:, 0:3].copy()
+
+    def free_end_rod_vertex(self, v: int) -> tuple[int, int, int]:
+        """(rod vertex at free-end vertex ``v``, its neighbour on the rod, the end edge): one rod per segment,
+        running from ``edges[s, 0]`` to ``edges[s, 1]``."""
+        E = self.graph.design.edges
+        s = int(np.flatnonzero((E == v).any(axis=1))[0])
+        a, b = self.rods.vertex_offsets[s], self.rods.vertex_offsets[s + 1]
+        if E[s, 0] == v:
+            return int(a), int(a + 1), int(self.rods.edge_offsets[s])
+        return int(b - 1), int(b - 2), int(self.rods.edge_offsets[s + 1] - 1)
+
+    def vertex_positions(self) -> np.ndarray:
+        """Current positions (n, 3) of every design vertex: joints, and free ends at their rods' end points."""
+        g = self.graph
+        V = np.array(g.design.vertices, float)
+        V[np.asarray(g.joint_vertex)] = self.joint_positions()
+        for v in np.asarray(g.free_end_vertex):
+            V[v] = self.rods.points[self.free_end_rod_vertex(int(v))[0]]
+        return V
 
     def joint_angles(self) -> np.ndarray:
         """(nj,) opening angles α."""
