@@ -147,6 +147,15 @@ def test_app_in_chromium(tmp_path):
                 beams = [e for e in root.iter("{http://www.w3.org/2000/svg}line") if e.get("class") == "beam"]
                 assert len(beams) == app.session.layout.num_segments
                 assert os.path.exists(tmp_path / "out" / "nonuniform_linkage_flat.svg")
+                with page.expect_download(timeout=30000) as dl:
+                    page.get_by_role("button", name="cut list").click()
+                with open(dl.value.path()) as fh:
+                    header = fh.readline().strip()
+                assert header == "beam,family,length_mm,holes,hole_positions_mm,joints,section"
+                with page.expect_download(timeout=30000) as dl:
+                    page.get_by_role("button", name="strips").click()
+                strips = ET.parse(dl.value.path()).getroot()
+                assert any(e.get("class") == "strip" for e in strips.iter("{http://www.w3.org/2000/svg}rect"))
                 page.screenshot(path=os.path.join(ARTIFACTS, "04_export.png"))
                 print(f"export {time.perf_counter() - t0:.1f} s")
 

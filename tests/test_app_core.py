@@ -215,9 +215,14 @@ def test_session_solve_and_exports(tmp_path):
         s.set_field("bending stress")
         assert s.worker.wait_idle(30)
         assert [p for e, p in events if e == "deployed"][-1].field_name == "bending stress"
-        for kind in ("svg", "dxf", "case", "obj", "ply", "gltf", "png"):
+        for kind in ("svg", "dxf", "cutlist", "strips", "case", "obj", "ply", "gltf", "png"):
             for path in s.export(kind):
                 assert os.path.getsize(path) > 0
+        from fabrication_checks import check_cutlist
+
+        # the workshop files carry the rest lengths of the solved state
+        check_cutlist(tmp_path / "nonuniform_linkage_cutlist.csv", s.layout.edges, s.sim.linkage.rest_lengths, tol=1e-3)
+        assert (tmp_path / "nonuniform_linkage_assembly.svg").is_file()
         import trimesh
 
         mesh = trimesh.load(tmp_path / "nonuniform_linkage_deployed.gltf", force="mesh")

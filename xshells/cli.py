@@ -28,6 +28,7 @@ SUBCOMMANDS = [
     "xshells.design.cli",
     "xshells.inverse.cli",
     "xshells.analysis.cli",
+    "xshells.fabrication.cli",
 ]
 
 

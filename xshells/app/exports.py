@@ -39,6 +39,37 @@ def write_dxf(path, layout: Layout, rest_lengths=None, units_to_mm: float = 1.0)
     fabrication.write_dxf(path, layout.vertices, layout.edges, rest_lengths, units_to_mm)
 
 
+def write_fabrication_files(folder, stem: str, layout: Layout, material, rest_lengths, kind: str) -> list[str]:
+    """The workshop files of the layout (:mod:`xshells.fabrication`, default options), named ``stem_…``.
+
+    ``kind`` ``"cutlist"``: the cut list, the joint table and the bill of
+    materials; ``"strips"``: the strips (SVG, DXF) and the assembly drawing.
+    Returns the paths written, the main one first.
+    """
+    from ..fabrication.drawings import assembly_svg, beams_dxf, beams_svg
+    from ..fabrication.run import cutlist_csv, fabrication_plan, joints_csv
+    from ..linkage.graph import analyze
+    from .core import layout_to_design
+
+    if rest_lengths is None:
+        raise InputError("nothing solved yet: move the angle slider first (the cut list needs the rest lengths)")
+    plan = fabrication_plan(analyze(layout_to_design(layout)), rest_lengths, material)
+    path = lambda suffix: os.path.join(folder, f"{stem}_{suffix}")  # noqa: E731
+    if kind == "cutlist":
+        out = [path("cutlist.csv"), path("joints.csv"), path("bom.json")]
+        atomic_write_text(out[0], cutlist_csv(plan))
+        atomic_write_text(out[1], joints_csv(plan))
+        atomic_write_text(out[2], json.dumps(plan.bill_of_materials(), indent=1))
+    elif kind == "strips":
+        out = [path("beams.svg"), path("beams.dxf"), path("assembly.svg")]
+        atomic_write_text(out[0], beams_svg(plan.beams, plan.nesting, plan.hole_diameter))
+        atomic_write_bytes(out[1], beams_dxf(plan.beams, plan.nesting, plan.hole_diameter))
+        atomic_write_text(out[2], assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter))
+    else:
+        raise InputError(f"unknown fabrication export {kind!r}")
+    return out
+
+
 def field_colors(values: np.ndarray, cmap: str = "viridis") -> np.ndarray:
     """(N, 3) uint8 colours of a scalar field, scaled to its 1st–99th percentile range."""
     from matplotlib import colormaps

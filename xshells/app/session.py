@@ -440,7 +440,8 @@ class Session:
             return self.rest_lengths
 
     def export(self, kind: str) -> list[str]:
-        """Write one export into ``out_dir``: ``svg``, ``dxf``, ``obj``, ``ply``, ``gltf``, ``glb``, ``case`` or ``png``.
+        """Write one export into ``out_dir``: ``svg``, ``dxf``, ``cutlist``, ``strips``, ``obj``, ``ply``, ``gltf``, ``glb``,
+        ``case`` or ``png``.
 
         Mesh and PNG exports need a solved state (the last shown deployed
         state, else the flat assembly state). Returns the paths written.
@@ -450,6 +451,10 @@ class Session:
             path = self._path(f"_flat.{kind}")
             (exports.write_svg if kind == "svg" else exports.write_dxf)(path, layout, p)
             return [path]
+        if kind in ("cutlist", "strips"):
+            path = self._path("")
+            return exports.write_fabrication_files(os.path.dirname(path), os.path.basename(path), layout, self.material,
+                                                   p, kind)
         if kind == "case":
             return exports.write_case(self._path(".json"), self.name, layout, self.material_spec, self.subdivision,
                                       self.angle_deg if self.angle_deg is not None else self.target_angle_deg, p)

@@ -215,6 +215,8 @@ class App:
         with tabs.add_tab("Export"):
             row = gui.add_button_group("fabrication (flat, 1:1 mm)", ("SVG", "DXF"))
             row.on_click(lambda ev: self._export(ev.target.value.lower(), ev.client))
+            row = gui.add_button_group("workshop (1:1 mm)", ("cut list", "strips"))
+            row.on_click(lambda ev: self._export(ev.target.value.replace(" ", ""), ev.client))
             row = gui.add_button_group("deployed mesh", ("OBJ", "PLY", "glTF"))
             row.on_click(lambda ev: self._export(ev.target.value.lower(), ev.client))
             row = gui.add_button_group("other", ("case JSON", "PNG"))

@@ -113,6 +113,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         minimize(linkage, fixed=linkage.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
     t_rest = time.perf_counter() - t1
     flat = _state_summary(linkage)
+    flat_angles = linkage.joint_angles().copy()  # for the joint table of the fabrication files
     if states is not None:
         import copy
 
@@ -164,6 +165,9 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         deployed["stiffness_gap"] = res.stiffness_gap
         deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
     _write_outputs(out_dir, "deployed", linkage)
+    from ..fabrication.run import write_outputs_of
+
+    write_outputs_of(out_dir, linkage, flat_angles, linkage.joint_angles())  # cut list, strips, assembly (docs/fabrication.md)
     steps_out = [asdict(s) for s in (res.steps if res is not None else [])]
     for row, extra in zip(steps_out, stress_rows):
         row.update({k: v for k, v in extra.items() if k in ("max_von_mises", "utilization_max")})

@@ -190,6 +190,9 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     from ..io.fabrication import write_drawings
 
     write_drawings(out_dir, "flat_layout", problem.flat.L.graph.design, p)  # what to build: the optimized rest lengths
+    from ..fabrication.run import write_outputs_of
+
+    write_outputs_of(out_dir, problem.flat.L, problem.flat.L.joint_angles(), problem.deployed.L.joint_angles(), p)
     for state, L in (("flat", problem.flat.L), ("deployed", problem.deployed.L)):
         vmax = max(scale[state], float(bending_field(L).max()))
         _write_outputs(out_dir, f"{state}_before", before[state], vmax=vmax)

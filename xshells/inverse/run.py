@@ -347,6 +347,9 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
                          rest_lengths_path=os.path.join(out_dir, "design_parameters.txt"), direction=options.direction,
                          progress=progress, name="inverse design", states=states)
     flat, deployed = states["flat"], states["deployed"]
+    from ..fabrication.run import write_outputs_of
+
+    write_outputs_of(out_dir, flat, flat.joint_angles(), deployed.joint_angles())  # the cut list of the verified design
     Y = deployed.joint_positions()
     # ``guess``: where the optimizer's deployed joints lie in the surface's frame, for the placement to start from
     T = place(surface, Y, guess)

@@ -1,0 +1,102 @@
+"""The strips' SVG and DXF (1:1 mm, one circle per hole where the cut list says) and the assembly drawing."""
+import re
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from data_paths import EXAMPLES
+from xshells.fabrication import FabricationOptions, fabrication_plan
+from xshells.fabrication.drawings import assembly_svg, beams_dxf, beams_svg
+from xshells.io import read_design
+from xshells.linkage.graph import analyze
+from xshells.section import Material
+
+NS = "{http://www.w3.org/2000/svg}"
+
+
+@pytest.fixture(scope="module")
+def manta():
+    d = read_design(EXAMPLES / "manta_ray.obj")
+    g = analyze(d)
+    p = np.linalg.norm(d.vertices[d.edges[:, 1]] - d.vertices[d.edges[:, 0]], axis=1)
+    return g, p, Material.uniform("rectangle", [10, 7], E=20000, nu=0.3)
+
+
+@pytest.mark.parametrize("options", [FabricationOptions(), FabricationOptions(stock_length=2500, kerf=4),
+                                     FabricationOptions(sheet=(1250, 2500), kerf=1)])
+def test_dxf_has_one_circle_per_hole_inside_its_labelled_strip(manta, options, tmp_path):
+    import ezdxf
+
+    g, p, mat = manta
+    plan = fabrication_plan(g, p, mat, options)
+    path = tmp_path / "beams.dxf"
+    path.write_bytes(beams_dxf(plan.beams, plan.nesting, plan.hole_diameter))
+    doc = ezdxf.readfile(path)
+    msp = doc.modelspace()
+    assert {"CUT", "HOLES", "LABELS"} <= {layer.dxf.name for layer in doc.layers}
+    strips = []
+    for e in msp.query("LWPOLYLINE[layer=='CUT']"):
+        P = np.array([v[:2] for v in e.get_points()])
+        strips.append((P.min(axis=0), P.max(axis=0)))
+    circles = np.array([[c.dxf.center.x, c.dxf.center.y, c.dxf.radius] for c in msp.query("CIRCLE")])
+    assert all(c.dxf.layer == "HOLES" for c in msp.query("CIRCLE"))
+    texts = [(t.dxf.text, np.array(t.dxf.insert)[:2]) for t in msp.query("TEXT[layer=='LABELS']")]
+    by_label = {b.label: b for b in plan.beams}
+    assert len(strips) == len(plan.beams) and len(circles) == sum(len(b.hole_positions) for b in plan.beams)
+    np.testing.assert_allclose(circles[:, 2], plan.hole_diameter / 2)
+    seen = 0
+    for lo, hi in strips:
+        inside = lambda q: np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6)  # noqa: E731
+        label = [t for t, q in texts if t in by_label and inside(q)]
+        assert len(label) == 1
+        b = by_label[label[0]]
+        assert hi[0] - lo[0] == pytest.approx(b.length, abs=1e-6)
+        assert hi[1] - lo[1] == pytest.approx(b.section.width, abs=1e-6)
+        mine = circles[[inside(c[:2]) for c in circles]]
+        np.testing.assert_allclose(np.sort(mine[:, 0]) - lo[0], b.hole_positions, atol=1e-6)
+        np.testing.assert_allclose(mine[:, 1], 0.5 * (lo[1] + hi[1]), atol=1e-6)
+        seen += len(mine)
+    assert seen == len(circles)
+
+
+def test_svg_is_at_one_to_one_in_mm(manta):
+    g, p, mat = manta
+    plan = fabrication_plan(g, p, mat, FabricationOptions(stock_length=2500))
+    root = ET.fromstring(beams_svg(plan.beams, plan.nesting, plan.hole_diameter))
+    w, h = (float(root.get(k).removesuffix("mm")) for k in ("width", "height"))
+    vb = [float(v) for v in root.get("viewBox").split()]
+    assert vb[2:] == pytest.approx([w, h])  # one user unit is one millimetre
+    rects = root.findall(f".//{NS}rect[@class='strip']")
+    assert len(rects) == len(plan.beams)
+    lengths = {b.label: b.length for b in plan.beams}
+    for r in rects:
+        assert float(r.get("width")) == pytest.approx(lengths[r.get("data-beam")], abs=1e-3)
+        assert float(r.get("height")) == pytest.approx(10.0)
+    holes = root.findall(f".//{NS}circle[@class='hole']")
+    assert len(holes) == sum(len(b.hole_positions) for b in plan.beams)
+    stock = root.findall(f".//{NS}rect[@class='stock']")
+    assert len(stock) == plan.nesting.stock_count
+    assert all(float(s.get("width")) == pytest.approx(2500) for s in stock)
+
+
+def test_assembly_draws_the_top_family_over_the_other(manta):
+    g, p, mat = manta
+    plan = fabrication_plan(g, p, mat)
+    text = assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter)
+    root = ET.fromstring(text)
+    beams = root.findall(f".//{NS}polyline[@class='beam']")
+    assert len(beams) == len(plan.beams)
+    order = [b.get("data-family") for b in beams]
+    assert order == sorted(order, key=lambda f: f == "A")  # every B strip before (under) every A strip
+    assert len(root.findall(f".//{NS}circle[@class='rivet']")) == g.num_joints
+    labels = [t.get("data-beam") for t in root.findall(f".//{NS}text[@class='beam-label']")]
+    assert sorted(set(labels)) == sorted(b.label for b in plan.beams) and len(labels) == 2 * len(plan.beams)
+    w = float(root.get("width").removesuffix("mm"))
+    span = np.ptp(plan.xy[:, 0])
+    assert span < w < span + 400  # the layout at 1:1 plus margins for the labels
+    top = fabrication_plan(g, p, mat, FabricationOptions(top="B"))
+    text_b = assembly_svg(top.xy, top.beams, top.joints, top.hole_diameter, top="B")
+    fam = re.findall(r'class="beam" data-beam="[AB]\d+" data-family="([AB])"', text_b)
+    assert fam == sorted(fam, key=lambda f: f == "B")
+    assert all(r.on_top.startswith("B") for r in top.joints)

@@ -1,0 +1,124 @@
+"""``xshells fabricate`` end to end on bundled designs (OBJ with a rest-length solve, .msh with design_parameters.txt),
+checked against the design graph and the rest lengths; units; the files of ``deploy``; one-line errors."""
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from data_paths import EXAMPLES
+from fabrication_checks import check_cutlist, read_cutlist
+from xshells.cli import main
+from xshells.io import read_design, read_rest_lengths
+
+WINGS = EXAMPLES / "asymm_wings_pointy"
+FILES = ("cutlist.csv", "joints.csv", "beams.svg", "beams.dxf", "assembly.svg", "bom.json", "result.json")
+
+
+@pytest.fixture(scope="module")
+def manta(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fab_manta")
+    assert main(["fabricate", str(EXAMPLES / "manta_ray.obj"), "--stock-length", "2500", "--out", str(out),
+                 "--no-progress"]) == 0
+    return out
+
+
+def _independent_rest_lengths(design_path, width, height):
+    from xshells.deploy.simulate import rest_length_solve
+    from xshells.linkage.linkage import Linkage
+    from xshells.section import Material
+
+    L = Linkage(read_design(design_path), Material.uniform("rectangle", [width, height], E=20000, nu=0.3))
+    rest_length_solve(L)
+    return L.rest_lengths
+
+
+def test_manta_obj_cut_list_matches_the_rest_length_solve(manta):
+    for f in FILES:
+        assert (manta / f).is_file(), f
+    d = read_design(EXAMPLES / "manta_ray.obj")
+    p = _independent_rest_lengths(EXAMPLES / "manta_ray.obj", 10, 7)
+    rows = check_cutlist(manta / "cutlist.csv", d.edges, p, margin=5.0)
+    bom = json.loads((manta / "bom.json").read_text())
+    assert bom["beams"] == len(rows) and bom["rivets"] == 169
+    assert bom["total_length_mm"] == pytest.approx(sum(r["length"] for r in rows), abs=0.01)
+    assert bom["sections"][0]["section"] == "rectangle 10x7"
+    stock = bom["stock"]
+    assert stock["kind"] == "bars" and stock["utilization"] == pytest.approx(
+        sum(r["length"] for r in rows) / (2500 * stock["stock_count"]), rel=1e-6)  # lengths to 0.001 mm in the file
+
+
+def test_joint_table_names_both_beams_and_the_one_on_top(manta):
+    with open(manta / "joints.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    beams = {r["beam"]: r for r in read_cutlist(manta / "cutlist.csv")}
+    assert list(rows[0]) == ["joint", "beam_a", "beam_b", "on_top", "flat_angle_deg"]
+    assert len(rows) == 169
+    for r in rows:
+        j = int(r["joint"])
+        assert r["beam_a"] != r["beam_b"] and r["on_top"] in (r["beam_a"], r["beam_b"]) and r["on_top"][0] == "A"
+        assert j in beams[r["beam_a"]]["joint_ids"] and j in beams[r["beam_b"]]["joint_ids"]
+        assert 0 < float(r["flat_angle_deg"]) < 90
+
+
+def test_msh_case_with_optimized_rest_lengths_uses_the_file(tmp_path):
+    out = tmp_path / "wings"
+    assert main(["fabricate", str(WINGS / "case.json"), "--sheet", "2500x1250", "--kerf", "2", "--out", str(out),
+                 "--no-progress"]) == 0
+    d = read_design(WINGS / "flat_opt.msh")
+    p = read_rest_lengths(WINGS / "design_parameters.txt", d.num_segments)
+    check_cutlist(out / "cutlist.csv", d.edges, p, margin=6.0)
+    r = json.loads((out / "result.json").read_text())
+    assert r["rest_lengths"].startswith("file:") and r["bom"]["stock"]["kind"] == "sheets"
+
+
+def test_a_design_in_metres_is_converted_and_says_so(tmp_path, capsys):
+    d = read_design(EXAMPLES / "manta_ray.obj")
+    m = tmp_path / "manta_m.obj"
+    m.write_text("".join(f"v {x / 1000:.17g} {y / 1000:.17g} {z / 1000:.17g}\n" for x, y, z in d.vertices)
+                 + "".join(f"l {a + 1} {b + 1}\n" for a, b in d.edges))
+    assert main(["fabricate", str(m), "--material", "rectangle:0.010,0.007", "--units", "m", "--out",
+                 str(tmp_path / "o"), "--no-progress"]) == 0
+    assert "converted to mm" in capsys.readouterr().out
+    p = _independent_rest_lengths(m, 0.010, 0.007)
+    check_cutlist(tmp_path / "o" / "cutlist.csv", d.edges, p, to_mm=1000.0, margin=5.0)
+    bom = json.loads((tmp_path / "o" / "bom.json").read_text())
+    assert bom["design_units"] == "m" and bom["sections"][0]["width_mm"] == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--hole-diameter", "10"], "not smaller than the section width 10 mm"),
+    (["--stock-length", "500"], "shorter than the longest beam"),
+    (["--units", "furlong"], "unknown unit"),
+    (["--sheet", "big"], "use WIDTHxHEIGHT"),
+    (["--sheet", "500x500"], "does not fit on a sheet"),
+    (["--end-margin", "0.5"], "at least the hole radius"),
+    (["--stock-length", "3000", "--sheet", "3000x1000"], "not both"),
+    (["--kerf", "-1", "--stock-length", "3000"], "--kerf"),
+])
+def test_bad_inputs_get_one_line(tmp_path, capsys, args, words):
+    assert main(["fabricate", str(EXAMPLES / "manta_ray.obj"), "--out", str(tmp_path / "o"), "--no-progress", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err and "Traceback" not in err
+
+
+def test_a_deployed_layout_is_refused(tmp_path, capsys):
+    assert main(["fabricate", str(WINGS / "deployed_opt.msh"), "--material", "rectangle:12,8", "--out", str(tmp_path),
+                 "--no-progress"]) == 2
+    assert "not flat" in capsys.readouterr().err
+
+
+def test_deploy_writes_the_fabrication_files_with_deployed_angles(tmp_path):
+    design = EXAMPLES / "nonuniform_linkage.obj"
+    assert main(["deploy", str(design), "--material", "rectangle:0.05,0.035", "--angle", "60", "--steps", "4",
+                 "--subdivision", "5", "--out", str(tmp_path), "--no-progress"]) == 0
+    for f in FILES[:-1]:
+        assert (tmp_path / f).is_file(), f
+    result = json.loads((tmp_path / "result.json").read_text())
+    d = read_design(design)
+    check_cutlist(tmp_path / "cutlist.csv", d.edges, result["rest_lengths"], margin=0.025, tol=1e-3)
+    with open(tmp_path / "joints.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert "deployed_angle_deg" in rows[0]
+    deployed = np.array([float(r["deployed_angle_deg"]) for r in rows])
+    assert deployed.mean() == pytest.approx(result["deployed"]["average_angle_deg"], abs=1e-4)  # 4 decimals in the file

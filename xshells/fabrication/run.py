@@ -1,0 +1,281 @@
+"""The fabrication plan of a design and its files: cut list, joint table, strips, assembly, bill of materials.
+
+:func:`fabrication_plan` computes everything from the design, its rest
+lengths and its material(s); :func:`write_fabrication` writes the files.
+``xshells fabricate`` runs them after a rest-length solve; ``deploy``,
+``optimize`` and ``inverse`` call them with their own rest lengths.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.export import atomic_write_bytes, atomic_write_text
+from .beams import beam_sections, joint_table, trace_beams, units_to_mm
+from .nesting import Nesting, nest_bars, nest_sheets, no_nesting
+
+CUTLIST_COLUMNS = ("beam", "family", "length_mm", "holes", "hole_positions_mm", "joints", "section")
+FABRICATION_FILES = ("cutlist.csv", "joints.csv", "beams.svg", "beams.dxf", "assembly.svg", "bom.json")
+
+
+@dataclass(frozen=True)
+class FabricationOptions:
+    """Settings of the fabrication outputs; lengths in mm.
+
+    Attributes
+    ----------
+    end_margin : float or None
+        Material beyond the outermost hole or free end (default: half the section width).
+    hole_diameter : float or None
+        Rivet holes (default: a third of the section width); must be smaller than the width.
+    stock_length : float or None
+        Nest the strips onto bars of this length.
+    sheet : (float, float) or None
+        Nest the strips onto sheets W × H instead (laser cutting).
+    kerf : float
+        Material lost to a cut: between pieces on a bar, between strips on a sheet.
+    units : str
+        The design's length unit (mm, cm, m, in, ft); outputs are converted to mm.
+    top : str
+        The family whose strips form the upper layer ("A" or "B").
+    """
+
+    end_margin: float | None = None
+    hole_diameter: float | None = None
+    stock_length: float | None = None
+    sheet: tuple | None = None
+    kerf: float = 3.0
+    units: str = "mm"
+    top: str = "A"
+
+
+@dataclass(frozen=True)
+class FabricationPlan:
+    """Everything the workshop files hold (mm)."""
+
+    beams: list
+    joints: list
+    nesting: Nesting
+    hole_diameter: float
+    to_mm: float
+    units: str
+    xy: np.ndarray = field(repr=False)
+    top: str = "A"
+
+    def bill_of_materials(self) -> dict:
+        """Totals per section, counts, stock used and how well it is used."""
+        per = {}
+        for b in self.beams:
+            e = per.setdefault(b.section.label, {"section": b.section.label, "width_mm": b.section.width,
+                                                 "depth_mm": b.section.depth, "beams": 0, "total_length_mm": 0.0})
+            e["beams"] += 1
+            e["total_length_mm"] += b.length
+        holes = int(sum(len(b.hole_positions) for b in self.beams))
+        return {
+            "units": "mm",
+            "design_units": self.units,
+            "units_note": ("lengths are the design's, in mm" if self.units == "mm" else
+                           f"the design is in {self.units}; every length here is converted to mm (x{self.to_mm:g})"),
+            "sections": list(per.values()),
+            "orientation": "each strip lies flat: its section width in the layout plane, its depth along the layout's "
+                           "normal; beams run from their cut start (hole positions are measured from it)",
+            "beams": len(self.beams),
+            "beams_per_family": {f: sum(b.family == f for b in self.beams) for f in "AB"},
+            "closed_beams": [b.label for b in self.beams if b.closed],
+            "joints": len(self.joints),
+            "rivets": len(self.joints),
+            "holes": holes,
+            "hole_diameter_mm": self.hole_diameter,
+            "total_length_mm": float(sum(b.length for b in self.beams)),
+            "longest_beam": max(self.beams, key=lambda b: b.length).label if self.beams else None,
+            "longest_beam_mm": max((b.length for b in self.beams), default=0.0),
+            "top_family": self.top,
+            "stock": self.nesting.summary(),
+            "placements": [{"beam": self.beams[q.item].label, "stock": q.stock + 1, "x_mm": q.x, "y_mm": q.y}
+                           for q in self.nesting.placements] if self.nesting.kind != "none" else [],
+            "beam_details": [{"beam": b.label, "family": b.family, "length_mm": b.length,
+                              "start_vertex": int(b.vertices[0]), "end_vertex": int(b.vertices[-1]),
+                              "direction_deg": b.direction_deg, "starts_free": b.starts_free, "ends_free": b.ends_free,
+                              "closed": b.closed, "margin_mm": b.margin} for b in self.beams],
+        }
+
+
+def _format(x: float) -> str:
+    return f"{x:.3f}"
+
+
+def cutlist_csv(plan: FabricationPlan) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CUTLIST_COLUMNS)
+    for b in plan.beams:
+        w.writerow([b.label, b.family, _format(b.length), len(b.hole_positions),
+                    " ".join(_format(x) for x in b.hole_positions), " ".join(str(v) for v in b.hole_vertices),
+                    b.section.label])
+    return buf.getvalue()
+
+
+def joints_csv(plan: FabricationPlan) -> str:
+    deployed = any(r.deployed_angle_deg is not None for r in plan.joints)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["joint", "beam_a", "beam_b", "on_top", "flat_angle_deg"] + (["deployed_angle_deg"] if deployed else []))
+    for r in plan.joints:
+        w.writerow([r.joint, r.beam_a, r.beam_b, r.on_top, f"{r.flat_angle_deg:.4f}"]
+                   + ([f"{r.deployed_angle_deg:.4f}"] if deployed else []))
+    return buf.getvalue()
+
+
+def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions = FabricationOptions(), *,
+                     flat_angles=None, deployed_angles=None, xy=None) -> FabricationPlan:
+    """The strips, their holes, the joint table and the nesting of a design.
+
+    Parameters
+    ----------
+    graph : LinkageGraph
+    rest_lengths : (m,) array
+        Per-segment rest lengths, design units.
+    materials : Material or list of Material (one per segment)
+    options : FabricationOptions
+    flat_angles, deployed_angles : (nj,) arrays, optional
+        Joint opening angles (radians) of the flat assembly state and of the
+        deployed state (default flat: the design's own angles).
+    xy : (n, 2) array, optional
+        The flat layout's in-plane coordinates (default: the design's).
+    """
+    from ..io.fabrication import flat_coordinates
+
+    to_mm = units_to_mm(options.units)
+    top = str(options.top).upper()
+    if top not in ("A", "B"):
+        raise InputError(f"top family must be A or B, got {options.top!r}")
+    sections = beam_sections(materials, graph.num_segments, to_mm)
+    width = min(s.width for s in sections)
+    hole = width / 3 if options.hole_diameter is None else float(options.hole_diameter)
+    if not (np.isfinite(hole) and hole > 0):
+        raise InputError(f"--hole-diameter must be a positive length in mm, got {options.hole_diameter!r}")
+    if hole >= width:
+        raise InputError(f"--hole-diameter {hole:g} mm is not smaller than the section width {width:g} mm")
+    if options.end_margin is not None:
+        m = float(options.end_margin)
+        if not np.isfinite(m) or m < 0.5 * hole:
+            raise InputError(f"--end-margin {options.end_margin!r} mm must be at least the hole radius ({0.5 * hole:g} mm): "
+                             "the outermost holes would break out of the strip ends")
+    XY = flat_coordinates(graph.design.vertices) if xy is None else np.asarray(xy, float)
+    beams = trace_beams(graph, rest_lengths, sections, xy=XY, end_margin=options.end_margin, to_mm=to_mm)
+    flat = graph.joint_opening_angles if flat_angles is None else flat_angles
+    joints = joint_table(graph, beams, flat, deployed_angles, top=top)
+    lengths = [b.length for b in beams]
+    widths = [b.section.width for b in beams]
+    labels = [b.label for b in beams]
+    if options.stock_length is not None and options.sheet is not None:
+        raise InputError("give --stock-length (bars) or --sheet (sheets), not both")
+    if options.stock_length is not None:
+        nesting = nest_bars(lengths, options.stock_length, options.kerf, labels)
+    elif options.sheet is not None:
+        nesting = nest_sheets(lengths, widths, options.sheet, options.kerf, labels)
+    else:
+        nesting = no_nesting(lengths, widths, options.kerf)
+    return FabricationPlan(beams, joints, nesting, float(hole), to_mm, str(options.units).strip().lower(), XY, top)
+
+
+def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
+    """Write the files of :data:`FABRICATION_FILES` into ``out_dir`` (each atomically); the paths written."""
+    from .drawings import assembly_svg, beams_dxf, beams_svg
+
+    paths = [os.path.join(out_dir, f) for f in FABRICATION_FILES]
+    atomic_write_text(paths[0], cutlist_csv(plan))
+    atomic_write_text(paths[1], joints_csv(plan))
+    atomic_write_text(paths[2], beams_svg(plan.beams, plan.nesting, plan.hole_diameter))
+    atomic_write_bytes(paths[3], beams_dxf(plan.beams, plan.nesting, plan.hole_diameter))
+    atomic_write_text(paths[4], assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter, plan.to_mm, plan.top))
+    atomic_write_text(paths[5], json.dumps(plan.bill_of_materials(), indent=1))
+    return paths
+
+
+def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> list[str]:
+    """The fabrication files of a command that solved ``linkage`` (``deploy``, ``optimize``, ``inverse``), default options.
+
+    ``flat_angles``: the joint angles of its flat assembly state; ``rest_lengths``
+    default to the linkage's own. A layout that is not flat gets none ([]).
+    """
+    if not linkage.graph.is_planar:
+        return []
+    p = linkage.rest_lengths if rest_lengths is None else rest_lengths
+    mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
+    plan = fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles)
+    return write_fabrication(out_dir, plan)
+
+
+def run_fabrication(design_path, material, *, out_dir, options: FabricationOptions = FabricationOptions(), subdivision=10,
+                    rest_lengths_path=None, name=None, progress=True) -> dict:
+    """The job behind ``xshells fabricate``: rest lengths (solved, or read), then every fabrication file.
+
+    Returns the ``result.json`` content (the bill of materials under ``bom``).
+    """
+    import sys
+    import time
+
+    from ..io import read_design, read_rest_lengths
+    from ..linkage.linkage import Linkage
+
+    t0 = time.perf_counter()
+    os.makedirs(out_dir, exist_ok=True)
+    design = read_design(design_path)
+    units_to_mm(options.units)  # refused before any work
+    linkage = Linkage(design, material, subdivision=subdivision,
+                      rest_lengths=read_rest_lengths(rest_lengths_path, design.num_segments) if rest_lengths_path else None)
+    if not linkage.graph.is_planar:
+        raise InputError(f"{design_path}: the layout is not flat; fabricate needs the flat design "
+                         "(a case's flat_file, or the flat .obj/.msh)")
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=3, desc=f"fabricating {name or os.path.basename(str(design_path))}", unit="stage")
+    try:
+        if bar is not None:
+            bar.set_postfix(stage="rest lengths" if rest_lengths_path is None else "rest lengths (file)")
+        if rest_lengths_path is None:
+            from ..deploy.simulate import rest_length_solve
+
+            rest_length_solve(linkage)
+        t_rest = time.perf_counter() - t0
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(stage="beams and nesting")
+        t1 = time.perf_counter()
+        mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
+        angles = linkage.joint_angles() if rest_lengths_path is None else linkage.graph.joint_opening_angles
+        plan = fabrication_plan(linkage.graph, linkage.rest_lengths, mats, options, flat_angles=angles)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(stage="files")
+        paths = write_fabrication(out_dir, plan)
+        t_fab = time.perf_counter() - t1
+        if bar is not None:
+            bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    bom = plan.bill_of_materials()
+    result = {
+        "name": name or os.path.splitext(os.path.basename(str(design_path)))[0],
+        "design": os.path.abspath(str(design_path)),
+        "segments": linkage.num_segments,
+        "joints": linkage.num_joints,
+        "rest_lengths": "file: " + os.path.abspath(rest_lengths_path) if rest_lengths_path else "rest-length solve",
+        "bom": bom,
+        "files": [os.path.basename(p) for p in paths],
+        "timings_s": {"rest_lengths": t_rest, "fabrication": t_fab, "total": time.perf_counter() - t0},
+    }
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    if progress and plan.units != "mm":
+        print(f"note: {bom['units_note']}", file=sys.stderr)
+    return result
