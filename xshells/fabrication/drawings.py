@@ -211,7 +211,7 @@ def assembly_svg(xy, beams, joints, hole_diameter: float, to_mm: float = 1.0, to
             if ang > 90 or ang < -90:  # keep the text upright: it runs back towards the vertex's outside
                 ang -= 180 * np.sign(ang)
                 off, anchor = -off, "end"
-            tx, ty = a[0] + off, a[1] + 0.35 * fb
+            tx, ty = a[0] + off, a[1] + (-0.15 if b.family == top else 0.85) * fb  # the two families' labels apart
             out.append(f'<text class="beam-label" data-beam="{b.label}" x="{tx:.3f}" y="{ty:.3f}" text-anchor="{anchor}" '
                        f'fill="{FAMILY_COLOURS.get(b.family, "#000")}" transform="rotate({ang:.2f} {a[0]:.3f} {a[1]:.3f})">'
                        f'{b.label}</text>\n')
