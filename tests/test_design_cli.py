@@ -40,6 +40,12 @@ def test_optimize_writes_its_outputs_and_resumes(small_case, tmp_path):
     drawn = [float(v) for v in re.findall(r'data-rest-length="([0-9.eE+-]+)"', svg)]
     assert np.allclose(drawn, p, rtol=1e-4)
     assert (out / "flat_layout.dxf").read_text().count("REST_LENGTHS") > len(p)
+    from fabrication_checks import check_cutlist  # and so does the cut list
+
+    from xshells.io import read_design
+
+    check_cutlist(out / "cutlist.csv", read_design(small_case.parent / "grid.obj").edges, p, tol=1e-3)
+    assert "deployed_angle_deg" in (out / "joints.csv").read_text().splitlines()[0]
     # resume from the written rest lengths, at another angle
     assert main(args + ["--resume", "--angle", "55", "--no-baseline"]) == 0
     r2 = json.loads((out / "result.json").read_text())
