@@ -90,6 +90,9 @@ class Session:
         self._sim_key = None
         self.last_deployed: View | None = None
         self.angle_deg: float | None = None
+        self.live = True  # re-solve the deployed state after every edit (warm-started where the topology is kept)
+        self.last_warm = None  # the .sim.WarmReport of the last edit, or None after a cold deployment
+        self.alternative = None  # a cold deployment on another branch than the shown one (check_branch)
         self._opt_stop = threading.Event()
         self.load(project)
 
@@ -165,15 +168,42 @@ class Session:
             if new.num_segments != before.num_segments:
                 self.rest_lengths = None  # per-segment data no longer matches
         self._layout_changed()
+        self._follow_edit()
         return True
 
     def undo(self) -> None:
         self.history.undo()
         self._layout_changed()
+        self._follow_edit()
 
     def redo(self) -> None:
         self.history.redo()
         self._layout_changed()
+        self._follow_edit()
+
+    def _follow_edit(self) -> None:
+        """Live editing: bring the deployed view back for the edited layout (warm-started when it can be)."""
+        if self.live and self.angle_deg is not None and not self.problems():
+            self.request_angle(self.angle_deg)
+
+    def preview(self, layout: core.Layout) -> None:
+        """While a joint is dragged: the deployed view of ``layout`` (not recorded for undo), the latest call winning.
+
+        Solved warm from the last state with a looser tolerance; the edit on
+        release (:meth:`edit`) solves to full accuracy from it.
+        """
+        if self.angle_deg is None or core.topology_problems(layout):
+            return
+        angle = self.angle_deg
+
+        def job(cancel, progress):
+            t0 = time.perf_counter()
+            sim = self._sim_for(layout, ("preview", id(layout)), cancel, angle, preview=True)
+            info = sim.solve_to(angle, cancel=cancel)
+            return self._view(sim, t0, info)
+
+        self.worker.cancel("branch")  # a comparison of the state before is moot
+        self.worker.submit(job, key="solve", on_done=self._deployed, on_error=self._job_error)
 
     def problems(self) -> list[str]:
         return core.topology_problems(self.layout)
@@ -239,17 +269,28 @@ class Session:
         return (id(self.layout), id(self.material_spec), self.subdivision,
                 None if self.rest_lengths is None else id(self.rest_lengths))
 
-    def _ensure_sim(self, cancel):
-        """The simulation of the current layout and material, building it (assembly solve) if stale."""
+    def _ensure_sim(self, cancel, angle_deg: float | None = None):
+        """The simulation of the current layout and material, building it if stale (warm-started at ``angle_deg``)."""
         with self._lock:
-            key, layout, k, p = self._key(), self.layout, self.subdivision, self.rest_lengths
+            key, layout = self._key(), self.layout
             if self.sim is not None and self._sim_key == key:
                 return self.sim
+        return self._sim_for(layout, key, cancel, angle_deg)
+
+    def _sim_for(self, layout, key, cancel, angle_deg: float | None = None, preview: bool = False):
+        """Build the simulation of ``layout``: its assembly state, then, when the last simulation has the same
+        segments and material and a deployed state, that state continued to this layout at ``angle_deg``
+        (:meth:`.sim.Simulation.warm_start`). Otherwise, or if that fails, the deployment starts from the flat
+        state, and the status line says why."""
+        with self._lock:
+            k, p, previous = self.subdivision, self.rest_lengths, self.sim
+            if previous is not None and self._sim_key == key:
+                return previous
         problems = core.topology_problems(layout)
         if problems:
             raise InputError("cannot simulate: " + problems[0])
         self._emit("progress", (0.02, "loading the solver…"))
-        from .sim import Simulation  # the first time: JAX, SciPy (about a second)
+        from .sim import Simulation, WarmOptions  # the first time: JAX, SciPy (about a second)
 
         self._emit("progress", (0.05, "cross-section stiffnesses…"))
         material = self.material
@@ -261,9 +302,21 @@ class Session:
 
         direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
         sim = Simulation(layout, material, k, rest_lengths=p, settings=SimSettings(direction=direction), cancel=cancel)
+        warm = None
+        if angle_deg is not None and previous is not None and previous.states[1:]:
+            if sim.can_warm_start_from(previous):
+                self._emit("progress", (0.5, "continuing the deployed state to the edited layout…"))
+                warm = sim.warm_start(previous, angle_deg, cancel=cancel, options=WarmOptions(preview=preview))
+                if not warm.ok:
+                    self.status(f"{warm.message}: deploying from the flat state")
+            else:
+                self.status("topology or material changed: deploying from the flat state")
         with self._lock:
             self.sim, self._sim_key = sim, key
-        self._emit("flat", self._view(sim, time.perf_counter()))
+            self.last_warm = warm if warm is not None and warm.ok else None
+            self.alternative = None
+        if warm is None or not warm.ok:
+            self._emit("flat", self._view(sim, time.perf_counter()))
         return sim
 
     def _view(self, sim, t0: float, info=None) -> View:
@@ -285,22 +338,93 @@ class Session:
         self.angle_deg = float(angle_deg)
 
         def job(cancel, progress):
-            sim = self._ensure_sim(cancel)
             t0 = time.perf_counter()
+            sim = self._ensure_sim(cancel, angle_deg)
             info = sim.solve_to(angle_deg, cancel=cancel,
                                 progress=lambda f, text: progress(f, f"deploying to {angle_deg:.1f}°: at {text}"))
             view = self._view(sim, t0, info)
             return view
 
+        self.worker.cancel("branch")  # a comparison of the state before is moot
         self.worker.submit(job, key="solve", on_done=self._deployed, on_error=self._job_error)
 
     def _deployed(self, view: View) -> None:
         self.last_deployed = view
         self._emit("deployed", view)
         msg = view.info.message or f"deployed to {view.info.angle_deg:.1f}° in {view.solve_time_s:.2f} s"
+        warm = self.last_warm
+        if warm is not None and not view.info.message:
+            msg += f" (warm start from the last layout: {warm.steps} step{'s' * (warm.steps != 1)}, {warm.iterations} iterations)"
+            if warm.flipped or abs(warm.energy_change) > 0.5:
+                msg += ("; the shape flipped" if warm.flipped else f"; the energy changed by {100 * warm.energy_change:+.0f} %") \
+                    + ": another branch? Compare with a cold deployment"
         self._emit("progress", (1.0, "done"))
         self.status(msg)
         self.worker.submit(self._stability_job, key="stability", on_error=lambda e: None)
+
+    def check_branch(self) -> None:
+        """Deploy the current layout from its flat state (as a cold start would) and compare with the shown state.
+
+        Emits ``"branch"`` with ``{"same": bool, "difference": max joint distance / span, "energy_shown",
+        "energy_cold", "flipped"}``; when they differ, the cold state is kept as :attr:`alternative` and
+        :meth:`choose_branch` switches to it.
+        """
+        angle = self.angle_deg
+        if angle is None:
+            return
+
+        def job(cancel, progress):
+            from .sim import SimSettings, Simulation
+
+            with self._lock:
+                shown, key, layout, k, p = self.sim, self._sim_key, self.layout, self.subdivision, self.rest_lengths
+            if shown is None or key != self._key():
+                return None
+            direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
+            cold = Simulation(layout, self.material, k, rest_lengths=p, settings=SimSettings(direction=direction),
+                              cancel=cancel)
+            info = cold.solve_to(angle, cancel=cancel,
+                                 progress=lambda f, text: progress(f, f"cold deployment for comparison: at {text}"))
+            P, Q = shown.linkage.joint_positions(), cold.linkage.joint_positions()
+            span = float(np.ptp(layout.vertices, axis=0).max())
+            diff = float(np.abs(P - Q).max()) / span
+            zs, zc = (L.height_selector() @ L.get_vars() for L in (shown.linkage, cold.linkage))
+            result = {"same": diff <= 1e-6, "difference": diff, "energy_shown": shown.linkage.energy(),
+                      "energy_cold": info.energy, "flipped": bool((zs - np.median(zs)) @ (zc - np.median(zc)) < 0),
+                      "angle_deg": angle}
+            with self._lock:
+                if self.sim is not shown:
+                    return None  # edited meanwhile: the comparison is stale
+                self.alternative = None if result["same"] else (cold, key)
+            return result
+
+        def done(result):
+            if result is None:
+                return
+            self._emit("branch", result)
+            if result["same"]:
+                self.status(f"a cold deployment agrees (joints within {result['difference']:.1e} of the span)")
+            else:
+                self.status(f"two branches: shown energy {result['energy_shown']:.6g}, cold deployment "
+                            f"{result['energy_cold']:.6g} (joints up to {100 * result['difference']:.2g} % of the span apart)")
+
+        self.worker.submit(job, key="branch", on_done=done, on_error=self._job_error)
+
+    def choose_branch(self, which: str) -> None:
+        """``"cold"``: show the cold deployment found by :meth:`check_branch` instead; ``"shown"``: keep the current one."""
+        with self._lock:
+            alt = self.alternative
+            if which == "shown" or alt is None:
+                self.alternative = None
+                return
+            cold, key = alt
+            if key != self._key():
+                self.alternative = None
+                return
+            previous = self.sim
+            self.sim, self.alternative = cold, (previous, key)  # the other one stays available to switch back
+            self.last_warm = None
+        self.request_angle(self.angle_deg)
 
     def _stability_job(self, cancel, progress):
         sim = self.sim

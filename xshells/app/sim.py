@@ -22,7 +22,7 @@ from ..deploy.simulate import DeployOptions, _gradient_scale, _noise_floor, fold
 from ..errors import InputError
 from ..linkage.linkage import Linkage
 from ..linkage.state import restore, snapshot
-from ..solve import NewtonOptions, minimize, smallest_eigenvalues
+from ..solve import NewtonOptions, NewtonReport, minimize, smallest_eigenvalues
 from .core import Layout, layout_to_design
 
 
@@ -62,6 +62,43 @@ class StateInfo:
     converged: bool
     iterations: int
     message: str = ""
+
+
+@dataclass(frozen=True)
+class WarmOptions:
+    """Settings of :meth:`Simulation.warm_start`.
+
+    Attributes
+    ----------
+    max_relative_step : float
+        Largest relative change of any rest length in one continuation step.
+    min_step : float
+        Smallest fraction of the edit a failed step is halved down to before giving up.
+    max_iterations : int
+        Newton iterations a step may take (more means it left the branch's basin: halve).
+    preview : bool
+        A drag's preview: a looser tolerance (``preview_tolerance_factor`` times the deployment's).
+    """
+
+    max_relative_step: float = 0.3
+    min_step: float = 1.0 / 64
+    max_iterations: int = 25
+    preview: bool = False
+    preview_tolerance_factor: float = 100.0
+
+
+@dataclass(frozen=True)
+class WarmReport:
+    """How a warm start went: success, why not, continuation steps, Newton iterations, time,
+    and the branch test against the previous state (out-of-plane shape flipped, relative energy change)."""
+
+    ok: bool
+    message: str
+    steps: int = 0
+    iterations: int = 0
+    time_s: float = 0.0
+    flipped: bool = False
+    energy_change: float = 0.0
 
 
 class Simulation:
@@ -216,6 +253,110 @@ class Simulation:
             if progress is not None:
                 progress(i / n, f"{np.degrees(angle):.1f}°")
         return last
+
+    # ------------------------------------------------------------------ warm start after an edit
+    def can_warm_start_from(self, previous: "Simulation | None") -> bool:
+        """Whether ``previous`` has the same variables (same segments, subdivision and material) and a deployed state."""
+        return (previous is not None and previous is not self and previous.num_vars == self.num_vars
+                and previous.linkage.subdivision == self.linkage.subdivision and previous.material is self.material
+                and np.array_equal(previous.layout.edges, self.layout.edges) and len(previous.states) > 1
+                and previous.settings.direction == self.settings.direction)
+
+    def warm_start(self, previous: "Simulation", angle_deg: float, cancel: threading.Event | None = None,
+                   options: WarmOptions | None = None) -> WarmReport:
+        """Re-equilibrate ``previous``'s deployed state for this layout, without deploying again from the flat state.
+
+        The deployed equilibrium at a given angle depends on the layout only
+        through the rest lengths (the rods are straight at rest), so the state
+        of ``previous`` nearest ``angle_deg`` is continued from its rest
+        lengths to this layout's: steps along the straight path between them,
+        each a first-order predictor (:func:`xshells.solve.continuation.rest_length_predictor`)
+        and a Newton correction at that state's angle. A large edit takes
+        several steps (each changes no rest length by more than
+        ``options.max_relative_step``), and a step that fails is halved.
+        Then the state is carried to ``angle_deg`` as a slider move would be.
+
+        Returns a :class:`WarmReport`; when it did not succeed, the caller
+        deploys from the flat state.
+        """
+        from ..solve.continuation import rest_length_predictor
+
+        opts = options or WarmOptions()
+        t0 = time.perf_counter()
+        target = np.radians(float(angle_deg))
+        angle, snap, before = previous.nearest_state(target)
+        if abs(angle - previous.flat_angle) < 1e-12:
+            return WarmReport(False, "the previous layout had no deployed state", time_s=time.perf_counter() - t0)
+        L = self.linkage
+        p0, p1 = np.asarray(snap["rest_lengths"], float), np.asarray(self.flat["rest_lengths"], float)
+        change = float(np.max(np.abs(p1 / p0 - 1.0)))
+        step = 1.0 / max(1, int(np.ceil(change / opts.max_relative_step)))
+        newton = self._newton if not opts.preview else NewtonOptions(
+            **{**self._newton.__dict__, "gradient_tolerance": self._newton.gradient_tolerance * opts.preview_tolerance_factor,
+               "max_iterations": opts.max_iterations})
+        stop = self._stopper(cancel)
+        t, steps, iterations, good = 0.0, 0, 0, snap
+        while t < 1.0:
+            if cancel is not None and cancel.is_set():
+                raise Cancelled()
+            t_next = min(1.0, t + step)
+            restore(L, good)
+            try:
+                rest_length_predictor(L, p0 + t_next * (p1 - p0), fixed=self._pins, constraint_direction=self._a)
+                report = minimize(L, fixed=self._pins, constraint=(self._a, angle), options=newton, callback=stop,
+                                  saddle_hint=self._hint)
+            except Cancelled:
+                raise
+            except Exception as exc:  # noqa: BLE001  (a step too far: a degenerate state; halve it)
+                report = NewtonReport(message=f"{type(exc).__name__}: {exc}", iterations=0)
+            iterations += report.iterations
+            ok = (report.converged or (opts.preview and report.message.startswith("stopped after"))) \
+                and report.iterations <= opts.max_iterations and np.isfinite(L.energy()) and not folded_joint(L)
+            if ok:
+                good, t, steps = snapshot(L), t_next, steps + 1
+                continue
+            step /= 2
+            if step < opts.min_step:
+                restore(L, self.flat)
+                return WarmReport(False, f"the warm start did not converge ({report.message})", steps, iterations,
+                                  time.perf_counter() - t0)
+        self._match_pinned_joint()
+        info = self._info(not opts.preview, iterations, "preview" if opts.preview else "")
+        self._store(angle, info)
+        self.current_angle = angle
+        # the same branch? the out-of-plane shape keeps its direction and the energy changes smoothly
+        z_prev = previous.linkage.height_selector() @ snap["x"]
+        z_new = L.height_selector() @ L.get_vars()
+        z_prev, z_new = z_prev - np.median(z_prev), z_new - np.median(z_new)
+        flipped = bool(z_prev @ z_new < 0)
+        energy_change = (info.energy - before.energy) / max(abs(before.energy), 1e-300)
+        if abs(np.degrees(angle) - float(angle_deg)) > 1e-9:
+            self.solve_to(angle_deg, cancel=cancel)
+        return WarmReport(True, "warm start", steps, iterations, time.perf_counter() - t0, flipped, float(energy_change))
+
+    def _match_pinned_joint(self) -> None:
+        """Move the state rigidly so that the pinned joint sits where this layout's flat state holds it.
+
+        A deployment from the flat state pins the central joint's position and
+        frame at their flat values; a state continued from another layout has
+        them from that layout's flat state (they differ slightly: the flat
+        frames come out of the rest-length solve). The rigid motion puts it in
+        the same place as a cold deployment would.
+        """
+        from ..linkage.linkage import _rotate
+
+        L = self.linkage
+        j = int(self._pins[0]) // 9
+
+        def frame(x, b0, n0):
+            w = x[9 * j + 3: 9 * j + 6][None, :]
+            b, n = _rotate(w, b0[j][None, :])[0], _rotate(w, n0[j][None, :])[0]
+            return np.column_stack([b, n, np.cross(b, n)]), x[9 * j: 9 * j + 3]
+
+        F1, c1 = frame(self.flat["x"], self.flat["joint_b0"], self.flat["joint_n0"])
+        F0, c0 = frame(L.get_vars(), L.joint_b0, L.joint_n0)
+        R = F1 @ F0.T
+        L.apply_rigid_motion(R, c1 - R @ c0)
 
     def show_state(self, angle_rad: float) -> StateInfo:
         """Restore the stored state nearest ``angle_rad`` (for the animation) and return its info."""

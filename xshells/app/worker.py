@@ -54,6 +54,13 @@ class Worker:
             self._cv.notify_all()
         return job
 
+    def cancel(self, key: str) -> None:
+        """Drop queued jobs of ``key`` and ask a running one of ``key`` to stop."""
+        with self._cv:
+            self._queue = [j for j in self._queue if j.key != key]
+            if self._running is not None and self._running.key == key:
+                self._running.cancel.set()
+
     def cancel_all(self) -> None:
         """Drop queued jobs and ask the running one to stop."""
         with self._cv:

@@ -354,6 +354,28 @@ class Linkage:
         _update_rod_source_frame(self.rods)
         self._refresh_instance_sources(theta_prev=theta)
 
+    def apply_rigid_motion(self, R, t) -> None:
+        """Move the whole state rigidly, every point ``y ↦ R y + t`` (``R`` a proper rotation, (3, 3); ``t`` (3,)).
+
+        Positions move and every frame (joints' and rods' source frames)
+        turns with the body, so material angles, opening angles and edge
+        lengths stay: energy and stability are unchanged, the gradient turns
+        with ``R``.
+        """
+        R, t = np.asarray(R, float), np.asarray(t, float)
+        self.update_source_frame()  # ω = 0: each joint's frame is its source frame
+        x = self.get_vars()
+        xj = x[: self.num_joint_vars].reshape(-1, 9)
+        xj[:, 0:3] = xj[:, 0:3] @ R.T + t
+        moved = self.rods.points @ R.T + t
+        rod = self._free_rod
+        pos = rod < 3 * self.rods.num_vertices
+        x[self._free_reduced[pos]] = moved[rod[pos] // 3, rod[pos] % 3]
+        self.joint_b0, self.joint_n0 = self.joint_b0 @ R.T, self.joint_n0 @ R.T
+        self.rods.t_src, self.rods.d1_src = self.rods.t_src @ R.T, self.rods.d1_src @ R.T
+        self._refresh_instance_sources(theta_prev=self._inst_prm[14].copy())
+        self.set_vars(x)
+
     # ---------------------------------------------------------------- energy
     # Energy, gradient and Hessian share one evaluation of the rod stencils per
     # state: a Newton iteration asks for the energy (line search), then the
