@@ -348,3 +348,115 @@ def test_an_inverting_joint_stops_the_slider_at_the_last_good_state():
     alpha = sim.linkage.joint_angles()
     assert np.all((alpha > 0) & (alpha < np.pi))
     assert info.angle_deg == pytest.approx(np.degrees(sim.current_angle))
+
+
+# ----------------------------------------------------------------------------- direct manipulation
+def _symmetric_grid() -> core.Layout:
+    """A 5 × 4 lattice, mirror-symmetric about x = 2 and y = 1.5."""
+    xs, ys = np.meshgrid(np.arange(5.0), np.arange(4.0), indexing="ij")
+    V = np.c_[xs.ravel(), ys.ravel()]
+    idx = np.arange(20).reshape(5, 4)
+    E = [(idx[i, j], idx[i + 1, j]) for i in range(4) for j in range(4)] + \
+        [(idx[i, j], idx[i, j + 1]) for i in range(5) for j in range(3)]
+    return core.Layout(V, np.array(E))
+
+
+def test_brush_moves_the_centre_fully_and_nothing_beyond_its_radius():
+    lay = _symmetric_grid()
+    out = core.brush(lay, (1.0, 1.0), 1.5, (0.2, -0.1))
+    d = out.vertices - lay.vertices
+    r = np.linalg.norm(lay.vertices - [1.0, 1.0], axis=1)
+    np.testing.assert_allclose(d[r == 0], [[0.2, -0.1]])
+    assert np.all(d[r >= 1.5] == 0)
+    np.testing.assert_allclose(d[:, 0], 0.2 * np.where(r < 1.5, (1 - (r / 1.5) ** 2) ** 2, 0.0))  # the falloff
+    np.testing.assert_array_equal(out.edges, lay.edges)
+    with pytest.raises(InputError, match="radius must be positive"):
+        core.brush(lay, (0, 0), 0.0, (1, 0))
+
+
+def test_mirrored_edits_keep_a_symmetric_layout_symmetric():
+    lay = _symmetric_grid()
+    m = core.Mirror.through_centre(lay, "x")
+    assert m.c == pytest.approx(2.0)
+    mirrored = lambda L: np.sort(np.round(m.point(L.vertices), 12).view("f8,f8"), axis=0)  # noqa: E731
+    own = lambda L: np.sort(np.round(L.vertices, 12).view("f8,f8"), axis=0)  # noqa: E731
+    for out in (core.brush(lay, (0.6, 1.2), 1.3, (0.15, 0.05), mirror=m),
+                core.move_joint_mirrored(lay, 5, (1.2, 1.3), m)):
+        np.testing.assert_array_equal(own(out), mirrored(out))
+    assert core.mirror_partner(lay, 5, m) == 13  # (1, 1) ↔ (3, 1)
+    on_line = core.move_joint_mirrored(lay, 9, (2.3, 1.4), m)  # (2, 1) lies on x = 2: it slides along the line
+    np.testing.assert_allclose(on_line.vertices[9], [2.0, 1.4])
+    with pytest.raises(InputError, match="mirror axis"):
+        core.Mirror("z", 0.0)
+
+
+def test_cage_rest_is_identity_and_handles_deform_smoothly():
+    lay = _symmetric_grid()
+    cage = core.Cage.around(lay, (3, 3), margin=0.0)
+    W = cage.weights(lay.vertices)
+    np.testing.assert_allclose(W.sum(axis=(1, 2)), 1.0)  # partition of unity: all handles moved = a translation
+    np.testing.assert_allclose(np.einsum("mij,ijk->mk", W, cage.handles()), lay.vertices, atol=1e-12)  # linear precision
+    out = core.cage_move(lay, cage, 0, 0, (-0.5, 0.25))
+    np.testing.assert_allclose(out.vertices[0], lay.vertices[0] + [-0.5, 0.25])  # the corner joint follows its handle
+    np.testing.assert_allclose(out.vertices[19], lay.vertices[19])  # the opposite corner stays
+    d = np.linalg.norm(out.vertices - lay.vertices, axis=1)
+    assert np.all(np.diff(d.reshape(5, 4)[:, 0]) <= 1e-12)  # decays smoothly away from the handle
+    with pytest.raises(InputError, match="no cage handle"):
+        core.cage_move(lay, cage, 3, 0, (1, 0))
+    with pytest.raises(InputError, match="at least 2"):
+        core.Cage.around(lay, (1, 4))
+
+
+def test_tools_are_undone_exactly():
+    from xshells.app.session import Session
+    from xshells.app.loading import Project
+
+    lay = _symmetric_grid()
+    s = Session(Project(name="grid", layout=lay, material={"type": "rectangle", "params": [0.1, 0.05], "E": 2e4, "nu": 0.3}))
+    try:
+        m = core.Mirror.through_centre(lay, "y")
+        cage = core.Cage.around(lay)
+        for fn, args in ((core.brush, ((1, 1), 1.2, (0.1, 0.1), m)), (core.cage_move, (cage, 1, 2, (0.3, -0.2))),
+                         (core.move_joint_mirrored, (6, (1.1, 2.2), m))):
+            assert s.edit(fn, *args)
+            assert not np.array_equal(s.layout.vertices, lay.vertices)
+            s.undo()
+            np.testing.assert_array_equal(s.layout.vertices, lay.vertices)
+            s.redo()
+            s.undo()
+        assert core.snap((0.26, -0.74), 0.25).tolist() == [0.25, -0.75] and core.snap((0.26, 1.0), 0).tolist() == [0.26, 1.0]
+    finally:
+        s.close()
+
+
+def test_ten_small_moves_stay_converged_and_stable_and_match_a_cold_deployment(tmp_path):
+    """Live editing: each move continues the deployed state (warm start); the last equals a cold deployment."""
+    from xshells.app.session import Session
+
+    s = Session(open_path(os.path.join(EXAMPLES, "nonuniform_linkage.obj")), out_dir=str(tmp_path))
+    events = []
+    s.listeners.append(lambda e, p: events.append((e, p)))
+    try:
+        s.set_subdivision(4)
+        s.request_angle(40.0)
+        assert s.worker.wait_idle(120) and s.last_deployed.info.converged
+        span = s.layout.span()
+        rng = np.random.default_rng(3)
+        for _ in range(10):
+            v = int(rng.integers(s.layout.num_vertices))
+            xy = s.layout.vertices[v] + 0.002 * span * rng.normal(size=2) / np.sqrt(2)
+            before = len(events)
+            assert s.edit(core.move_joint, v, xy)  # follows the edit by itself (Session.live)
+            assert s.worker.wait_idle(60)
+            view = s.last_deployed
+            assert view.info.converged and view.info.angle_deg == pytest.approx(40.0, abs=1e-9)
+            assert s.last_warm is not None and s.last_warm.ok, [p for e, p in events[before:] if e == "status"]
+            lam = [p for e, p in events[before:] if e == "stability"]
+            assert lam and lam[-1][0] >= 0, lam  # a stable equilibrium (smallest generalized eigenvalue)
+        s.check_branch()
+        assert s.worker.wait_idle(120)
+        branch = [p for e, p in events if e == "branch"][-1]
+        assert branch["same"], branch  # on this design the warm state is the cold deployment's
+        assert branch["difference"] <= 1e-6
+    finally:
+        s.close()

@@ -169,6 +169,137 @@ def warp_pinch(layout: Layout, amount: float) -> Layout:
     return Layout(V, layout.edges)
 
 
+# ----------------------------------------------------------------------------- direct manipulation
+# The paper's tools (§7, Fig. 10): a brush, a cage, and symmetric editing. Each is a pure function of the
+# layout (the History keeps the layouts, so undo restores them exactly).
+
+@dataclass(frozen=True)
+class Mirror:
+    """A mirror line of the layout: ``axis`` "x" mirrors x about ``x = c`` (left–right), "y" mirrors y about ``y = c``."""
+
+    axis: str
+    c: float
+
+    def __post_init__(self):
+        if self.axis not in ("x", "y"):
+            raise InputError(f"mirror axis must be 'x' or 'y', got {self.axis!r}")
+
+    @classmethod
+    def through_centre(cls, layout: Layout, axis: str) -> "Mirror":
+        c, _ = _frame(layout)
+        return cls(axis, float(c[0] if axis == "x" else c[1]))
+
+    def point(self, xy) -> np.ndarray:
+        q = np.array(xy, float, copy=True)
+        k = 0 if self.axis == "x" else 1
+        q[..., k] = 2 * self.c - q[..., k]
+        return q
+
+    def vector(self, d) -> np.ndarray:
+        q = np.array(d, float, copy=True)
+        q[..., 0 if self.axis == "x" else 1] *= -1
+        return q
+
+
+def mirror_partner(layout: Layout, v: int, mirror: Mirror, tolerance: float | None = None) -> int | None:
+    """The joint at ``v``'s mirror image (within ``tolerance``, default 1 % of the span), or None."""
+    _check_vertex(layout, v)
+    tol = 0.01 * layout.span() if tolerance is None else float(tolerance)
+    return nearest_vertex(layout, mirror.point(layout.vertices[v]), tol)
+
+
+def move_joint_mirrored(layout: Layout, v: int, xy, mirror: Mirror) -> Layout:
+    """Move joint ``v`` to ``xy`` and its mirror partner to the mirror image (a joint on the line stays on it)."""
+    partner = mirror_partner(layout, v, mirror)
+    V = layout.vertices.copy()
+    xy = np.asarray(xy, float)[:2]
+    if partner is None or partner == v:
+        if partner == v:  # on the mirror line: it may slide along it only
+            xy = 0.5 * (xy + mirror.point(xy))
+        V[v] = xy
+    else:
+        V[v], V[partner] = xy, mirror.point(xy)
+    return Layout(V, layout.edges)
+
+
+def brush_weights(layout: Layout, centre, radius: float) -> np.ndarray:
+    """Smooth falloff ``(1 − (r/R)²)²`` of the joints within ``radius`` of ``centre`` (1 at the centre, C¹ to 0 at R), (n,)."""
+    if not (np.isfinite(radius) and radius > 0):
+        raise InputError(f"brush radius must be positive, got {radius}")
+    r2 = np.sum((layout.vertices - np.asarray(centre, float)[:2]) ** 2, axis=1) / float(radius) ** 2
+    return np.where(r2 < 1.0, (1.0 - r2) ** 2, 0.0)
+
+
+def brush(layout: Layout, centre, radius: float, displacement, mirror: Mirror | None = None) -> Layout:
+    """Move the joints within ``radius`` of ``centre`` by ``displacement`` times their falloff weight.
+
+    With ``mirror``, the mirrored stroke (centre and displacement mirrored)
+    is added, so a symmetric layout stays symmetric.
+    """
+    d = np.asarray(displacement, float)[:2]
+    V = layout.vertices + brush_weights(layout, centre, radius)[:, None] * d
+    if mirror is not None:
+        V = V + brush_weights(layout, mirror.point(np.asarray(centre, float)[:2]), radius)[:, None] * mirror.vector(d)
+    return Layout(V, layout.edges)
+
+
+@dataclass(frozen=True)
+class Cage:
+    """A coarse lattice of ``shape = (nx, ny)`` handles over the layout's bounding box (with a margin).
+
+    The deformation is a tensor-product Bézier map (free-form deformation):
+    moving handle (i, j) by ``d`` moves each joint by ``B_i(u) B_j(v) d``,
+    with ``(u, v)`` its place in the box and ``B`` the Bernstein
+    polynomials, so the layout deforms smoothly and the cage at rest maps
+    every joint to itself.
+    """
+
+    lo: tuple
+    hi: tuple
+    shape: tuple = (4, 4)
+
+    @classmethod
+    def around(cls, layout: Layout, shape=(4, 4), margin: float = 0.05) -> "Cage":
+        nx, ny = (int(v) for v in shape)
+        if nx < 2 or ny < 2:
+            raise InputError(f"a cage needs at least 2 × 2 handles, got {nx} × {ny}")
+        V = layout.vertices
+        pad = margin * layout.span()
+        return cls(tuple(V.min(axis=0) - pad), tuple(V.max(axis=0) + pad), (nx, ny))
+
+    def handles(self) -> np.ndarray:
+        """Rest positions of the handles, (nx, ny, 2)."""
+        nx, ny = self.shape
+        u, v = np.linspace(0, 1, nx), np.linspace(0, 1, ny)
+        lo, hi = np.asarray(self.lo), np.asarray(self.hi)
+        return lo + (hi - lo) * np.stack(np.meshgrid(u, v, indexing="ij"), axis=-1)
+
+    def weights(self, xy) -> np.ndarray:
+        """``B_i(u) B_j(v)`` of points (m, 2), shape (m, nx, ny)."""
+        from math import comb
+
+        lo, hi = np.asarray(self.lo), np.asarray(self.hi)
+        uv = np.clip((np.asarray(xy, float) - lo) / (hi - lo), 0.0, 1.0)
+        nx, ny = self.shape
+        bern = lambda n, t: np.stack([comb(n - 1, k) * t ** k * (1 - t) ** (n - 1 - k) for k in range(n)], axis=-1)  # noqa: E731
+        return bern(nx, uv[:, 0])[:, :, None] * bern(ny, uv[:, 1])[:, None, :]
+
+
+def cage_move(layout: Layout, cage: Cage, i: int, j: int, displacement) -> Layout:
+    """Move cage handle (i, j) by ``displacement``: every joint moves by its Bernstein weight of that handle."""
+    nx, ny = cage.shape
+    if not (0 <= i < nx and 0 <= j < ny):
+        raise InputError(f"no cage handle ({i}, {j}) in a {nx} × {ny} cage")
+    w = cage.weights(layout.vertices)[:, i, j]
+    return Layout(layout.vertices + w[:, None] * np.asarray(displacement, float)[:2], layout.edges)
+
+
+def snap(xy, step: float) -> np.ndarray:
+    """``xy`` rounded to a grid of ``step`` (no snapping for ``step`` ≤ 0)."""
+    xy = np.asarray(xy, float)
+    return xy if not step or step <= 0 else np.round(xy / step) * step
+
+
 # ----------------------------------------------------------------------------- validation
 def topology_problems(layout: Layout) -> list[str]:
     """Every defect that keeps the layout from being simulated, one line each (empty: fine).

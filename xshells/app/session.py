@@ -187,23 +187,47 @@ class Session:
             self.request_angle(self.angle_deg)
 
     def preview(self, layout: core.Layout) -> None:
-        """While a joint is dragged: the deployed view of ``layout`` (not recorded for undo), the latest call winning.
+        """While a joint is dragged: the deployed view of ``layout`` (not recorded for undo), the latest position winning.
 
-        Solved warm from the last state with a looser tolerance; the edit on
-        release (:meth:`edit`) solves to full accuracy from it.
+        Solved warm from the last state with a looser tolerance. A preview
+        is not interrupted by the next drag position (it would never finish
+        while the mouse moves): the latest position waits and is solved next.
+        The edit on release (:meth:`edit`) solves to full accuracy from it.
         """
         if self.angle_deg is None or core.topology_problems(layout):
             return
+        with self._lock:
+            self._preview_next = layout
+            if getattr(self, "_preview_busy", False):
+                return
+            self._preview_busy = True
         angle = self.angle_deg
 
         def job(cancel, progress):
+            with self._lock:
+                lay, self._preview_next = self._preview_next, None
+            if lay is None:
+                return None
             t0 = time.perf_counter()
-            sim = self._sim_for(layout, ("preview", id(layout)), cancel, angle, preview=True)
+            sim = self._sim_for(lay, ("preview", id(lay)), cancel, angle, preview=True)
             info = sim.solve_to(angle, cancel=cancel)
             return self._view(sim, t0, info)
 
-        self.worker.cancel("branch")  # a comparison of the state before is moot
-        self.worker.submit(job, key="solve", on_done=self._deployed, on_error=self._job_error)
+        def done(view):
+            with self._lock:
+                self._preview_busy = False
+                again = self._preview_next is not None
+            if view is not None:
+                self._deployed(view, stability=False)
+            if again:
+                self.preview(self._preview_next)
+
+        def failed(exc):
+            with self._lock:
+                self._preview_busy = False
+            self._job_error(exc)
+
+        self.worker.submit(job, key="preview", on_done=done, on_error=failed)
 
     def problems(self) -> list[str]:
         return core.topology_problems(self.layout)
@@ -346,9 +370,12 @@ class Session:
             return view
 
         self.worker.cancel("branch")  # a comparison of the state before is moot
+        with self._lock:  # and so is a drag's preview
+            self._preview_next, self._preview_busy = None, False
+        self.worker.cancel("preview")
         self.worker.submit(job, key="solve", on_done=self._deployed, on_error=self._job_error)
 
-    def _deployed(self, view: View) -> None:
+    def _deployed(self, view: View, stability: bool = True) -> None:
         self.last_deployed = view
         self._emit("deployed", view)
         msg = view.info.message or f"deployed to {view.info.angle_deg:.1f}° in {view.solve_time_s:.2f} s"
@@ -360,7 +387,8 @@ class Session:
                     + ": another branch? Compare with a cold deployment"
         self._emit("progress", (1.0, "done"))
         self.status(msg)
-        self.worker.submit(self._stability_job, key="stability", on_error=lambda e: None)
+        if stability:
+            self.worker.submit(self._stability_job, key="stability", on_error=lambda e: None)
 
     def check_branch(self) -> None:
         """Deploy the current layout from its flat state (as a cold start would) and compare with the shown state.

@@ -20,10 +20,13 @@ from . import adapters, core
 from .session import FIELDS, Session, View, material_summary, spec_summary
 
 EXAMPLES_DIR = os.path.join(os.path.dirname(__file__), "..", "data", "examples")
-MODES = ("view / orbit", "move joint", "add joint", "add segment", "delete joint", "delete segment")
+MODES = ("view / orbit", "move joint", "brush", "cage", "add joint", "add segment", "delete joint", "delete segment")
+SYMMETRY = {"off": None, "mirror left–right": "x", "mirror top–bottom": "y"}
 MODE_HINTS = {
     "view / orbit": "drag to orbit, scroll to zoom",
-    "move joint": "click a joint on the flat layout (left), then drag its handle",
+    "move joint": "click a joint on the flat layout (left), then drag its handle; the deployed view follows",
+    "brush": "click where to brush, then drag the handle: joints within the radius follow, with a smooth falloff",
+    "cage": "click a cage handle (grey), then drag it: the layout deforms smoothly",
     "add joint": "click on the flat layout to place a joint (joined to the last one added)",
     "add segment": "click the two joints to join",
     "delete joint": "click a joint to delete it and its segments",
@@ -170,6 +173,21 @@ class App:
                 self.mode_md = gui.add_markdown(f"*{MODE_HINTS[MODES[0]]}*")
                 row = gui.add_button_group("history", ("Undo", "Redo"))
                 row.on_click(lambda ev: (s.undo() if ev.target.value == "Undo" else s.redo()))
+                self.symmetry = gui.add_dropdown("symmetry", tuple(SYMMETRY), initial_value="off")
+                self.brush_radius = gui.add_slider("brush radius (% of span)", 2.0, 50.0, 1.0, 15.0)
+                self.cage_shape = gui.add_vector2("cage handles", (4, 4), step=1, min=(2, 2), max=(8, 8))
+                self.cage_shape.on_update(lambda _: self._set_mode())
+                self.snap_step = gui.add_number("snap to grid (design units, 0: off)", 0.0, min=0.0)
+                self.joint_labels = gui.add_checkbox("joint numbers", False)
+                self.joint_labels.on_update(lambda _: self._draw_layout(s.layout, keep_frame=True))
+                row = gui.add_button_group("view", ("Plan", "3D"))
+                row.on_click(lambda ev: self._set_camera(ev.target.value, ev.client))
+                self.live = gui.add_checkbox("follow edits live", True)
+                self.live.on_update(lambda _: setattr(s, "live", bool(self.live.value)))
+                self.check_cold = gui.add_checkbox("compare with a cold deployment after each edit", True)
+                self.branch_md = gui.add_markdown("")
+                self.branch_row = gui.add_button_group("branch", ("keep shown", "use cold"), visible=False)
+                self.branch_row.on_click(lambda ev: self._choose_branch(ev.target.value))
                 self.warp_amount = gui.add_slider("warp amount", -0.5, 0.5, 0.01, 0.1)
                 warps = gui.add_button_group("warp", ("Scale", "Bend", "Pinch"))
                 warps.on_click(lambda ev: self._warp(ev.target.value))
@@ -314,6 +332,8 @@ class App:
         self._pending_segment = None
         self._drop_gizmo()
         self.mode_md.content = f"*{MODE_HINTS.get(self.mode.value, '')}*"
+        self._cage_cache = None
+        self._draw_layout(self.session.layout, keep_frame=True)
         if self.mode.value != MODES[0]:
             scene.on_click()(self._on_click)
 
@@ -341,6 +361,13 @@ class App:
         if mode == "move joint":
             if v is not None:
                 self._attach_gizmo(v)
+        elif mode == "brush":
+            self._attach_gizmo(None, at=xy)
+        elif mode == "cage":
+            H = self._cage().handles().reshape(-1, 2)
+            k = int(np.argmin(np.sum((H - xy) ** 2, axis=1)))
+            if np.sum((H[k] - xy) ** 2) <= radius ** 2:
+                self._attach_gizmo(None, at=H[k], handle=divmod(k, self._cage().shape[1]))
         elif mode == "add joint":
             if s.edit(core.add_joint, xy, self._selected):
                 self._selected = s.layout.num_vertices - 1
@@ -360,25 +387,91 @@ class App:
             if seg is not None:
                 s.edit(core.delete_segment, seg)
 
-    def _attach_gizmo(self, v: int) -> None:
+    def _mirror(self):
+        axis = SYMMETRY.get(self.symmetry.value)
+        return None if axis is None else core.Mirror.through_centre(self.session.layout, axis)
+
+    def _cage(self) -> core.Cage:
+        if getattr(self, "_cage_cache", None) is None or self._cage_cache[0] is not self.session.layout:
+            shape = tuple(int(v) for v in self.cage_shape.value)
+            self._cage_cache = (self.session.layout, core.Cage.around(self.session.layout, shape))
+        return self._cage_cache[1]
+
+    def _edit_for(self, v, start, handle):
+        """The edit a drag makes, as ``(function, args_of(dragged_xy))``, for the current mode and symmetry."""
+        mirror, step = self._mirror(), float(self.snap_step.value or 0.0)
+        if v is not None:  # move one joint (and its mirror partner)
+            if mirror is not None:
+                return core.move_joint_mirrored, lambda xy: (v, core.snap(xy, step), mirror)
+            return core.move_joint, lambda xy: (v, core.snap(xy, step))
+        if handle is not None:
+            cage = self._cage()
+            return core.cage_move, lambda xy: (cage, handle[0], handle[1], xy - start)
+        radius = float(self.brush_radius.value) / 100.0 * self.session.layout.span()
+        return core.brush, lambda xy: (start, radius, xy - start, mirror)
+
+    def _attach_gizmo(self, v: int | None, at=None, handle=None) -> None:
+        """A drag handle on joint ``v`` (move), or at ``at`` (a brush stroke, or cage handle ``handle``)."""
         self._drop_gizmo()
         self._selected = v
-        pos = self._to_scene(self.session.layout.vertices[v])
+        start = np.asarray(self.session.layout.vertices[v] if v is not None else at, float)
         g = self.server.scene.add_transform_controls("/flat/gizmo", scale=0.25, disable_rotations=True,
-                                                     active_axes=(True, True, False), position=pos)
+                                                     active_axes=(True, True, False), position=self._to_scene(start))
         self._gizmo = g
+        fn, args = self._edit_for(v, start, handle)
+        if v is not None:
+            self._draw_layout(self.session.layout, keep_frame=True)  # its number shows while it is selected
 
         def dragged_to() -> np.ndarray:
             c, k = self._frame
             return (np.asarray(g.position[:2]) - [-GAP, 0.0]) / k + c
 
         @g.on_update
-        def _(_ev) -> None:  # live preview of the lines; recorded for undo only on release
-            self._draw_layout(core.move_joint(self.session.layout, v, dragged_to()), keep_frame=True)
+        def _(_ev) -> None:  # the lines and the deployed view follow; recorded for undo only on release
+            try:
+                layout = fn(self.session.layout, *args(dragged_to()))
+            except InputError:
+                return
+            self._draw_layout(layout, keep_frame=True)
+            if self.session.live:
+                self.session.preview(layout)
 
         @g.on_drag_end
         def _(_ev) -> None:
-            self.session.edit(core.move_joint, v, dragged_to())
+            if self.session.edit(fn, *args(dragged_to())) and handle is None and v is None:
+                self._drop_gizmo()  # a brush stroke is done; the next click starts another
+            if self.session.live and self.check_cold.value:
+                self.session.check_branch()
+
+    def _set_camera(self, which: str, client) -> None:
+        """``Plan``: look straight down on the flat layout (a narrow field of view: nearly orthographic); ``3D``: as at start."""
+        clients = [client] if client is not None else list(self.server.get_clients().values())
+        for c in clients:
+            if which == "Plan":
+                c.camera.up_direction = (0.0, 1.0, 0.0)
+                c.camera.fov = np.radians(8.0)
+                c.camera.look_at = (-GAP, 0.0, 0.0)
+                c.camera.position = (-GAP, 0.0, 1.15 / np.tan(np.radians(4.0)))
+            else:
+                c.camera.up_direction = (0.0, 0.0, 1.0)
+                c.camera.fov = np.radians(75.0)
+                c.camera.look_at = (0.75, 0.0, 0.15)
+                c.camera.position = (0.75, -2.8, 2.35)
+
+    def _draw_ghost(self, name: str, sim) -> None:
+        """Another state of the shown layout (the other branch) as a grey, translucent mesh in the deployed half."""
+        import time
+
+        view = self.session._view(sim, time.perf_counter())
+        V = self._deployed_to_scene(view.vertices, self._shown_deployed)
+        self._extras[name] = self.server.scene.add_mesh_simple(name, V.astype(np.float32), view.triangles,
+                                                               color=(150, 150, 150), opacity=0.35)
+
+    def _choose_branch(self, which: str) -> None:
+        self.branch_row.visible = False
+        self.branch_md.content = ""
+        self._remove("/deployed/alternative")
+        self.session.choose_branch("cold" if which == "use cold" else "shown")
 
     def _drop_gizmo(self) -> None:
         if self._gizmo is not None:
@@ -395,6 +488,9 @@ class App:
             self.progress.value = 0.0
         elif event == "layout":
             self._remove("/deployed/before")
+            self._remove("/deployed/alternative")
+            self.branch_row.visible = False
+            self.branch_md.content = ""
             self._remove("/deployed/actuators")
             if self._gizmo is not None and (self._selected is None or self._selected >= payload.num_vertices):
                 self._drop_gizmo()  # its joint is gone (delete, undo, new design)
@@ -425,6 +521,19 @@ class App:
                                     f"(bend {i.energy_bend:.3g}, twist {i.energy_twist:.3g}, stretch {i.energy_stretch:.3g})  \n"
                                     f"torque {i.torque:.4g}  \nmax |z| {i.max_abs_z:.4g}  \n"
                                     f"solve + mesh {payload.solve_time_s:.2f} s")
+        elif event == "branch":
+            if payload["same"]:
+                self.branch_md.content = f"*a cold deployment agrees (joints within {payload['difference']:.1e} of the span)*"
+                self.branch_row.visible = False
+            else:
+                alt = self.session.alternative
+                self.branch_md.content = (f"**two branches** at {payload['angle_deg']:.1f}°: shown energy "
+                                          f"{payload['energy_shown']:.6g}, cold deployment {payload['energy_cold']:.6g} "
+                                          f"(grey ghost; joints up to {100 * payload['difference']:.2g} % of the span apart"
+                                          f"{', shape flipped' if payload['flipped'] else ''})")
+                self.branch_row.visible = True
+                if alt is not None and self._shown_deployed is not None:
+                    self._draw_ghost("/deployed/alternative", alt[0])
         elif event == "opt_progress":
             it, value, text = payload
             self._opt_history.append((len(self._opt_history), value))
@@ -472,6 +581,23 @@ class App:
             size = float(np.clip(0.15 * np.median(layout.segment_lengths()) * self._frame[1], 0.004, 0.02)) if layout.num_segments else 0.02
             scene.add_point_cloud("/flat/joints", (P + [0, 0, 0.025]).astype(np.float32),
                                   colors=(220, 40, 40), point_size=size, point_shape="circle")
+        self._draw_labels(layout, P)
+        if getattr(self, "mode", None) is not None and self.mode.value == "cage":
+            H = self._to_scene(self._cage().handles().reshape(-1, 2)) + [0, 0, 0.03]
+            self._extras["/flat/cage"] = scene.add_point_cloud("/flat/cage", H.astype(np.float32), colors=(120, 120, 120),
+                                                                point_size=0.04, point_shape="square")
+        else:
+            self._remove("/flat/cage")
+
+    def _draw_labels(self, layout: core.Layout, P: np.ndarray) -> None:
+        """Joint numbers (design vertex ids): all of them when asked, else the selected joint's."""
+        for name in [n for n in self._extras if n.startswith("/flat/labels/")]:
+            self._remove(name)
+        show = range(len(P)) if getattr(self, "joint_labels", None) is not None and self.joint_labels.value else \
+            ([self._selected] if self._selected is not None and self._selected < len(P) else [])
+        for v in show:
+            name = f"/flat/labels/{v}"
+            self._extras[name] = self.server.scene.add_label(name, str(v), position=tuple(P[v] + [0, 0, 0.04]))
 
     def _remove(self, name: str) -> None:
         handle = self._extras.pop(name, None)
