@@ -222,3 +222,75 @@ def test_app_in_chromium(tmp_path):
         print(f"page interactive {t_ready:.2f} s after start")
     finally:
         app.stop()
+
+
+def test_drag_a_joint_in_the_plan_view(tmp_path):
+    """Live editing in the page: the plan view, a joint picked and dragged with the mouse, the deployed view
+    following (warm start), and the result checked against a cold deployment of the edited layout."""
+    from xshells.app.cli import start
+    from xshells.app.sim import Simulation
+    from xshells.app.ui import GAP, PLAN_HALF_HEIGHT
+
+    os.makedirs(ARTIFACTS, exist_ok=True)
+    app = start(EXAMPLE, host="127.0.0.1", port=_free_port(), out_dir=str(tmp_path / "out"))
+    s = app.session
+    try:
+        with playwright_api.sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1400, "height": 800})
+                page.goto(f"http://127.0.0.1:{app.server.get_port()}")
+                page.get_by_text("xshells").first.wait_for(timeout=30000)
+                try:
+                    page.locator(".mantine-Notification-root button").first.click(timeout=5000)
+                except playwright_api.Error:
+                    pass
+                _wait(lambda: s.last_deployed is not None, 120, "the first deployment")
+                assert s.worker.wait_idle(120)
+                first = s.last_deployed
+                page.get_by_role("button", name="Plan").click()
+                app.mode.value = "move joint"
+                page.wait_for_timeout(1500)
+                # where a layout point is on the screen: the plan camera looks straight down on the flat half
+                box = page.locator("canvas").first.bounding_box()
+                px = box["height"] / (2 * PLAN_HALF_HEIGHT)
+                to_screen = lambda P: (box["x"] + box["width"] / 2 + (P[0] + GAP) * px,  # noqa: E731
+                                       box["y"] + box["height"] / 2 - P[1] * px)
+                v = 40
+                x, y = to_screen(app._to_scene(s.layout.vertices[v]))
+                page.mouse.click(x, y)
+                _wait(lambda: app._selected == v and app._gizmo is not None, 10, "the joint to be picked")
+                before = s.layout.vertices[v].copy()
+                events = []
+                s.listeners.append(lambda e, p: events.append((e, p)))
+                page.wait_for_timeout(500)
+                # drag the handle's y arrow (it starts at the joint and points up the screen)
+                grip = y - 0.7 * 0.25 * px
+                page.mouse.move(x, grip)
+                page.mouse.down()
+                page.mouse.move(x, grip - 12, steps=6)
+                page.mouse.up()
+                _wait(lambda: any(e == "branch" for e, _ in events), 60, "the comparison with a cold deployment")
+                assert s.worker.wait_idle(60)
+                moved = s.layout.vertices[v] - before
+                assert abs(moved[0]) < 1e-9 and moved[1] > 0.005 * s.layout.span(), moved
+                shown = s.last_deployed
+                assert shown.info.converged and np.abs(shown.joints - first.joints).max() > 1e-4 * s.layout.span()
+                assert s.history.can_undo
+                # a cold deployment of the edited layout, built here
+                cold = Simulation(s.layout, s.material, s.subdivision)
+                cold.solve_to(s.angle_deg)
+                diff = np.abs(cold.linkage.joint_positions() - shown.joints).max() / s.layout.span()
+                branch = [p for e, p in events if e == "branch"][-1]
+                if diff <= 1e-6:
+                    assert branch["same"]
+                else:  # both branches are shown, and the designer can choose
+                    assert not branch["same"] and app.branch_row.visible and "/deployed/alternative" in app._extras
+                    page.get_by_text("two branches").first.wait_for(timeout=10000)
+                page.wait_for_timeout(1000)
+                page.screenshot(path=os.path.join(ARTIFACTS, "06_plan_drag.png"))
+                print(f"dragged joint {v} by {moved}; warm vs cold {diff:.1e} of the span")
+            finally:
+                browser.close()
+    finally:
+        app.stop()

@@ -326,6 +326,7 @@ class Session:
 
         direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
         sim = Simulation(layout, material, k, rest_lengths=p, settings=SimSettings(direction=direction), cancel=cancel)
+        self._emit("flat", self._view(sim, time.perf_counter()))  # the flat assembly state of the edited layout
         warm = None
         if angle_deg is not None and previous is not None and previous.states[1:]:
             if sim.can_warm_start_from(previous):
@@ -339,8 +340,6 @@ class Session:
             self.sim, self._sim_key = sim, key
             self.last_warm = warm if warm is not None and warm.ok else None
             self.alternative = None
-        if warm is None or not warm.ok:
-            self._emit("flat", self._view(sim, time.perf_counter()))
         return sim
 
     def _view(self, sim, t0: float, info=None) -> View:

@@ -33,6 +33,8 @@ MODE_HINTS = {
     "delete segment": "click a segment to delete it",
 }
 SECTION_TYPES = ("rectangle", "ellipse", "I", "L", "+")
+PLAN_FOV = np.radians(8.0)  # the plan view: a narrow field of view from far above, nearly orthographic
+PLAN_HALF_HEIGHT = 1.15  # scene units from the view's centre to its top edge (the layout spans 2)
 GAP = 1.25  # scene units between the centre of each half and the origin
 FIRST_SOLVE_DELAY_S = 3.0  # after the first page connects (see App.__init__; measured in benchmarks/app.py)
 
@@ -447,16 +449,15 @@ class App:
         """``Plan``: look straight down on the flat layout (a narrow field of view: nearly orthographic); ``3D``: as at start."""
         clients = [client] if client is not None else list(self.server.get_clients().values())
         for c in clients:
-            if which == "Plan":
-                c.camera.up_direction = (0.0, 1.0, 0.0)
-                c.camera.fov = np.radians(8.0)
+            if which == "Plan":  # from straight above, tilted by 1e-4 rad so that "up" (+z) stays well defined
+                d = PLAN_HALF_HEIGHT / np.tan(0.5 * PLAN_FOV)
+                c.camera.fov = PLAN_FOV
+                c.camera.position = (-GAP, -1e-4 * d, d)  # position moves look_at along: set look_at after it
                 c.camera.look_at = (-GAP, 0.0, 0.0)
-                c.camera.position = (-GAP, 0.0, 1.15 / np.tan(np.radians(4.0)))
             else:
-                c.camera.up_direction = (0.0, 0.0, 1.0)
                 c.camera.fov = np.radians(75.0)
-                c.camera.look_at = (0.75, 0.0, 0.15)
                 c.camera.position = (0.75, -2.8, 2.35)
+                c.camera.look_at = (0.75, 0.0, 0.15)
 
     def _draw_ghost(self, name: str, sim) -> None:
         """Another state of the shown layout (the other branch) as a grey, translucent mesh in the deployed half."""
