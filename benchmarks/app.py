@@ -27,6 +27,12 @@ figure (the development machine is shared).
 
     python benchmarks/app.py [--cases manta_ray nonuniform grid10]
     python benchmarks/app.py --startup [--repeat 3]
+    python benchmarks/app.py --edit [--cases manta_ray elephant_ears]
+
+Edits (``--edit``, issue 22): through the ``Session`` API, edit, ``request_angle``, then wait until the
+worker is idle (the deployed view, and its stability, are back): 10 moves of one joint by 0.2 % of the
+span, 10 brushes, 10 drags (previews, then the release), and a topology edit (a free-end segment added,
+then undone). Targets: a drag ≤ 1 s median and ≤ 2 s max on the manta ray at 90°; a topology edit ≤ 3 s.
 """
 from __future__ import annotations
 
@@ -227,16 +233,116 @@ def run_one(name: str) -> dict:
     return out
 
 
+EDIT_CASES = {
+    # the demo's material, k = 8; each case file's angle
+    "manta_ray": (os.path.join(EXAMPLES, "manta_ray.obj"), 90.0),
+    "elephant_ears": (os.path.join(HERE, "..", "..", "shared", "data", "elasticrods", "examples", "florin",
+                                   "20181227_195542_meshID_40c44e5b-d610-4399-87e5-80c1281ee9f7.obj"), 85.0),
+}
+
+
+def edit_one(name: str, count: int = 10) -> dict:
+    """Time edits through the ``Session`` API, as a user of it would: edit, ``request_angle``, wait until idle.
+
+    Moves of one joint by 0.2 % of the span, brushes (radius 5 %, 0.2 %), drags (five previews of
+    growing size, then the release), and a topology edit (a free-end segment added at a boundary joint,
+    then undone).
+    """
+    import numpy as np
+
+    from xshells.app import core
+    from xshells.app.loading import open_path
+    from xshells.app.session import Session
+
+    path, angle = EDIT_CASES[name]
+    s = Session(open_path(path), out_dir="/tmp/xshells-bench-edit")
+    s.set_subdivision(8)
+    t = time.perf_counter()
+    s.request_angle(angle)
+    s.worker.wait_idle(600)
+    out = {"segments": s.layout.num_segments, "cold_s": time.perf_counter() - t}
+    span = s.layout.span()
+    rng = np.random.default_rng(0)
+    warm = []
+
+    def timed(fn, *args):
+        t0 = time.perf_counter()
+        s.edit(fn, *args)
+        s.request_angle(angle)
+        s.worker.wait_idle(600)
+        warm.append(s.last_warm is not None)
+        return time.perf_counter() - t0
+
+    def step():
+        return 0.002 * span * rng.normal(size=2) / np.sqrt(2)
+
+    moves, brushes, drags = [], [], []
+    for _ in range(count):
+        v = int(rng.integers(s.layout.num_vertices))
+        moves.append(timed(core.move_joint, v, s.layout.vertices[v] + step()))
+    for _ in range(count):
+        v = int(rng.integers(s.layout.num_vertices))
+        brushes.append(timed(core.brush, s.layout.vertices[v], 0.05 * span, step()))
+    for _ in range(count):
+        v = int(rng.integers(s.layout.num_vertices))
+        start, d = s.layout.vertices[v].copy(), step()
+        for f in (0.2, 0.4, 0.6, 0.8):  # the drag's positions, the latest winning
+            s.preview(core.move_joint(s.layout, v, start + f * d))
+            time.sleep(0.05)
+        drags.append(timed(core.move_joint, v, start + d))
+    valence = np.bincount(s.layout.edges.ravel(), minlength=s.layout.num_vertices)
+    boundary = int(np.flatnonzero(valence == 3)[0])
+    c = s.layout.vertices.mean(axis=0)
+    outward = s.layout.vertices[boundary] + 0.03 * span * (s.layout.vertices[boundary] - c) / np.linalg.norm(
+        s.layout.vertices[boundary] - c)
+    topo = timed(core.add_joint, outward, boundary)
+    t0 = time.perf_counter()
+    s.undo()  # back to the previous topology
+    s.request_angle(angle)
+    s.worker.wait_idle(600)
+    undo = time.perf_counter() - t0
+    s.close()
+    med = lambda v: float(np.median(v))  # noqa: E731
+    out.update(moves=(med(moves), max(moves)), brushes=(med(brushes), max(brushes)), drags=(med(drags), max(drags)),
+               topology_s=topo, topology_undo_s=undo, warm=sum(warm[:-1]), edits=len(warm) - 1,
+               peak_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", nargs="*", default=list(CASES))
     ap.add_argument("--startup", action="store_true", help="time the start-up instead of slider moves")
     ap.add_argument("--repeat", type=int, default=3, help="start-up runs (default 3)")
+    ap.add_argument("--edit", action="store_true", help="time edits (moves, brushes, drags, a topology edit) instead")
+    ap.add_argument("--edit-one", help=argparse.SUPPRESS)
     ap.add_argument("--one", help=argparse.SUPPRESS)
     ap.add_argument("--steps", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
         print(json.dumps(run_one(args.one)))
+        return
+    if args.edit_one:
+        print(json.dumps(edit_one(args.edit_one)))
+        return
+    if args.edit:
+        cases = [c for c in args.cases if c in EDIT_CASES] if args.cases != list(CASES) else list(EDIT_CASES)
+        print(f"{'case':14s} {'segs':>5s} {'cold s':>7s} {'move med/max s':>15s} {'brush med/max s':>16s} "
+              f"{'drag med/max s':>15s} {'warm':>6s} {'topology s':>10s} {'undo s':>7s} {'peak MB':>8s}")
+        for name in cases:
+            if not os.path.exists(EDIT_CASES[name][0]):
+                print(f"{name:14s} (data not found)")
+                continue
+            res = subprocess.run([sys.executable, __file__, "--edit-one", name], capture_output=True, text=True)
+            line = [ln for ln in res.stdout.splitlines() if ln.startswith("{")]
+            if not line:
+                print(f"{name:14s} failed: {res.stderr.strip().splitlines()[-1:]}")
+                continue
+            r = json.loads(line[-1])
+            fmt = lambda p: f"{p[0]:.2f} / {p[1]:.2f}"  # noqa: E731
+            print(f"{name:14s} {r['segments']:5d} {r['cold_s']:7.1f} {fmt(r['moves']):>15s} {fmt(r['brushes']):>16s} "
+                  f"{fmt(r['drags']):>15s} {r['warm']:>3d}/{r['edits']:<2d} {r['topology_s']:10.2f} {r['topology_undo_s']:7.2f} "
+                  f"{r['peak_mb']:8.0f}")
         return
     if args.steps:
         print(json.dumps(startup_steps()))

@@ -53,6 +53,9 @@ class View:
     solve_time_s: float = 0.0
 
 
+SIM_CACHE = 4  # simulations kept for undo/redo (each holds its deployed states)
+
+
 def spec_summary(spec: dict) -> str:
     """A material spec as one line, before its stiffnesses are computed (that needs the section's torsion solve)."""
     params = ", ".join(f"{float(v):g}" for v in spec.get("params", []))
@@ -93,6 +96,8 @@ class Session:
         self.live = True  # re-solve the deployed state after every edit (warm-started where the topology is kept)
         self.last_warm = None  # the .sim.WarmReport of the last edit, or None after a cold deployment
         self.alternative = None  # a cold deployment on another branch than the shown one (check_branch)
+        self._pending_solve = None  # ((layout key, angle), token) of the solve queued or running
+        self._sims: list = []  # recent simulations [(key, layout, sim)], so that an undo finds its state again
         self._opt_stop = threading.Event()
         self.load(project)
 
@@ -122,6 +127,7 @@ class Session:
             self.material_spec = dict(project.material)
             self._material = None  # built on the worker, with the first solve
             self.sim, self._sim_key, self.last_deployed, self.angle_deg = None, None, None, None
+            self._sims, self._pending_solve = [], None
         self._emit("project", project.name)
         self._emit("material", spec_summary(self.material_spec))
         self._layout_changed()
@@ -310,6 +316,10 @@ class Session:
             k, p, previous = self.subdivision, self.rest_lengths, self.sim
             if previous is not None and self._sim_key == key:
                 return previous
+            cached = next((sim for kk, lay, sim in self._sims if kk == key and lay is layout), None)
+            if cached is not None:  # an undo or redo back to a layout solved before
+                self.sim, self._sim_key, self.last_warm, self.alternative = cached, key, None, None
+                return cached
         problems = core.topology_problems(layout)
         if problems:
             raise InputError("cannot simulate: " + problems[0])
@@ -340,6 +350,8 @@ class Session:
             self.sim, self._sim_key = sim, key
             self.last_warm = warm if warm is not None and warm.ok else None
             self.alternative = None
+            if key[0] != "preview":
+                self._sims = [e for e in self._sims if e[0] != key][-(SIM_CACHE - 1):] + [(key, layout, sim)]
         return sim
 
     def _view(self, sim, t0: float, info=None) -> View:
@@ -368,11 +380,32 @@ class Session:
             view = self._view(sim, t0, info)
             return view
 
+        request = (self._key(), float(angle_deg))
+        with self._lock:
+            if self._pending_solve is not None and self._pending_solve[0] == request:
+                return  # the same layout and angle is being solved already (an edit follows itself, then asks again)
         self.worker.cancel("branch")  # a comparison of the state before is moot
         with self._lock:  # and so is a drag's preview
             self._preview_next, self._preview_busy = None, False
         self.worker.cancel("preview")
-        self.worker.submit(job, key="solve", on_done=self._deployed, on_error=self._job_error)
+        token = object()
+
+        def finished(view=None):
+            with self._lock:
+                if self._pending_solve is not None and self._pending_solve[1] is token:
+                    self._pending_solve = None
+
+        def done(view):
+            finished()
+            self._deployed(view)
+
+        def failed(exc):
+            finished()
+            self._job_error(exc)
+
+        with self._lock:
+            self._pending_solve = (request, token)
+        self.worker.submit(job, key="solve", on_done=done, on_error=failed)
 
     def _deployed(self, view: View, stability: bool = True) -> None:
         self.last_deployed = view

@@ -78,6 +78,8 @@ class WarmOptions:
         Newton iterations a step may take (more means it left the branch's basin: halve).
     preview : bool
         A drag's preview: a looser tolerance (``preview_tolerance_factor`` times the deployment's).
+    sigma_factor : float
+        First Hessian shift of the Newton corrections (:class:`xshells.solve.NewtonOptions`).
     """
 
     max_relative_step: float = 0.3
@@ -85,6 +87,7 @@ class WarmOptions:
     max_iterations: int = 25
     preview: bool = False
     preview_tolerance_factor: float = 100.0
+    sigma_factor: float = 1e-5
 
 
 @dataclass(frozen=True)
@@ -291,9 +294,13 @@ class Simulation:
         p0, p1 = np.asarray(snap["rest_lengths"], float), np.asarray(self.flat["rest_lengths"], float)
         change = float(np.max(np.abs(p1 / p0 - 1.0)))
         step = 1.0 / max(1, int(np.ceil(change / opts.max_relative_step)))
-        newton = self._newton if not opts.preview else NewtonOptions(
-            **{**self._newton.__dict__, "gradient_tolerance": self._newton.gradient_tolerance * opts.preview_tolerance_factor,
-               "max_iterations": opts.max_iterations})
+        # a small first Hessian shift: from a predicted state the shift search finds the least one that
+        # factors, where the deployment's (1e-3) took ~20 halvings on the manta ray (benchmarks/app.py --edit)
+        settings = {"sigma_factor": opts.sigma_factor}
+        if opts.preview:
+            settings.update(gradient_tolerance=self._newton.gradient_tolerance * opts.preview_tolerance_factor,
+                            max_iterations=opts.max_iterations)
+        newton = NewtonOptions(**{**self._newton.__dict__, **settings})
         stop = self._stopper(cancel)
         t, steps, iterations, good = 0.0, 0, 0, snap
         while t < 1.0:
