@@ -460,3 +460,35 @@ def test_ten_small_moves_stay_converged_and_stable_and_match_a_cold_deployment(t
         assert branch["difference"] <= 1e-6
     finally:
         s.close()
+
+
+def test_a_topology_edit_carries_the_deployed_state_over_where_it_can(tmp_path):
+    """A free-end segment added at a valence-3 boundary joint of the manta ray: the shared joints and rods keep
+    their deployed state (no deployment from flat), the result is the cold deployment's, and undo finds the state
+    before. (Where the edit relabels the beams of a joint, the state does not carry over: it deploys from flat.)"""
+    from xshells.app.session import Session
+    from xshells.app.sim import Simulation
+
+    s = Session(open_path(os.path.join(EXAMPLES, "manta_ray.obj")), out_dir=str(tmp_path))
+    try:
+        s.set_subdivision(4)
+        s.request_angle(70.0)
+        assert s.worker.wait_idle(120) and s.last_deployed.info.converged
+        before, lay = s.last_deployed, s.layout
+        valence = np.bincount(lay.edges.ravel(), minlength=lay.num_vertices)
+        b = int(np.flatnonzero(valence == 3)[0])
+        c = lay.vertices.mean(axis=0)
+        out = lay.vertices[b] + 0.03 * lay.span() * (lay.vertices[b] - c) / np.linalg.norm(lay.vertices[b] - c)
+        assert s.edit(core.add_joint, out, b)
+        assert s.worker.wait_idle(120)
+        assert s.last_warm is not None and s.last_warm.ok and "topology" in s.last_warm.message
+        assert s.layout.num_segments == lay.num_segments + 1 and s.last_deployed.info.converged
+        cold = Simulation(s.layout, s.material, s.subdivision)
+        cold.solve_to(70.0)
+        diff = np.abs(cold.linkage.joint_positions() - s.last_deployed.joints).max() / s.layout.span()
+        assert diff <= 1e-6, diff
+        s.undo()  # back: the simulation of the layout before is found again
+        assert s.worker.wait_idle(60)
+        np.testing.assert_allclose(s.last_deployed.joints, before.joints, atol=1e-9 * lay.span())
+    finally:
+        s.close()

@@ -345,7 +345,7 @@ class Session:
                 if not warm.ok:
                     self.status(f"{warm.message}: deploying from the flat state")
             else:
-                self.status("topology or material changed: deploying from the flat state")
+                self.status("the material or subdivision changed: deploying from the flat state")
         with self._lock:
             self.sim, self._sim_key = sim, key
             self.last_warm = warm if warm is not None and warm.ok else None
@@ -413,7 +413,7 @@ class Session:
         msg = view.info.message or f"deployed to {view.info.angle_deg:.1f}° in {view.solve_time_s:.2f} s"
         warm = self.last_warm
         if warm is not None and not view.info.message:
-            msg += f" (warm start from the last layout: {warm.steps} step{'s' * (warm.steps != 1)}, {warm.iterations} iterations)"
+            msg += f" ({warm.message} from the last layout: {warm.steps} step{'s' * (warm.steps != 1)}, {warm.iterations} iterations)"
             if warm.flipped or abs(warm.energy_change) > 0.5:
                 msg += ("; the shape flipped" if warm.flipped else f"; the energy changed by {100 * warm.energy_change:+.0f} %") \
                     + ": another branch? Compare with a cold deployment"

@@ -259,11 +259,125 @@ class Simulation:
 
     # ------------------------------------------------------------------ warm start after an edit
     def can_warm_start_from(self, previous: "Simulation | None") -> bool:
-        """Whether ``previous`` has the same variables (same segments, subdivision and material) and a deployed state."""
-        return (previous is not None and previous is not self and previous.num_vars == self.num_vars
+        """Whether ``previous`` has the same subdivision, material and direction, and a deployed state.
+
+        Its segments may differ (a topology edit): :meth:`warm_start` then
+        transfers what the two layouts share and may still fall back.
+        """
+        return (previous is not None and previous is not self
                 and previous.linkage.subdivision == self.linkage.subdivision and previous.material is self.material
-                and np.array_equal(previous.layout.edges, self.layout.edges) and len(previous.states) > 1
-                and previous.settings.direction == self.settings.direction)
+                and len(previous.states) > 1 and previous.settings.direction == self.settings.direction)
+
+    def _same_variables(self, previous: "Simulation") -> bool:
+        return previous.num_vars == self.num_vars and np.array_equal(previous.layout.edges, self.layout.edges)
+
+    def _transfer(self, previous: "Simulation", snap: dict, angle: float, newton, stop):
+        """A state of this linkage from ``previous``'s state ``snap`` after a topology edit; None where it cannot.
+
+        Joints and segments are matched by the positions of their vertices in
+        the two layouts (a topology edit moves no joint). Every shared joint
+        keeps its variables and frame, every shared segment its rod (points,
+        angles, frames), and a new segment starts straight out of its joint,
+        twist-free. Refused (None) when a joint is new or its beams were
+        relabelled or turned around, or the first equilibrium fails. The
+        shared segments keep their old rest lengths here; the caller then
+        continues to this layout's.
+
+        Returns ``(snapshot, rest lengths)`` of the equilibrium at ``angle``.
+        """
+        from ..linkage.linkage import _rotate
+
+        L0, L1 = previous.linkage, self.linkage
+        g0, g1 = L0.graph, L1.graph
+        k = L1.subdivision
+        place = {tuple(np.round(v, 9)): i for i, v in enumerate(previous.layout.vertices.tolist())}
+        vmap = np.array([place.get(tuple(np.round(v, 9)), -1) for v in self.layout.vertices.tolist()])
+        E0, E1 = previous.layout.edges, self.layout.edges
+        seg0 = {(int(a), int(b)): s for s, (a, b) in enumerate(E0.tolist())}
+        match = np.full(len(E1), -1)  # new segment -> old segment with the same ends in the same order
+        for s1, (a, b) in enumerate(E1.tolist()):
+            if vmap[a] >= 0 and vmap[b] >= 0:
+                match[s1] = seg0.get((int(vmap[a]), int(vmap[b])), -1)
+        joint0 = np.full(g1.num_joints, -1)
+        for j1, v1 in enumerate(g1.joint_vertex.tolist()):
+            j0 = int(g0.vertex_joint[vmap[v1]]) if vmap[v1] >= 0 else -1
+            if j0 < 0:
+                return None  # a new joint: nothing to start it from
+            for beam in (0, 1):
+                for slot in (0, 1):
+                    s1 = int(g1.joint_segments[j1, beam, slot])
+                    if s1 >= 0 and match[s1] >= 0 and int(g0.joint_segments[j0, beam, slot]) != match[s1]:
+                        return None  # its beams were relabelled or turned around
+            joint0[j1] = j0
+        restore(L0, snap)
+        x0, r0 = L0.get_vars(), L0.rods
+        rv0 = L0.rod_vars(x0)
+        V3_0 = 3 * r0.num_vertices
+        P1 = L1.rods.points.copy()
+        th1 = np.zeros(L1.rods.num_edges)
+        t_src, d1_src, twist_src = L1.rods.t_src.copy(), L1.rods.d1_src.copy(), L1.rods.ref_twist_src.copy()
+        P0 = rv0[:V3_0].reshape(-1, 3)
+        for s1, s0 in enumerate(match.tolist()):
+            if s0 < 0:
+                continue
+            P1[s1 * (k + 1): (s1 + 1) * (k + 1)] = P0[s0 * (k + 1): (s0 + 1) * (k + 1)]
+            th1[s1 * k: (s1 + 1) * k] = rv0[V3_0 + s0 * k: V3_0 + (s0 + 1) * k]
+            t_src[s1 * k: (s1 + 1) * k] = r0.t_src[s0 * k: (s0 + 1) * k]
+            d1_src[s1 * k: (s1 + 1) * k] = r0.d1_src[s0 * k: (s0 + 1) * k]
+            twist_src[s1 * (k - 1): (s1 + 1) * (k - 1)] = r0.ref_twist_src[s0 * (k - 1): (s0 + 1) * (k - 1)]
+        xj0 = x0[: L0.num_joint_vars].reshape(-1, 9)
+        xj1 = xj0[joint0].copy()
+        b0, n0 = L0.joint_b0[joint0].copy(), L0.joint_n0[joint0].copy()
+        b, n = _rotate(xj1[:, 3:6], b0), _rotate(xj1[:, 3:6], n0)
+        u = np.cross(n, b)
+        c, sn = np.cos(0.5 * xj1[:, 6])[:, None], np.sin(0.5 * xj1[:, 6])[:, None]
+        tangents = (c * b - sn * u, c * b + sn * u)
+        p1 = L1.rest_lengths
+        p_start = np.where(match >= 0, L0.rest_lengths[np.maximum(match, 0)], p1)
+        for s1 in np.flatnonzero(match < 0).tolist():  # a new segment: straight out of its joint(s), twist-free
+            ends = [(e, int(g1.segment_joints[s1, e])) for e in (0, 1) if g1.segment_joints[s1, e] >= 0]
+            if not ends:
+                return None
+            e, j1 = ends[0]
+            beam = int(g1.segment_labels[s1, e])
+            slot = int(np.argwhere(g1.joint_segments[j1, beam] == s1)[0, 0])
+            t = tangents[beam][j1] * (1.0 if slot == 1 else -1.0)  # out of the joint: along t on the outgoing side
+            step = p1[s1] / k
+            start = xj1[j1, 0:3]
+            pts = start + np.outer(np.arange(k + 1) - 0.5, t) * step
+            if e == 1:
+                pts = pts[::-1]
+            if len(ends) == 2:  # between two joints: a straight chord between them
+                other = xj1[ends[1][1], 0:3]
+                pts = start + np.outer(np.linspace(0.0, 1.0, k + 1), other - start) if e == 0 else \
+                    other + np.outer(np.linspace(0.0, 1.0, k + 1), start - other)
+            P1[s1 * (k + 1): (s1 + 1) * (k + 1)] = pts
+            te = np.diff(pts, axis=0)
+            te /= np.linalg.norm(te, axis=1)[:, None]
+            m1 = np.cross(n[j1], te)
+            m1 /= np.linalg.norm(m1, axis=1)[:, None]
+            t_src[s1 * k: (s1 + 1) * k], d1_src[s1 * k: (s1 + 1) * k] = te, m1
+            twist_src[s1 * (k - 1): (s1 + 1) * (k - 1)] = 0.0
+        L1.joint_b0, L1.joint_n0 = b0, n0
+        L1.rods.t_src, L1.rods.d1_src, L1.rods.ref_twist_src = t_src, d1_src, twist_src
+        L1.rods.set_vars(np.concatenate([P1.ravel(), th1]))
+        L1._refresh_instance_sources(theta_prev=L1.rods.thetas[L1._inst_edge].copy())
+        x1 = np.zeros(L1.num_vars)
+        x1[: L1.num_joint_vars] = xj1.ravel()
+        x1[L1._free_reduced] = np.concatenate([P1.ravel(), th1])[L1._free_rod]
+        try:
+            L1.set_rest_lengths(p_start)
+            L1.set_vars(x1)
+            L1.update_source_frame()
+            report = minimize(L1, fixed=self._pins, constraint=(self._a, angle), options=newton, callback=stop,
+                              saddle_hint=self._hint)
+        except Cancelled:
+            raise
+        except Exception:  # noqa: BLE001  (a degenerate transferred state: deploy from flat instead)
+            return None
+        if not report.converged or folded_joint(L1):
+            return None
+        return snapshot(L1), p_start
 
     def warm_start(self, previous: "Simulation", angle_deg: float, cancel: threading.Event | None = None,
                    options: WarmOptions | None = None) -> WarmReport:
@@ -291,6 +405,15 @@ class Simulation:
         if abs(angle - previous.flat_angle) < 1e-12:
             return WarmReport(False, "the previous layout had no deployed state", time_s=time.perf_counter() - t0)
         L = self.linkage
+        stop = self._stopper(cancel)
+        before_x = snap["x"]
+        transferred = not self._same_variables(previous)
+        if transferred:  # a topology edit: carry over what the layouts share
+            moved = self._transfer(previous, snap, angle, NewtonOptions(**{**self._newton.__dict__, "sigma_factor": opts.sigma_factor}), stop)
+            if moved is None:
+                restore(L, self.flat)
+                return WarmReport(False, "the topology changed where no state carries over", time_s=time.perf_counter() - t0)
+            snap, _ = moved
         p0, p1 = np.asarray(snap["rest_lengths"], float), np.asarray(self.flat["rest_lengths"], float)
         change = float(np.max(np.abs(p1 / p0 - 1.0)))
         step = 1.0 / max(1, int(np.ceil(change / opts.max_relative_step)))
@@ -301,7 +424,6 @@ class Simulation:
             settings.update(gradient_tolerance=self._newton.gradient_tolerance * opts.preview_tolerance_factor,
                             max_iterations=opts.max_iterations)
         newton = NewtonOptions(**{**self._newton.__dict__, **settings})
-        stop = self._stopper(cancel)
         t, steps, iterations, good = 0.0, 0, 0, snap
         while t < 1.0:
             if cancel is not None and cancel.is_set():
@@ -327,19 +449,27 @@ class Simulation:
                 restore(L, self.flat)
                 return WarmReport(False, f"the warm start did not converge ({report.message})", steps, iterations,
                                   time.perf_counter() - t0)
+        if transferred and not opts.preview:
+            # the new segment's soft modes: at the deployment's tolerance the state can lie 1e-6 of the span
+            # from a cold deployment's (the same equilibrium, each inside the tolerance); a tighter polish
+            polish = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": 0.03 * newton.gradient_tolerance,
+                                      "max_iterations": 12})
+            iterations += minimize(L, fixed=self._pins, constraint=(self._a, angle), options=polish, callback=stop,
+                                   saddle_hint=self._hint).iterations
         self._match_pinned_joint()
         info = self._info(not opts.preview, iterations, "preview" if opts.preview else "")
         self._store(angle, info)
         self.current_angle = angle
         # the same branch? the out-of-plane shape keeps its direction and the energy changes smoothly
-        z_prev = previous.linkage.height_selector() @ snap["x"]
+        z_prev = previous.linkage.height_selector() @ before_x
         z_new = L.height_selector() @ L.get_vars()
         z_prev, z_new = z_prev - np.median(z_prev), z_new - np.median(z_new)
-        flipped = bool(z_prev @ z_new < 0)
+        flipped = bool(len(z_prev) == len(z_new) and z_prev @ z_new < 0)  # (joints added or removed: the energy says)
         energy_change = (info.energy - before.energy) / max(abs(before.energy), 1e-300)
         if abs(np.degrees(angle) - float(angle_deg)) > 1e-9:
             self.solve_to(angle_deg, cancel=cancel)
-        return WarmReport(True, "warm start", steps, iterations, time.perf_counter() - t0, flipped, float(energy_change))
+        return WarmReport(True, "warm start across a topology edit" if transferred else "warm start", steps, iterations,
+                          time.perf_counter() - t0, flipped, float(energy_change))
 
     def _match_pinned_joint(self) -> None:
         """Move the state rigidly so that the pinned joint sits where this layout's flat state holds it.
