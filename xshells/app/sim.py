@@ -236,12 +236,17 @@ class Simulation:
             if cancel is not None and cancel.is_set():
                 raise Cancelled()
             angle = start_angle + (target - start_angle) * i / n
-            report = minimize(self.linkage, fixed=self._pins, constraint=(self._a, angle), options=self._newton,
-                              callback=stop, saddle_hint=self._hint)
-            if abs(float(self._a @ self.linkage.get_vars()) - angle) > 1e-8:
-                self._predict(angle)
+            try:
                 report = minimize(self.linkage, fixed=self._pins, constraint=(self._a, angle), options=self._newton,
                                   callback=stop, saddle_hint=self._hint)
+                if abs(float(self._a @ self.linkage.get_vars()) - angle) > 1e-8:
+                    self._predict(angle)
+                    report = minimize(self.linkage, fixed=self._pins, constraint=(self._a, angle), options=self._newton,
+                                      callback=stop, saddle_hint=self._hint)
+            except Cancelled:
+                raise
+            except Exception as exc:  # noqa: BLE001  (a degenerate state, e.g. a NaN Hessian: stop here and say so)
+                report = NewtonReport(message=f"the state became degenerate ({type(exc).__name__})")
             # a stalled solve, or a converged state with a joint folded through (not a linkage):
             # keep the linkage at the last good state, with its numbers, and say why
             why = folded_joint(self.linkage) if report.converged else f"the solver gave up ({report.message})"
