@@ -84,7 +84,7 @@ class WarmOptions:
 
     max_relative_step: float = 0.3
     min_step: float = 1.0 / 64
-    max_iterations: int = 25
+    max_iterations: int = 40
     preview: bool = False
     preview_tolerance_factor: float = 100.0
     sigma_factor: float = 1e-5
