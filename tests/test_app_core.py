@@ -465,7 +465,7 @@ def test_ten_small_moves_stay_converged_and_stable_and_match_a_cold_deployment(t
 def test_a_topology_edit_carries_the_deployed_state_over_where_it_can(tmp_path):
     """A free-end segment added at a valence-3 boundary joint of the manta ray: the shared joints and rods keep
     their deployed state (no deployment from flat), the result is the cold deployment's, and undo finds the state
-    before. (Where the edit relabels the beams of a joint, the state does not carry over: it deploys from flat.)"""
+    before; a deleted boundary segment (whose joints' beams are relabelled) carries over too."""
     from xshells.app.session import Session
     from xshells.app.sim import Simulation
 
@@ -490,5 +490,14 @@ def test_a_topology_edit_carries_the_deployed_state_over_where_it_can(tmp_path):
         s.undo()  # back: the simulation of the layout before is found again
         assert s.worker.wait_idle(60)
         np.testing.assert_allclose(s.last_deployed.joints, before.joints, atol=1e-9 * lay.span())
+        # a boundary segment deleted: its two joints lose a beam end (their other beams are relabelled)
+        seg = int(np.flatnonzero((valence[lay.edges] <= 3).all(axis=1))[0])
+        assert s.edit(core.delete_segment, seg)
+        assert s.worker.wait_idle(120)
+        assert s.last_warm is not None and s.last_warm.ok and "topology" in s.last_warm.message
+        cold = Simulation(s.layout, s.material, s.subdivision)
+        cold.solve_to(70.0)
+        diff = np.abs(cold.linkage.joint_positions() - s.last_deployed.joints).max() / s.layout.span()
+        assert diff <= 1e-6, diff
     finally:
         s.close()

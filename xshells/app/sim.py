@@ -303,16 +303,29 @@ class Simulation:
         for s1, (a, b) in enumerate(E1.tolist()):
             if vmap[a] >= 0 and vmap[b] >= 0:
                 match[s1] = seg0.get((int(vmap[a]), int(vmap[b])), -1)
+        # each new joint's beams as old beams: source[j1, X'] = (old beam, +1 same way / -1 turned around)
         joint0 = np.full(g1.num_joints, -1)
+        source = np.zeros((g1.num_joints, 2, 2), np.int64)
         for j1, v1 in enumerate(g1.joint_vertex.tolist()):
             j0 = int(g0.vertex_joint[vmap[v1]]) if vmap[v1] >= 0 else -1
             if j0 < 0:
                 return None  # a new joint: nothing to start it from
             for beam in (0, 1):
+                seen = set()
                 for slot in (0, 1):
                     s1 = int(g1.joint_segments[j1, beam, slot])
-                    if s1 >= 0 and match[s1] >= 0 and int(g0.joint_segments[j0, beam, slot]) != match[s1]:
-                        return None  # its beams were relabelled or turned around
+                    if s1 < 0 or match[s1] < 0:
+                        continue
+                    where = np.argwhere(g0.joint_segments[j0] == match[s1])
+                    if len(where) != 1:
+                        return None
+                    old_beam, old_slot = (int(v) for v in where[0])
+                    seen.add((old_beam, 1 if old_slot == slot else -1))
+                if len(seen) != 1:
+                    return None  # a beam made only of new segments, or of two old beams
+                source[j1, beam] = seen.pop()
+            if source[j1, 0, 0] == source[j1, 1, 0]:
+                return None
             joint0[j1] = j0
         restore(L0, snap)
         x0, r0 = L0.get_vars(), L0.rods
@@ -330,13 +343,34 @@ class Simulation:
             t_src[s1 * k: (s1 + 1) * k] = r0.t_src[s0 * k: (s0 + 1) * k]
             d1_src[s1 * k: (s1 + 1) * k] = r0.d1_src[s0 * k: (s0 + 1) * k]
             twist_src[s1 * (k - 1): (s1 + 1) * (k - 1)] = r0.ref_twist_src[s0 * (k - 1): (s0 + 1) * (k - 1)]
-        xj0 = x0[: L0.num_joint_vars].reshape(-1, 9)
-        xj1 = xj0[joint0].copy()
-        b0, n0 = L0.joint_b0[joint0].copy(), L0.joint_n0[joint0].copy()
-        b, n = _rotate(xj1[:, 3:6], b0), _rotate(xj1[:, 3:6], n0)
-        u = np.cross(n, b)
-        c, sn = np.cos(0.5 * xj1[:, 6])[:, None], np.sin(0.5 * xj1[:, 6])[:, None]
-        tangents = (c * b - sn * u, c * b + sn * u)
+        # the old joints' frames as they stand (ω folded in), then each new joint's from its beams' tangents
+        xj0 = x0[: L0.num_joint_vars].reshape(-1, 9)[joint0]
+        b_old = _rotate(xj0[:, 3:6], L0.joint_b0[joint0])
+        n_old = _rotate(xj0[:, 3:6], L0.joint_n0[joint0])
+        u = np.cross(n_old, b_old)
+        c, sn = np.cos(0.5 * xj0[:, 6])[:, None], np.sin(0.5 * xj0[:, 6])[:, None]
+        t_old = np.stack([c * b_old - sn * u, c * b_old + sn * u], axis=1)  # (nj, 2, 3)
+        rows = np.arange(g1.num_joints)
+        tA = source[:, 0, 1][:, None] * t_old[rows, source[:, 0, 0]]
+        tB = source[:, 1, 1][:, None] * t_old[rows, source[:, 1, 0]]
+        b0 = tA + tB
+        b0 /= np.linalg.norm(b0, axis=1)[:, None]
+        n = np.cross(tA, tB)
+        n /= np.linalg.norm(n, axis=1)[:, None]
+        xj1 = np.zeros((g1.num_joints, 9))
+        xj1[:, 0:3] = xj0[:, 0:3]
+        xj1[:, 6] = np.arccos(np.clip(np.sum(tA * tB, axis=1), -1.0, 1.0))
+        xj1[:, 7] = xj0[rows, 7 + source[:, 0, 0]]
+        xj1[:, 8] = xj0[rows, 7 + source[:, 1, 0]]
+        tangents = (tA, tB)
+        # where a joint's normal turned over, its segments' material frames turn by π about their edges
+        flipped = np.sum(n * n_old, axis=1) < 0
+        for s1 in range(len(E1)):
+            ends = [int(j) for j in g1.segment_joints[s1] if j >= 0]
+            if len({bool(flipped[j]) for j in ends}) > 1:
+                return None  # turned at one end only: the rod would need half a turn of twist
+            if ends and flipped[ends[0]] and match[s1] >= 0:
+                th1[s1 * k: (s1 + 1) * k] += np.pi
         p1 = L1.rest_lengths
         p_start = np.where(match >= 0, L0.rest_lengths[np.maximum(match, 0)], p1)
         for s1 in np.flatnonzero(match < 0).tolist():  # a new segment: straight out of its joint(s), twist-free
@@ -363,7 +397,7 @@ class Simulation:
             m1 /= np.linalg.norm(m1, axis=1)[:, None]
             t_src[s1 * k: (s1 + 1) * k], d1_src[s1 * k: (s1 + 1) * k] = te, m1
             twist_src[s1 * (k - 1): (s1 + 1) * (k - 1)] = 0.0
-        L1.joint_b0, L1.joint_n0 = b0, n0
+        L1.joint_b0, L1.joint_n0 = b0, n
         L1.rods.t_src, L1.rods.d1_src, L1.rods.ref_twist_src = t_src, d1_src, twist_src
         L1.rods.set_vars(np.concatenate([P1.ravel(), th1]))
         L1._refresh_instance_sources(theta_prev=L1.rods.thetas[L1._inst_edge].copy())
