@@ -216,6 +216,8 @@ class Session:
                 return None
             t0 = time.perf_counter()
             sim = self._sim_for(lay, ("preview", id(lay)), cancel, angle, preview=True)
+            if sim is None:
+                return None
             info = sim.solve_to(angle, cancel=cancel)
             return self._view(sim, t0, info)
 
@@ -346,6 +348,8 @@ class Session:
                     self.status(f"{warm.message}: deploying from the flat state")
             else:
                 self.status("the material or subdivision changed: deploying from the flat state")
+        if preview and (warm is None or not warm.ok):
+            return None  # no preview for this position: never a deployment from flat while dragging
         with self._lock:
             self.sim, self._sim_key = sim, key
             self.last_warm = warm if warm is not None and warm.ok else None
