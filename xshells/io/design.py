@@ -66,6 +66,9 @@ class Design:
     vertex_lines, edge_lines : ndarray of int64, shape (n,) / (m,), or None
         The 1-based file line of each vertex / segment (OBJ only), so that
         later checks (valence, connectivity) can point at the file.
+    note : str or None
+        How the file was read where that matters: a ``.3dm``'s layer, unit
+        system and conversion to millimetres.
 
     Arrays are read-only so a Design can be shared safely.
     """
@@ -75,6 +78,7 @@ class Design:
     source: str | None = None
     vertex_lines: np.ndarray | None = field(default=None, repr=False)
     edge_lines: np.ndarray | None = field(default=None, repr=False)
+    note: str | None = None  # how the file was read, where it says more than its name (a .3dm's units and layer)
 
     @property
     def num_vertices(self) -> int:
@@ -228,7 +232,9 @@ def read_design(path: str | os.PathLike) -> Design:
     Parameters
     ----------
     path : str or PathLike
-        ``.obj`` (line-graph OBJ) or ``.msh`` (gmsh, line elements).
+        ``.obj`` (line-graph OBJ), ``.msh`` (gmsh, line elements) or ``.3dm``
+        (Rhino: the lines and polylines of its one curve layer, in mm;
+        :func:`xshells.rhino.read_3dm_design` for a layer or sampling).
 
     Returns
     -------
@@ -239,7 +245,11 @@ def read_design(path: str | os.PathLike) -> Design:
         return read_obj_design(path)
     if suffix == ".msh":
         return read_msh_design(path)
-    raise InputError(f"{path}: unknown design file type {suffix!r} (expected .obj or .msh)")
+    if suffix == ".3dm":
+        from ..rhino.read import read_3dm_design
+
+        return read_3dm_design(path)
+    raise InputError(f"{path}: unknown design file type {suffix!r} (expected .obj, .msh or .3dm)")
 
 
 def _read_text(path: str | os.PathLike) -> str:
