@@ -167,9 +167,15 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         deployed["stiffness_gap"] = res.stiffness_gap
         deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
     _write_outputs(out_dir, "deployed", linkage)
-    from ..fabrication.run import write_outputs_of
+    from ..fabrication.run import plan_of, write_fabrication
+    from ..rhino.write import write_3dm
 
-    write_outputs_of(out_dir, linkage, flat_angles, linkage.joint_angles())  # cut list, strips, assembly (docs/fabrication.md)
+    plan = plan_of(linkage, flat_angles, linkage.joint_angles())
+    if plan is not None:  # cut list, strips, assembly (docs/fabrication.md)
+        write_fabrication(out_dir, plan)
+    # the flat layout, the deployed state and the strips as one layered Rhino file (docs/rhino.md)
+    write_3dm(os.path.join(out_dir, "deployed.3dm"), flat_design=design if linkage.graph.is_planar else None,
+              deployed=linkage, strips=plan)
     steps_out = [asdict(s) for s in (res.steps if res is not None else [])]
     for row, extra in zip(steps_out, stress_rows):
         row.update({k: v for k, v in extra.items() if k in ("max_von_mises", "utilization_max")})

@@ -199,18 +199,23 @@ def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
     return paths
 
 
-def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> list[str]:
-    """The fabrication files of a command that solved ``linkage`` (``deploy``, ``optimize``, ``inverse``), default options.
+def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> FabricationPlan | None:
+    """The fabrication plan (default options) of a command that solved ``linkage``; None for a layout that is not flat.
 
     ``flat_angles``: the joint angles of its flat assembly state; ``rest_lengths``
-    default to the linkage's own. A layout that is not flat gets none ([]).
+    default to the linkage's own.
     """
     if not linkage.graph.is_planar:
-        return []
+        return None
     p = linkage.rest_lengths if rest_lengths is None else rest_lengths
     mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
-    plan = fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles)
-    return write_fabrication(out_dir, plan)
+    return fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles)
+
+
+def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> list[str]:
+    """The fabrication files of a command that solved ``linkage`` (``optimize``, ``inverse``); [] for a non-flat layout."""
+    plan = plan_of(linkage, flat_angles, deployed_angles, rest_lengths)
+    return [] if plan is None else write_fabrication(out_dir, plan)
 
 
 def run_fabrication(design_path, material, *, out_dir, options: FabricationOptions = FabricationOptions(), subdivision=10,
