@@ -106,3 +106,48 @@ def test_curved_curves_and_layers_are_refused_in_one_line(tmp_path):
     bad.write_bytes(b"not a rhino file")
     with pytest.raises(InputError, match="not a readable Rhino .3dm file"):
         read_design(bad)
+
+
+def test_a_target_surface_from_a_3dm_mesh_in_metres(tmp_path):
+    from xshells.design.fitting import read_surface
+    from xshells.inverse.surface import load_target
+
+    cap = EXAMPLES / "targets" / "spherical_cap_R2000_30deg.obj"
+    V, F = read_surface(cap)
+    f = rhino3dm.File3dm()
+    f.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Meters
+    f.Settings.ModelAbsoluteTolerance = 1e-6
+    m = rhino3dm.Mesh()
+    for x, y, z in (V / 1000).tolist():
+        m.Vertices.Add(x, y, z)
+    for a, b, c in F.tolist():
+        m.Faces.AddFace(a, b, c)
+    f.Objects.AddMesh(m)
+    f.Write(str(tmp_path / "cap.3dm"), 7)
+    V3, F3 = read_surface(tmp_path / "cap.3dm")
+    assert F3.shape == F.shape
+    np.testing.assert_allclose(np.sort(V3, axis=0), np.sort(V, axis=0), atol=1e-3)  # mm; Point3f is single precision
+    assert load_target(tmp_path / "cap.3dm").diagonal == pytest.approx(load_target(cap).diagonal, rel=1e-6)
+    empty = rhino3dm.File3dm()
+    empty.Objects.AddLine(rhino3dm.Point3d(0, 0, 0), rhino3dm.Point3d(1, 0, 0))
+    empty.Write(str(tmp_path / "lines.3dm"), 7)
+    with pytest.raises(InputError, match="no mesh, Brep or extrusion"):
+        read_surface(tmp_path / "lines.3dm")
+
+
+def test_the_command_line_takes_layer_and_sample(tmp_path, capsys):
+    from xshells.cli import main
+    from xshells.rhino.read import set_defaults
+
+    two = _write(tmp_path / "two.3dm", layers=("flat", "notes"),
+                 segments=[(((0, 0, 0), (100, 0, 0)), 0), (((0, 50, 0), (100, 50, 0)), 1)])
+    try:
+        assert main(["fabricate", str(two), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+        assert "pick one with --layer" in capsys.readouterr().err
+        assert main(["fabricate", str(two), "--layer", "notes", "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and "\n" not in err.strip()  # read, then refused in one line (one segment, no joint)
+        assert main(["deploy", str(two), "--sample", "0", "--out", str(tmp_path / "p"), "--no-progress"]) == 2
+        assert "--sample must be at least 1" in capsys.readouterr().err
+    finally:
+        set_defaults()  # the process-wide defaults back for the other tests

@@ -32,6 +32,9 @@ SUBCOMMANDS = [
 ]
 
 
+DESIGN_COMMANDS = ("deploy", "optimize", "sparsify", "fabricate", "analyze", "app", "sweep")
+
+
 def build_parser(modules: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser with the subcommands of ``modules`` (default: all of :data:`SUBCOMMANDS`)."""
     parser = argparse.ArgumentParser(
@@ -50,6 +53,12 @@ def build_parser(modules: list[str] | None = None) -> argparse.ArgumentParser:
                 raise
             continue
         mod.register(sub)
+    for name, sp in sub.choices.items():  # the commands that read a design file: its .3dm options
+        if name in DESIGN_COMMANDS:
+            g = sp.add_argument_group("Rhino .3dm input")
+            g.add_argument("--layer", help="the layer of a .3dm design to read (default: its one layer holding curves)")
+            g.add_argument("--sample", type=int, metavar="N",
+                           help="replace each curved curve of a .3dm design by N straight segments (default: refuse them)")
     return parser
 
 
@@ -104,6 +113,10 @@ def _run(args, debug: bool) -> int:
         # command line: a run that goes wrong says so in its own one-line message.
         import numpy as np
 
+        if getattr(args, "layer", None) is not None or getattr(args, "sample", None) is not None:
+            from .rhino.read import set_defaults
+
+            set_defaults(layer=args.layer, sample=args.sample)
         with np.errstate(all="ignore"):
             return int(args.func(args) or 0)
     except InputError as exc:

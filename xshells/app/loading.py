@@ -22,7 +22,7 @@ MAX_UPLOAD_BYTES = 5 * 1024 * 1024
 # the paper's section, as xshells deploy uses by default (copied here so that
 # opening the app does not import the solver; test_app_core checks they agree)
 DEFAULT_MATERIAL = {"type": "rectangle", "E": 20000.0, "nu": 0.3, "params": [10.0, 7.0]}
-DESIGN_SUFFIXES = (".obj", ".msh")
+DESIGN_SUFFIXES = (".obj", ".msh", ".3dm")
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ def open_path(path: str) -> Project:
         design = read_design(path)
         layout = layout_from_design(design)
         return Project(os.path.splitext(os.path.basename(path))[0], layout, default_material(layout))
-    raise InputError(f"{path}: open a design (.obj, .msh) or a case file (.json)")
+    raise InputError(f"{path}: open a design (.obj, .msh, .3dm) or a case file (.json)")
 
 
 def default_material(layout: Layout) -> dict:
@@ -132,7 +132,7 @@ class UploadStore:
             return Project(os.path.splitext(name)[0], layout, default_material(layout))
         if ext == ".json":
             return self._case_from_bytes(name, content)
-        raise InputError(f"{name}: upload a design (.obj, .msh) or a case file (.json)")
+        raise InputError(f"{name}: upload a design (.obj, .msh, .3dm) or a case file (.json)")
 
     def _case_from_bytes(self, name: str, content: bytes) -> Project:
         try:

@@ -260,6 +260,10 @@ def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
     import meshio
 
     path = Path(path)
+    if path.suffix.lower() == ".3dm":  # Rhino: its meshes, or its surfaces' render meshes, in mm
+        from ..rhino.read import read_3dm_surface
+
+        return read_3dm_surface(path)
     try:
         with warnings.catch_warnings():  # meshio warns while guessing at malformed files
             warnings.simplefilter("ignore")

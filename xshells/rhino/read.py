@@ -23,6 +23,15 @@ from ..io.design import Design, design_from_arrays
 RHINO_UNITS_TO_MM = {"Millimeters": 1.0, "Centimeters": 10.0, "Decimeters": 100.0, "Meters": 1000.0,
                      "Kilometers": 1e6, "Microns": 1e-3, "Inches": 25.4, "Feet": 304.8, "Yards": 914.4}
 NEAR_MISS = 100.0  # an end within this many tolerances of another vertex, but not within one, is a missed join
+# what ``read_design`` uses for a .3dm when not told: set by the command line's --layer and --sample
+_DEFAULTS = {"layer": None, "sample": None}
+
+
+def set_defaults(layer: str | None = None, sample: int | None = None) -> None:
+    """The layer and sampling that :func:`xshells.io.read_design` uses for ``.3dm`` designs (the CLI's options)."""
+    if sample is not None and sample < 1:
+        raise InputError(f"--sample must be at least 1 segment per curve, got {sample}")
+    _DEFAULTS.update(layer=layer, sample=sample)
 
 
 def _open(path):
@@ -80,6 +89,8 @@ def read_3dm_design(path, layer: str | None = None, sample: int | None = None) -
         With ``note`` saying which units the file was in and the conversion.
     """
     path = os.fspath(path)
+    layer = _DEFAULTS["layer"] if layer is None else layer
+    sample = _DEFAULTS["sample"] if sample is None else sample
     rhino3dm, f = _open(path)
     units, to_mm = _units(path, f)
     tol = float(f.Settings.ModelAbsoluteTolerance) or 1e-6
@@ -168,3 +179,62 @@ def _check_near_misses(path, V, E, owner, index, tol, units) -> None:
             raise InputError(f"{path}: the end of object {obj} at ({x:g}, {y:g}, {z:g}) misses a vertex by {gap:.3g} "
                              f"{units.lower()}, more than the file's tolerance {tol:g}: join them in Rhino, or raise the "
                              "tolerance")
+
+
+def read_3dm_surface(path, layer: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A target surface from a ``.3dm``: its mesh objects, or the render meshes stored with its Breps and
+    extrusions, welded within the file's tolerance and converted to millimetres.
+
+    Returns
+    -------
+    V : (n, 3) float, mm
+    F : (t, 3) int64 (quads split into two triangles)
+    """
+    path = os.fspath(path)
+    layer = _DEFAULTS["layer"] if layer is None else layer
+    rhino3dm, f = _open(path)
+    units, to_mm = _units(path, f)
+    tol = float(f.Settings.ModelAbsoluteTolerance) or 1e-6
+    names = _layer_names(f)
+    pieces, unmeshed = [], []
+    for i, o in enumerate(f.Objects):
+        g = o.Geometry
+        li = int(o.Attributes.LayerIndex)
+        lname = names[li] if 0 <= li < len(names) else "(no layer)"
+        if layer is not None and lname != layer and lname.split("::")[-1] != layer:
+            continue
+        if isinstance(g, rhino3dm.Mesh):
+            pieces.append((lname, g))
+        elif isinstance(g, rhino3dm.Brep):
+            meshes = [face.GetMesh(rhino3dm.MeshType.Any) for face in g.Faces]
+            if any(m is None for m in meshes):
+                unmeshed.append(i)
+            pieces.extend((lname, m) for m in meshes if m is not None)
+        elif isinstance(g, rhino3dm.Extrusion):
+            m = g.GetMesh(rhino3dm.MeshType.Any)
+            if m is None:
+                unmeshed.append(i)
+            else:
+                pieces.append((lname, m))
+    if not pieces:
+        if unmeshed:
+            raise InputError(f"{path}: object {unmeshed[0]} is a surface saved without its render mesh: in Rhino, "
+                             "shade a view (or run Mesh) and save again, or export the surface as a mesh")
+        raise InputError(f"{path}: no mesh, Brep or extrusion to use as the target surface"
+                         + (f" on layer {layer!r}" if layer is not None else ""))
+    held = sorted({name for name, _ in pieces})
+    if layer is None and len(held) > 1:
+        raise InputError(f"{path}: surfaces on several layers ({', '.join(repr(n) for n in held)}): pick one with --layer")
+    V, F = [], []
+    for _, m in pieces:
+        base = len(V)
+        V.extend([[p.X, p.Y, p.Z] for p in (m.Vertices[k] for k in range(len(m.Vertices)))])
+        for k in range(m.Faces.Count):
+            a, b, c, d = m.Faces[k]
+            F.append([base + a, base + b, base + c])
+            if d != c:  # a quad
+                F.append([base + a, base + c, base + d])
+    V, index = _snap(np.asarray(V, float), tol)
+    F = index[np.asarray(F, np.int64)]
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
+    return V * to_mm, F
