@@ -28,7 +28,7 @@ def test_the_analysis_reports_and_writes_what_it_should(run):
     assert len(r["reactions"]) == 4
     assert r["equilibrium_error"] <= 1e-8
     assert r["stable"] and not r["buckled"]
-    for name in ("analysis.png", "beams.csv", "loaded.ply", "deploy/result.json"):
+    for name in ("analysis.png", "beams.csv", "loaded.ply", "loaded.3dm", "deploy/result.json", "deploy/deployed.3dm"):
         assert (out / name).is_file(), name
     assert "utilization" in (out / "loaded.ply").read_bytes()[:2000].decode("latin-1")
 

@@ -46,6 +46,7 @@ def test_optimize_writes_its_outputs_and_resumes(small_case, tmp_path):
 
     check_cutlist(out / "cutlist.csv", read_design(small_case.parent / "grid.obj").edges, p, tol=1e-3)
     assert "deployed_angle_deg" in (out / "joints.csv").read_text().splitlines()[0]
+    assert (out / "deployed.3dm").stat().st_size > 0
     # resume from the written rest lengths, at another angle
     assert main(args + ["--resume", "--angle", "55", "--no-baseline"]) == 0
     r2 = json.loads((out / "result.json").read_text())

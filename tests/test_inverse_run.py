@@ -29,7 +29,7 @@ def test_the_result_is_a_valid_physical_state(cap_run):
     assert r["coverage"] >= 0.9
     assert code == (0 if r["status"] == "complete" else 1)
     for name in ("flat_design.obj", "design_parameters.txt", "case.json", "fit.png", "flat.png", "flat_layout.svg",
-                 "flat_layout.dxf", "cutlist.csv", "joints.csv", "beams.svg", "assembly.svg", "bom.json"):
+                 "flat_layout.dxf", "cutlist.csv", "joints.csv", "beams.svg", "assembly.svg", "bom.json", "inverse.3dm"):
         assert (out / name).is_file(), name
     for key in ("fit_mean", "fit_max", "coverage", "placement", "segments", "joints", "energy_flat", "energy_deployed",
                 "min_flat_angle_deg", "time_s", "stage_times_s"):

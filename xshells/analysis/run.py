@@ -183,6 +183,9 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, bas
     shown = copy.deepcopy(L)
     translate(shown, origin)  # back in the design's frame
     write_ply(os.path.join(out_dir, "loaded.ply"), swept_mesh(shown, fields))
+    from ..rhino.write import write_3dm
+
+    write_3dm(os.path.join(out_dir, "loaded.3dm"), deployed=shown)  # the loaded shell's centerlines and beams (mm)
     d = L.rods.points - unloaded.rods.points
     span = float(np.ptp(unloaded.rods.points, axis=0).max())
     dmax = float(np.linalg.norm(d, axis=1).max())

@@ -197,6 +197,12 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         vmax = max(scale[state], float(bending_field(L).max()))
         _write_outputs(out_dir, f"{state}_before", before[state], vmax=vmax)
         _write_outputs(out_dir, state, L, vmax=vmax)
+    from ..fabrication.run import plan_of
+    from ..rhino.write import write_3dm
+
+    flat_L = problem.flat.L  # the optimized design as one Rhino file: flat layout, deployed state, strips (mm)
+    write_3dm(os.path.join(out_dir, "deployed.3dm"), flat_design=flat_L.graph.design if flat_L.graph.is_planar else None,
+              deployed=problem.deployed.L, strips=plan_of(flat_L, flat_L.joint_angles(), problem.deployed.L.joint_angles(), p))
     bfgs = None
     if with_baseline and not interrupted:
         base_problem = problem.fresh_copy()  # the same starting problem, without deploying again

@@ -356,6 +356,15 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
     Xp = apply(T, Y)
     d = surface_distances(surface, Xp) / surface.diagonal
     rods = apply(T, deployed.rods.points)
+    import copy
+
+    from ..fabrication.run import plan_of
+    from ..rhino.write import write_3dm
+
+    placed = copy.deepcopy(deployed)  # in the surface's frame, over the target, as the fit is measured
+    placed.apply_rigid_motion(np.asarray(T)[:3, :3], np.asarray(T)[:3, 3])
+    write_3dm(os.path.join(out_dir, "inverse.3dm"), flat_design=flat.graph.design, deployed=placed,
+              target=(surface.V, surface.F), strips=plan_of(flat, flat.joint_angles(), deployed.joint_angles()))
     rod_d = surface_distances(surface, rods)
     cov = coverage(surface, rods, deployed.rods.edges, 0.75 * spacing)
     span = float(np.ptp(flat.rods.points, axis=0).max())
