@@ -149,5 +149,14 @@ def test_the_command_line_takes_layer_and_sample(tmp_path, capsys):
         assert "Traceback" not in err and "\n" not in err.strip()  # read, then refused in one line (one segment, no joint)
         assert main(["deploy", str(two), "--sample", "0", "--out", str(tmp_path / "p"), "--no-progress"]) == 2
         assert "--sample must be at least 1" in capsys.readouterr().err
+        d = read_design(EXAMPLES / "manta_ray.obj")
+        m = _write(tmp_path / "manta_m.3dm", units="Meters", tolerance=1e-5,
+                   segments=[(d.vertices[a] / 1000, d.vertices[b] / 1000) for a, b in d.edges])
+        assert main(["fabricate", str(m), "--out", str(tmp_path / "f"), "--no-progress"]) == 0
+        import json
+
+        r = json.loads((tmp_path / "f" / "result.json").read_text())
+        assert "Meters" in r["input"] and "converted to mm (x1000)" in r["input"]
+        assert r["bom"]["beams"] == 26  # the manta ray's strips, in mm
     finally:
         set_defaults()  # the process-wide defaults back for the other tests

@@ -113,7 +113,7 @@ def _run(args, debug: bool) -> int:
         # command line: a run that goes wrong says so in its own one-line message.
         import numpy as np
 
-        if getattr(args, "layer", None) is not None or getattr(args, "sample", None) is not None:
+        if hasattr(args, "layer"):  # this command's .3dm options (None: the reader's own defaults)
             from .rhino.read import set_defaults
 
             set_defaults(layer=args.layer, sample=args.sample)

@@ -138,6 +138,7 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     disp = np.linalg.norm(st.displacement, axis=1)
     beams = beam_report(L, stresses)
     result = {
+        "input": design.note,  # how a .3dm was read (its layer, units and the conversion to mm), else None
         "name": name, "status": "complete" if st.converged else "stopped", "message": st.message,
         "segments": int(L.num_segments), "joints": int(L.num_joints),
         "units": "those of the input: N, mm and MPa for the bundled data",

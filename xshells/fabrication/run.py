@@ -276,6 +276,7 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
         "segments": linkage.num_segments,
         "joints": linkage.num_joints,
         "rest_lengths": "file: " + os.path.abspath(rest_lengths_path) if rest_lengths_path else "rest-length solve",
+        "input": design.note,  # how a .3dm was read (its layer, units and the conversion to mm), else None
         "bom": bom,
         "files": [os.path.basename(p) for p in paths],
         "timings_s": {"rest_lengths": t_rest, "fabrication": t_fab, "total": time.perf_counter() - t0},
@@ -283,4 +284,6 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     if progress and plan.units != "mm":
         print(f"note: {bom['units_note']}", file=sys.stderr)
+    if progress and design.note:
+        print(f"note: {design.note}", file=sys.stderr)
     return result
