@@ -169,6 +169,14 @@ def test_cli_writes_the_answer_and_the_curve(tmp_path, capsys):
     assert int(rows[-1].split(",")[0]) <= 2  # --sweep goes on to the end of the curve
     assert (out / "sweep.png").stat().st_size > 10_000 and (out / "actuators.png").stat().st_size > 10_000
     assert len((out / "torques.txt").read_text().split()) == r["num_joints"]
+    import rhino3dm  # the actuated state as a Rhino file: one point and one torque dot per actuator, in mm
+
+    f = rhino3dm.File3dm.Read(str(out / "actuated.3dm"))
+    names = [layer.FullPath for layer in f.Layers]
+    dots = [o.Geometry.Text for o in f.Objects if names[o.Attributes.LayerIndex] == "actuators"
+            and isinstance(o.Geometry, rhino3dm.TextDot)]
+    assert f.Settings.ModelUnitSystem.name == "Millimeters" and len(dots) == r["num_actuators"]
+    assert sorted(int(t.split(":")[0]) for t in dots) == sorted(r["actuated_joints"])
 
 
 def test_a_run_that_stops_early_says_so_and_suggests_what_to_try(tmp_path, capsys):

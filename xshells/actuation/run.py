@@ -137,6 +137,11 @@ def _write_outputs(out_dir, dense: DenseDeployment, res, result: dict, title: st
     dense_joints = L.joint_positions()
     restore(L, restore_after)
     render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints, title=title)
+    from ..rhino.write import write_3dm
+
+    act = np.asarray(res.actuated, int)  # the sparsely actuated state, its actuators and their torques (mm)
+    write_3dm(os.path.join(out_dir, "actuated.3dm"), deployed=L,
+              actuators=(L.joint_positions()[act], np.asarray(res.torques, float)[act], L.graph.joint_vertex[act]))
 
 
 def _start(case_path, out_dir, dense, angle_deg, progress, candidates):
