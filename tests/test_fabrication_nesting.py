@@ -86,6 +86,6 @@ def test_bad_stock_is_one_line():
 def test_no_stock_lists_one_strip_per_row():
     from xshells.fabrication import no_nesting
 
-    n = no_nesting([10, 20], [5, 7], kerf=2)
+    n = no_nesting([5, 7], kerf=2)
     assert [(q.x, q.y) for q in n.placements] == [(0.0, 0.0), (0.0, 7.0)]
     assert n.utilization is None and np.isclose(n.kerf, 2)

@@ -75,7 +75,7 @@ def _check_kerf(kerf) -> float:
     return k
 
 
-def no_nesting(lengths, widths, kerf: float = 3.0) -> Nesting:
+def no_nesting(widths, kerf: float = 3.0) -> Nesting:
     """No stock given: one strip per row, in the given order, ``kerf`` apart (for drawing)."""
     k = _check_kerf(kerf)
     w = np.asarray(widths, float)

@@ -181,7 +181,7 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
     elif options.sheet is not None:
         nesting = nest_sheets(lengths, widths, options.sheet, options.kerf, labels)
     else:
-        nesting = no_nesting(lengths, widths, options.kerf)
+        nesting = no_nesting(widths, options.kerf)
     return FabricationPlan(beams, joints, nesting, float(hole), to_mm, str(options.units).strip().lower(), XY, top)
 
 

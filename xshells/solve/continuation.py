@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .cholesky import NotPositiveDefinite
-from .newton import _workspace
+from .newton import _workspace, free_indices
 
 
 def rest_length_predictor(problem, new_rest_lengths, *, fixed=None, constraint_direction=None) -> bool:
@@ -47,10 +47,7 @@ def rest_length_predictor(problem, new_rest_lengths, *, fixed=None, constraint_d
     """
     x = problem.get_vars()
     n = len(x)
-    free = np.ones(n, bool)
-    if fixed is not None:
-        free[np.asarray(fixed, dtype=int)] = False
-    free_idx = np.flatnonzero(free)
+    free_idx = free_indices(n, fixed)
     ws = _workspace(problem)
     g_old = problem.gradient()
     H = ws.free_part(problem.hessian(), free_idx, n)

@@ -149,6 +149,14 @@ class _Workspace:
 _workspaces: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
+def free_indices(n: int, fixed=None) -> np.ndarray:
+    """The variables (of ``n``) not in ``fixed``, increasing."""
+    free = np.ones(n, bool)
+    if fixed is not None:
+        free[np.asarray(fixed, dtype=int)] = False
+    return np.flatnonzero(free)
+
+
 def _workspace(problem) -> _Workspace:
     try:
         ws = _workspaces.get(problem)
@@ -204,10 +212,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     report = NewtonReport()
     x = problem.get_vars()
     n = len(x)
-    free = np.ones(n, bool)
-    if fixed is not None:
-        free[np.asarray(fixed, dtype=int)] = False
-    free_idx = np.flatnonzero(free)
+    free_idx = free_indices(n, fixed)
     f = np.zeros(n) if force is None else np.asarray(force, float)
     ws = _workspace(problem)
     chol = ws.chol
@@ -454,10 +459,7 @@ def _constrained_tangent(problem, fixed, a_full: np.ndarray):
     """
     ws = _workspace(problem)
     n = len(a_full)
-    free = np.ones(n, bool)
-    if fixed is not None:
-        free[np.asarray(fixed, dtype=int)] = False
-    free_idx = np.flatnonzero(free)
+    free_idx = free_indices(n, fixed)
     a = np.asarray(a_full, float)[free_idx]
     H = ws.free_part(problem.hessian(), free_idx, n)
     if ws.aug is None or ws.aug[0].shape != a.shape or not np.array_equal(ws.aug[0], a):
