@@ -17,6 +17,10 @@ def register(subparsers) -> None:
     p.add_argument("--orientation", type=float, default=0.0,
                    help="turns the beam families on the surface, degrees (0: their bisector along the surface's longest axis)")
     p.add_argument("--flat-angle", type=float, default=20.0, help="opening angle of the flat, closed layout, degrees (default 20)")
+    p.add_argument("--grading", type=float, default=0.0,
+                   help="grades the automatic net, degrees: its crossing angle runs from ANGLE+GRADING on its middle "
+                        "line to ANGLE-GRADING at its sides, and its joint spacings vary with it (default 0: evenly "
+                        "spaced joints; -25 reaches the spherical cap closest, see docs/inverse.md)")
     p.add_argument("--net", help="a 3D quad net (OBJ: quad faces or beam lines) drawn on or near the surface, used "
                                  "instead of the automatic one")
     p.add_argument("--direction", choices=("up", "down"), default="up",
@@ -44,7 +48,7 @@ def _inverse(args) -> int:
     spec = material_spec_from_option(args.material, args.young, args.poisson)
     opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
-                          max_iters=args.max_iters, force=args.force)
+                          max_iters=args.max_iters, force=args.force, grading=args.grading)
     r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
     if r["status"] in ("complete", "missed", "invalid"):
         print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "

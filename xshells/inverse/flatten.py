@@ -73,27 +73,43 @@ def flatten_layout(lengths_3d: np.ndarray, segments: np.ndarray, nbr: np.ndarray
 
 def net_from_file(path, surface, smap, flat_angle: float) -> Net:
     """A designer's quad net (:func:`.net.read_net`) with its flat layout."""
+    X, segments = read_net(path)
+    return net_from_arrays(X, segments, surface, smap, flat_angle, str(path))
+
+
+def chart(surface, smap):
+    """The map of surface points (k, 3) to the scissor map's plane (k, 2), through their closest points."""
     import igl
 
+    F = surface.F
+
+    def to_chart(X):
+        sq, fi, C = igl.point_mesh_squared_distance(np.ascontiguousarray(X, float), surface.V, F)
+        fi = np.asarray(fi, np.int64)
+        bc = igl.barycentric_coordinates(np.asarray(C, float), surface.V[F[fi, 0]], surface.V[F[fi, 1]],
+                                         surface.V[F[fi, 2]])
+        return np.einsum("nk,nkd->nd", bc, smap.flat[F[fi]]), np.sqrt(np.asarray(sq))
+
+    return to_chart
+
+
+def net_from_arrays(X, segments, surface, smap, flat_angle: float, source: str) -> Net:
+    """A quad net given by its vertices (k, 3) and segments (s, 2), with its flat layout: least squares
+    on its segment lengths, started from the scissor map."""
     from ..io.design import design_from_arrays
     from ..linkage.graph import analyze
 
-    X, segments = read_net(path)
     try:
-        graph = analyze(design_from_arrays(X, segments, source=str(path)))
+        graph = analyze(design_from_arrays(X, segments, source=source))
     except InputError as exc:
-        raise InputError(f"{path}: not a quad net of beams: {exc}") from None
-    span = float(np.linalg.norm(np.ptp(X, axis=0)))
-    sq, fi, C = igl.point_mesh_squared_distance(X, surface.V, surface.F)
-    far = np.sqrt(np.asarray(sq)) > 0.05 * surface.diagonal
+        raise InputError(f"{source}: not a quad net of beams: {exc}") from None
+    start, dist = chart(surface, smap)(X)
+    far = dist > 0.05 * surface.diagonal
     if far.any():
         v = int(np.flatnonzero(far)[0])
-        raise InputError(f"{path}: vertex {v + 1} lies {np.sqrt(sq[v]):.4g} from the surface (more than 5% of its "
+        raise InputError(f"{source}: vertex {v + 1} lies {dist[v]:.4g} from the surface (more than 5% of its "
                          f"diagonal {surface.diagonal:.4g}): draw the net on or near the surface")
-    fi = np.asarray(fi, np.int64)
-    F = surface.F
-    bc = igl.barycentric_coordinates(np.asarray(C, float), surface.V[F[fi, 0]], surface.V[F[fi, 1]], surface.V[F[fi, 2]])
-    start = np.einsum("nk,nkd->nd", bc, smap.flat[F[fi]])
+    span = float(np.linalg.norm(np.ptp(X, axis=0)))
     jv = np.asarray(graph.joint_vertex)
     sj = graph.segment_joints
     inner = (sj >= 0).all(axis=1)  # joint-to-joint segments carry the flattening

@@ -56,6 +56,11 @@ class InverseOptions:
         Design-optimization iterations after the load is gone.
     force : bool
         Allow more than 5,000 segments.
+    grading : float
+        Δ, degrees. 0 (the default): the automatic net spaces its joints
+        evenly (:func:`.net.surface_net`). Otherwise the graded net of
+        :mod:`.graded`, whose crossing angle runs from ``angle + Δ`` on its
+        middle line to ``angle − Δ`` at its sides.
     gamma, beta : float
         The weights of eq. 5 (:class:`~xshells.design.objective.DesignWeights`).
     guide : GuideOptions
@@ -70,6 +75,7 @@ class InverseOptions:
     steps: int = 30
     max_iters: int = 20
     force: bool = False
+    grading: float = 0.0
     gamma: float = 0.9
     beta: float = 1000.0
     guide: GuideOptions = field(default_factory=GuideOptions)
@@ -84,6 +90,10 @@ def check_options(options: InverseOptions, surface) -> float:
                          f"angle {options.angle:g}°")
     if not np.isfinite(options.orientation):
         raise InputError("--orientation must be a finite angle in degrees")
+    if not np.isfinite(options.grading) or not (0.0 < options.angle - abs(options.grading)
+                                                 and options.angle + abs(options.grading) < 180.0):
+        raise InputError(f"--grading {options.grading:g}: the crossing angle would leave (0°, 180°) across the net "
+                         f"(angle {options.angle:g}° ± {abs(options.grading):g}°)")
     if options.direction not in ("up", "down"):
         raise InputError(f"--direction must be up or down, got {options.direction!r}")
     spacing = options.spacing if options.spacing is not None else surface.diagonal / 12.0
@@ -156,10 +166,18 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     from .scissor import scissor_map
 
     smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation))
-    if net_path is None:
+    if net_path is None and options.grading == 0.0:
         from .net import surface_net
 
         net = surface_net(surface, smap, theta, spacing)
+    elif net_path is None:
+        from .flatten import chart, net_from_arrays
+        from .graded import graded_net_quads
+
+        to_chart = chart(surface, smap)
+        X, segs = graded_net_quads(surface, lambda P: to_chart(P)[0], smap.mean_director_3d(), theta, spacing,
+                                   np.radians(options.grading))
+        net = net_from_arrays(X, segs, surface, smap, alpha0, f"{surface.path}: the automatic net")
     else:
         from .flatten import net_from_file
 
@@ -301,7 +319,7 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
 
     result = {"surface": str(surface_path), "units": "those of the surface file (lengths) and of the material "
               "(Young's modulus): the bundled data use mm and MPa", "spacing": spacing, "angle_deg": options.angle,
-              "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "direction": options.direction,
+              "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "grading_deg": options.grading, "direction": options.direction,
               "mirrored_layout": mirror, "scissor_residual": smap.residual, "held_rms": held_rms, "steadying_springs": steady if hold.steady is not None else 0.0,
               "segments": int(final_design.num_segments), "joints": int(flat_L.num_joints),
               "stages": [asdict(s) for s in stages], "load_released": released,

@@ -136,6 +136,11 @@ class ScissorMap:
     stretch: tuple
     frames: FaceFrames = field(repr=False)
 
+    def mean_director_3d(self) -> np.ndarray:
+        """The area-weighted mean of the director e₁ in space, unit, shape (3,)."""
+        e = (self.frames.to_3d(self.director) * self.frames.area[:, None]).sum(0)
+        return e / np.linalg.norm(e)
+
 
 def _initial_director_uv(V, uv, orientation: float) -> np.ndarray:
     """The direction in the LSCM plane of the surface's longest principal axis (the file's x axis where two
