@@ -29,6 +29,7 @@ SUBCOMMANDS = [
     "xshells.inverse.cli",
     "xshells.analysis.cli",
     "xshells.fabrication.cli",
+    "xshells.rhino.cli",
 ]
 
 
@@ -102,23 +103,49 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
+def _execute(args) -> int:
+    """Runs a parsed command; input errors propagate as :class:`InputError`."""
+    out = getattr(args, "out", None)
+    if isinstance(out, str) and out:  # refused before any work starts
+        from .io.export import prepare_output_dir
+
+        prepare_output_dir(out)
+    # Floating-point warnings (overflow, 0/0 in a collapsing state) are not for the
+    # command line: a run that goes wrong says so in its own one-line message.
+    import numpy as np
+
+    if hasattr(args, "layer"):  # this command's .3dm options (None: the reader's own defaults)
+        from .rhino.read import set_defaults
+
+        set_defaults(layer=args.layer, sample=args.sample)
+    with np.errstate(all="ignore"):
+        return int(args.func(args) or 0)
+
+
+def run_in_process(argv: list[str]) -> int:
+    """Runs ``xshells ARGV`` in this process, as the command line would, and returns its exit code.
+
+    For callers that report errors their own way (the Hops server): an input
+    error, or an option the parser refuses, raises :class:`InputError` with
+    its one line instead of printing it.
+    """
+    import contextlib
+    import io
+
+    parser = _parser_for(list(argv))
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            args = parser.parse_args(list(argv))
+    except SystemExit:
+        lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
+        raise InputError(lines[-1] if lines else f"invalid options: {' '.join(argv)}") from None
+    return _execute(args)
+
+
 def _run(args, debug: bool) -> int:
     try:
-        out = getattr(args, "out", None)
-        if isinstance(out, str) and out:  # refused before any work starts
-            from .io.export import prepare_output_dir
-
-            prepare_output_dir(out)
-        # Floating-point warnings (overflow, 0/0 in a collapsing state) are not for the
-        # command line: a run that goes wrong says so in its own one-line message.
-        import numpy as np
-
-        if hasattr(args, "layer"):  # this command's .3dm options (None: the reader's own defaults)
-            from .rhino.read import set_defaults
-
-            set_defaults(layer=args.layer, sample=args.sample)
-        with np.errstate(all="ignore"):
-            return int(args.func(args) or 0)
+        return _execute(args)
     except InputError as exc:
         print(f"xshells {args.command}: error: {exc}", file=sys.stderr)
         return 2

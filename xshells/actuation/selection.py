@@ -293,6 +293,7 @@ def _linear_cuts(J, r, t_active, count, ub_active):
         Ginv = Ginv - np.outer(Ginv[:, i], Ginv[:, i]) / Ginv[i, i]
         keep.remove(i)
         dropped.append(i)
+    x[dropped] = 0.0  # exactly: the downdates of later cuts leave round-off on the earlier ones
     return dropped, np.clip(x, 0.0, ub_active)
 
 

@@ -204,8 +204,8 @@ def case_path_from_args(args, command: str, steps_default: int) -> str:
         if given:
             raise InputError(f"{', '.join(given)} contradict{'s' if len(given) == 1 else ''} the case file; edit the case file instead")
         return path
-    if not path.endswith((".obj", ".msh")):
-        raise InputError(f"{path}: {command} takes a case file (.json) or a design (.obj, .msh)")
+    if not path.lower().endswith((".obj", ".msh", ".3dm")):
+        raise InputError(f"{path}: {command} takes a case file (.json) or a design (.obj, .msh, .3dm)")
     if not os.path.exists(path):
         raise InputError(f"{path}: no such file")
     from ..io.export import atomic_write_text

@@ -47,6 +47,14 @@ def _write_outputs(out_dir: str, tag: str, linkage: Linkage, vmax: float | None 
                    title=f"{tag}: average angle {np.degrees(linkage.average_angle()):.1f}°", vmax=vmax)
 
 
+def _write_flat_outputs(out_dir: str, linkage: Linkage, design) -> None:
+    _write_outputs(out_dir, "flat", linkage)
+    if linkage.graph.is_planar:  # fabrication drawings of the flat layout with its rest lengths
+        from ..io.fabrication import write_drawings
+
+        write_drawings(out_dir, "flat_layout", design, linkage.rest_lengths)
+
+
 def _stress_row(linkage, strength) -> dict:
     """The largest stress of a state and where it is (its beam, the joint nearest to it)."""
     from ..analysis.stress import beam_report, rod_stresses
@@ -120,11 +128,6 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         import copy
 
         states["flat"] = copy.deepcopy(linkage)
-    _write_outputs(out_dir, "flat", linkage)
-    if linkage.graph.is_planar:  # fabrication drawings of the flat layout with its rest lengths
-        from ..io.fabrication import write_drawings
-
-        write_drawings(out_dir, "flat_layout", design, linkage.rest_lengths)
     if target_angle is None:
         target_angle = linkage.average_angle() + (open_by if open_by is not None else np.radians(60.0))
 
@@ -148,12 +151,15 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         return False
 
     t2 = time.perf_counter()
+    res = None
     interrupted = False
-    try:
-        res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start), callback=on_step)
+    try:  # an interrupt from here on keeps what is done: the flat files, the steps so far, result.json
+        _write_flat_outputs(out_dir, linkage, design)
+        t2 = time.perf_counter()
+        res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start),
+                     callback=on_step)
     except KeyboardInterrupt:
         interrupted = True
-        res = None
     finally:
         if bar is not None:
             bar.close()

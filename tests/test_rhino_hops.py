@@ -1,0 +1,229 @@
+"""Grasshopper Hops: metadata over HTTP, a Deploy solve from a Hops payload that agrees with ``xshells deploy``,
+the document's units, the cache, and one-line errors for malformed payloads."""
+import json
+import threading
+import urllib.request
+
+import numpy as np
+import pytest
+
+from data_paths import EXAMPLES
+from xshells.cli import main
+from xshells.io import read_design
+from xshells.rhino.components import components
+from xshells.rhino.hops import HopsService, make_server
+
+rhino3dm = pytest.importorskip("rhino3dm")
+
+SCALE = 200.0  # the bundled irregular grid, made ~100 mm a segment so that the default 10 × 7 section is slender
+OPTIONS = {"Angle": ("System.Double", 80.0), "Subdivision": ("System.Int32", 4), "Steps": ("System.Int32", 10)}
+
+
+def _grid():
+    d = read_design(EXAMPLES / "nonuniform_linkage.obj")
+    return np.asarray(d.vertices, float) * SCALE, np.asarray(d.edges)
+
+
+def _payload(per_mm=1.0, units="Millimeters", pointer="/deploy", **extra):
+    """What Grasshopper sends: lines as RhinoCommon JSON (rhino3dm's Encode), numbers as JSON text."""
+    V, E = _grid()
+    items = []
+    for a, b in E:
+        c = rhino3dm.LineCurve(rhino3dm.Point3d(*(V[a] * per_mm)), rhino3dm.Point3d(*(V[b] * per_mm)))
+        items.append({"type": "Rhino.Geometry.LineCurve", "data": json.dumps(c.Encode())})
+    values = [{"ParamName": "Lines", "InnerTree": {"{0}": items}}]
+    for name, (kind, v) in {**OPTIONS, **extra}.items():
+        values.append({"ParamName": name, "InnerTree": {"{0}": [{"type": kind, "data": json.dumps(v)}]}})
+    return {"pointer": pointer, "modelunits": units, "absolutetolerance": 1e-6 * per_mm, "values": values}
+
+
+def _outputs(reply):
+    out = {}
+    for v in reply["values"]:
+        items = v["InnerTree"]["{0}"]
+        decoded = []
+        for it in items:
+            data = json.loads(it["data"])
+            geometry = it["type"].startswith("Rhino.Geometry.") and it["type"] != "Rhino.Geometry.Point3d"
+            decoded.append(rhino3dm.CommonObject.Decode(data) if geometry else data)
+        out[v["ParamName"]] = decoded
+    return out
+
+
+def read_polylines_obj(path):
+    """The ``l`` records of an OBJ as point arrays."""
+    V, lines = [], []
+    for raw in open(path):
+        parts = raw.split()
+        if parts and parts[0] == "v":
+            V.append([float(x) for x in parts[1:4]])
+        elif parts and parts[0] == "l":
+            lines.append([int(i) - 1 for i in parts[1:]])
+    V = np.array(V)
+    return [V[idx] for idx in lines]
+
+
+def _points(curve):
+    pl = curve.TryGetPolyline()
+    return np.array([[pl[i].X, pl[i].Y, pl[i].Z] for i in range(pl.Count)])
+
+
+@pytest.fixture(scope="module")
+def server():
+    logs = []
+    service = HopsService(components(), log=logs.append)
+    httpd = make_server(service, "127.0.0.1", 0)  # a free loopback port
+    t = threading.Thread(target=httpd.serve_forever, daemon=True)
+    t.start()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}", service, logs
+    httpd.shutdown()
+    httpd.server_close()
+
+
+def _get(url):
+    with urllib.request.urlopen(url) as r:
+        return r.status, json.loads(r.read())
+
+
+def _post(url, body):
+    req = urllib.request.Request(url, data=body if isinstance(body, bytes) else json.dumps(body).encode(),
+                                 headers={"Content-Type": "application/json"}, method="POST")
+    with urllib.request.urlopen(req) as r:
+        return r.status, json.loads(r.read())
+
+
+@pytest.fixture(scope="module")
+def deployed(server):
+    url, _, _ = server
+    return _post(url + "/solve", _payload())
+
+
+def test_it_binds_loopback_by_default(server):
+    url, _, _ = server
+    assert url.startswith("http://127.0.0.1:")
+    from xshells.cli import build_parser
+
+    args = build_parser().parse_args(["hops"])
+    assert args.host == "127.0.0.1" and args.port == 5000
+
+
+def test_metadata_of_every_component(server):
+    url, _, _ = server
+    status, listing = _get(url + "/")
+    assert status == 200
+    assert sorted(c["Name"] for c in listing) == ["Analyze", "Deploy", "Inverse", "Optimize", "Sparsify"]
+    for c in listing:
+        status, meta = _get(url + c["Uri"])
+        assert status == 200
+        assert meta["Description"] and meta["Inputs"] and meta["Outputs"]
+        for p in meta["Inputs"] + meta["Outputs"]:
+            assert {"Name", "ParamType", "AtLeast", "AtMost"} <= set(p)
+    names = [p["Name"] for p in _get(url + "/deploy")[1]["Inputs"]]
+    assert names[:1] == ["Lines"] and {"Section", "Young", "Angle", "Steps", "Direction"} <= set(names)
+
+
+def test_deploy_agrees_with_xshells_deploy(deployed, tmp_path):
+    status, reply = deployed
+    assert status == 200 and reply["errors"] == [], reply["errors"]
+    out = _outputs(reply)
+    assert out["Stable"] == [True]
+    lines = [_points(c) for c in out["Centerlines"]]
+    # the same lines through the command line
+    V, E = _grid()
+    obj = tmp_path / "grid.obj"
+    obj.write_text("".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in V) + "".join(f"l {a + 1} {b + 1}\n" for a, b in E))
+    code = main(["deploy", str(obj), "--angle", "80", "--subdivision", "4", "--steps", "10", "--out",
+                 str(tmp_path / "cli"), "--no-progress"])
+    assert code == 0
+    ref = read_polylines_obj(tmp_path / "cli" / "deployed_centerlines.obj")
+    assert len(ref) == len(lines)
+    span = np.ptp(np.vstack(ref), axis=0).max()
+    assert max(np.abs(a - b).max() for a, b in zip(lines, ref)) <= 1e-9 * span
+    r = json.loads((tmp_path / "cli" / "result.json").read_text())
+    assert out["Energy"][0] == pytest.approx(r["deployed"]["energy"], rel=1e-12)
+    assert out["Torque"][0] == pytest.approx(r["deployed"]["torque"], rel=1e-12)
+    assert len(out["Beams"]) == 1 and len(out["Beams"][0].Vertices) > 0
+
+
+def test_the_documents_units_in_and_out(server, deployed):
+    url, _, _ = server
+    _, mm = deployed
+    status, m = _post(url + "/solve", _payload(per_mm=1e-3, units="Meters"))
+    assert status == 200 and m["errors"] == [], m["errors"]
+    a, b = _outputs(mm), _outputs(m)
+    assert b["Energy"][0] == pytest.approx(a["Energy"][0], rel=1e-9)  # the same design: solved in mm both times
+    pa = np.vstack([_points(c) for c in a["Centerlines"]])
+    pb = np.vstack([_points(c) for c in b["Centerlines"]])
+    assert np.abs(pb * 1e3 - pa).max() <= 1e-9 * np.ptp(pa, axis=0).max()  # returned in metres
+
+
+def test_unchanged_inputs_come_from_the_cache(server, deployed):
+    url, _, logs = server
+    _, first = deployed
+    n = len(logs)
+    status, again = _post(url + "/deploy", _payload())  # the component's own URI, as newer Hops posts
+    assert status == 200 and again["values"] == first["values"]
+    assert any("from the cache" in line for line in logs[n:])
+
+
+@pytest.mark.parametrize("body, words", [
+    (b"{not json", "not JSON"),
+    ({"values": []}, "pointer"),
+    ({"pointer": "/nothing", "values": []}, "no component /nothing"),
+    ({"pointer": "/deploy", "values": "x"}, "list of 'values'"),
+    ({"pointer": "/deploy", "values": [{"ParamName": "Lines"}], "modelunits": "Parsecs"}, "units 'Parsecs'"),
+    ({"pointer": "/deploy", "values": [{"ParamName": "Bogus", "InnerTree": {}}]}, "unknown input 'Bogus'"),
+    ({"pointer": "/deploy", "values": []}, "input 'Lines' is empty"),
+])
+def test_malformed_payloads_get_one_line(server, body, words):
+    url, _, _ = server
+    status, reply = _post(url + "/solve", body)
+    assert status == 200 and reply["values"] == []
+    assert len(reply["errors"]) == 1 and words in reply["errors"][0], reply["errors"]
+    assert "Traceback" not in reply["errors"][0] and "\n" not in reply["errors"][0]
+
+
+def test_a_bad_input_to_the_command_is_the_components_error(server):
+    url, _, _ = server
+    status, reply = _post(url + "/solve", _payload(Direction=("System.String", "sideways")))
+    assert status == 200 and reply["errors"] == ["input 'Direction': up or down, got 'sideways'"]
+    status, reply = _post(url + "/solve", _payload(Angle=("System.String", "wide")))
+    assert reply["errors"] == ["input 'Angle': expected a number, got '\"wide\"'"], reply["errors"]
+    status, reply = _post(url + "/solve", _payload(Section=("System.String", "rectangle:ten,7")))
+    assert len(reply["errors"]) == 1 and "rectangle:ten,7" in reply["errors"][0], reply["errors"]
+
+
+def test_unknown_get_is_404_with_a_message(server):
+    url, _, _ = server
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(url + "/nothing")
+    assert e.value.code == 404 and "no component /nothing" in json.loads(e.value.read())["errors"][0]
+
+
+@pytest.mark.parametrize("pointer, extra, expect", [
+    ("/sparsify", {"Actuators": ("System.Int32", 4)}, {"Actuators": 4, "Torques": 4}),
+    ("/optimize", {"MaxIters": ("System.Int32", 2)}, {"Layout": 170}),
+    ("/analyze", {"Supports": ("System.String", "lowest:4"), "Loads": ("System.String", "self-weight"),
+                  "Density": ("System.Double", 1.9e-9)}, {"MaxStress": 1}),
+])
+def test_the_other_components_solve_the_same_lines(server, pointer, extra, expect):
+    url, _, _ = server
+    status, reply = _post(url + "/solve", _payload(pointer=pointer, **extra))
+    assert status == 200 and reply["errors"] == [], reply["errors"]
+    out = _outputs(reply)
+    assert len(out["Centerlines"]) == 170 and len(out["Beams"]) == 1  # one polyline per segment of the grid
+    for name, n in expect.items():
+        assert len(out[name]) == n, name
+    if pointer == "/sparsify":
+        assert all(t > 0 for t in out["Torques"])
+    if pointer == "/analyze":
+        assert out["MaxStress"][0] > 0
+
+
+def test_inverse_wants_a_mesh(server):
+    url, _, _ = server
+    line = rhino3dm.LineCurve(rhino3dm.Point3d(0, 0, 0), rhino3dm.Point3d(1, 0, 0))
+    body = {"pointer": "/inverse", "values": [{"ParamName": "Surface", "InnerTree": {"{0}": [
+        {"type": "Rhino.Geometry.LineCurve", "data": json.dumps(line.Encode())}]}}]}
+    _, reply = _post(url + "/solve", body)
+    assert reply["errors"] == ["input 'Surface': a mesh is needed, got a LineCurve"]
