@@ -227,3 +227,44 @@ def test_inverse_wants_a_mesh(server):
         {"type": "Rhino.Geometry.LineCurve", "data": json.dumps(line.Encode())}]}}]}
     _, reply = _post(url + "/solve", body)
     assert reply["errors"] == ["input 'Surface': a mesh is needed, got a LineCurve"]
+
+
+def test_the_command_serves_until_interrupted(tmp_path):
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "xshells.cli", "hops", "--port", str(port)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 60
+        while True:
+            try:
+                status, meta = _get(f"http://127.0.0.1:{port}/deploy")
+                break
+            except OSError:
+                assert proc.poll() is None and time.time() < deadline, proc.communicate()
+                time.sleep(0.2)
+        assert status == 200 and meta["Name"] == "Deploy"
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert f"http://127.0.0.1:{port}/" in out and "Traceback" not in err
+
+
+def test_a_port_in_use_is_one_line(capsys):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        code = main(["hops", "--port", str(s.getsockname()[1])])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot listen on 127.0.0.1" in err[0]
