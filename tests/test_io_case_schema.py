@@ -253,3 +253,19 @@ def test_every_entry_of_the_papers_cases_json_is_a_valid_case():
     for c in cases:
         jsonschema.validate(c, json_schema())
         validate_case(c, c["name"])
+
+
+def test_a_stop_swallowed_by_a_finalizer_still_stops_the_deployment(tmp_path, monkeypatch):
+    # SIGTERM raises KeyboardInterrupt wherever Python is; inside a __del__ Python drops it. The flag the
+    # handler sets stops the deployment at its next step all the same.
+    from xshells.deploy.case import material_from_spec
+    from xshells.deploy.run import run_deployment
+    from xshells.errors import STOP
+
+    monkeypatch.setattr(STOP, "requested", True)
+    with pytest.raises(KeyboardInterrupt):
+        run_deployment(str(EXAMPLES / "quad.obj"), material_from_spec({"type": "rectangle", "params": [10, 7],
+                                                                      "E": 20000, "nu": 0.3}),
+                       out_dir=str(tmp_path / "out"), steps=5, progress=False)
+    r = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert r["status"] == "interrupted"

@@ -214,6 +214,8 @@ def test_the_other_components_solve_the_same_lines(server, pointer, extra, expec
     assert len(out["Centerlines"]) == 170 and len(out["Beams"]) == 1  # one polyline per segment of the grid
     for name, n in expect.items():
         assert len(out[name]) == n, name
+    if pointer in ("/sparsify", "/optimize"):  # the command printed and recorded how it read the .3dm
+        assert any("units Millimeters" in w for w in reply["warnings"]), reply["warnings"]
     if pointer == "/sparsify":
         assert all(t > 0 for t in out["Torques"])
     if pointer == "/analyze":

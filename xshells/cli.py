@@ -88,7 +88,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import signal
 
+    from .errors import STOP
+
+    STOP.requested = False
+
     def _terminate(signum, frame):  # SIGTERM as Ctrl-C: work is kept and files are complete or absent
+        STOP.requested = True  # checked again at the next step, should a finalizer swallow the exception
         raise KeyboardInterrupt
 
     previous = None

@@ -51,6 +51,8 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
     L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
     warnings = L.input_warnings()
     why = "".join(f"; {w}" for w in warnings)  # a failure below is most likely explained by these
+    if design.note:  # how a .3dm was read (its layer, units and the conversion to mm): printed with the warnings
+        warnings = [design.note] + list(warnings)
     if p is None:
         rest_length_solve(L)
     else:
@@ -115,6 +117,7 @@ def _result_dict(dense: DenseDeployment, res, method: dict) -> dict:
         "converged": res.converged,
         "message": res.message,
         "warnings": dense.warnings,
+        "input": L.graph.design.note,  # how a .3dm was read (its layer, units and the conversion to mm), else None
         "time_s": res.time_s,
         "dense_deployment_time_s": dense.time_s,
         "joint_vertices": jv.tolist(),

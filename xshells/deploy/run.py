@@ -11,6 +11,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from ..errors import STOP
 from ..io import read_design, read_rest_lengths
 from ..io.export import atomic_write_text
 from ..linkage.export import scalar_fields, write_centerlines, write_swept
@@ -143,6 +144,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     stress_rows = []
 
     def on_step(rec):
+        STOP.check()
         if strength is not None:  # the utilization along the way; without a strength, the final state's stresses only
             stress_rows.append(_stress_row(linkage, strength))
         if bar is not None:
@@ -158,6 +160,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         t2 = time.perf_counter()
         res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start),
                      callback=on_step)
+        STOP.check()
     except KeyboardInterrupt:
         interrupted = True
     finally:

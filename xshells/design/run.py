@@ -35,6 +35,8 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
     warnings = L.input_warnings()
     why = "".join(f"; {w}" for w in warnings)  # a failure below is most likely explained by these
+    if design.note:  # how a .3dm was read (its layer, units and the conversion to mm): printed with the warnings
+        warnings = [design.note] + list(warnings)
     if p is None:
         rest_length_solve(L)
     target = target_angle(case, L, angle_deg)
@@ -229,6 +231,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         "flat_angle_deg": float(np.degrees(problem.flat.angle)),
         "flat_angle_note": problem.flat_note,
         "warnings": list(problem.input_warnings),
+        "input": problem.flat.L.graph.design.note,  # how a .3dm was read, else None
         "iterations": res.iterations,
         "time_s": res.time_s,
         "time_per_iteration_s": res.time_s / iters,
