@@ -112,10 +112,21 @@ def test_a_grading_that_leaves_the_angle_range_is_one_line(tmp_path, capsys):
     assert len(err) == 1 and "--grading 95" in err[0]
 
 
+def test_grading_and_a_given_net_are_one_line(tmp_path, capsys):
+    net = tmp_path / "net.obj"
+    net.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n")
+    code = main(["inverse", str(CAP), "--grading", "-25", "--net", str(net), "--out", str(tmp_path / "o"),
+                 "--no-progress"])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--grading" in err[0] and "--net" in err[0]
+
+
 def test_graded_inverse_design_of_the_cap_is_valid_and_rises(tmp_path):
     out = tmp_path / "cap"
     diag = float(np.linalg.norm([1918.0, 1918.0, 266.0]))
-    main(["inverse", str(CAP), "--grading", "-25", "--spacing", f"{diag / 8:.3f}", "--out", str(out), "--no-progress"])
+    # with its progress bars, as a user runs it (the graded net's bar counts curves, with no total)
+    main(["inverse", str(CAP), "--grading", "-25", "--spacing", f"{diag / 8:.3f}", "--out", str(out)])
     r = json.loads((out / "result.json").read_text())
     assert r["valid"], r["message"]
     assert r["flat_planarity"] <= 1e-6 and not r["folded"] and not r["overlap"]

@@ -180,10 +180,13 @@ class _Families:
         self.trace, self.chart = trace, chart
         self.curves = ({}, {})
         self._cross = {}
+        self.on_curve = None
 
     def add(self, family, key, seed):
         (pts,), _ = self.trace(seed[None], +1.0 if family == 0 else -1.0)
         self.curves[family][key] = _Curve(pts, self.chart)
+        if self.on_curve is not None:
+            self.on_curve()
 
     def crossing(self, i, j):
         """Joint (i, j): (point, arc length along A_i, arc length along B_j) or None."""
@@ -224,7 +227,7 @@ class _Families:
 
 
 def graded_net_quads(surface: TargetSurface, chart, axis: np.ndarray, angle: float, spacing: float,
-                     grading: float = DOME_GRADING):
+                     grading: float = DOME_GRADING, on_curve=None):
     """The graded net's joints and quads.
 
     Parameters
@@ -239,6 +242,8 @@ def graded_net_quads(surface: TargetSurface, chart, axis: np.ndarray, angle: flo
         Mean crossing angle (radians) and the joint spacing on the middle line.
     grading : float
         Δ (radians).
+    on_curve : callable, optional
+        Called with no arguments after each curve is traced (progress).
 
     Returns
     -------
@@ -267,6 +272,7 @@ def graded_net_quads(surface: TargetSurface, chart, axis: np.ndarray, angle: flo
     max_steps = int(4.0 * surface.diagonal / step) + 10
     keys, seeds = _middle_seeds(project, field, centre, 2.0 * spacing * np.sin(omega0 / 2.0), step, max_steps)
     fams = _Families(lambda P, sign: _trace(project, field, P, sign, step, max_steps), chart)
+    fams.on_curve = on_curve
     for k, p in zip(keys, seeds):
         fams.add(0, int(k), p)
         fams.add(1, int(k), p)

@@ -165,6 +165,8 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     t = time.perf_counter()
     from .scissor import scissor_map
 
+    if net_path is not None and options.grading != 0.0:
+        raise InputError("--grading shapes the automatic net: it cannot apply to a --net; give one or the other")
     smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation))
     if net_path is None and options.grading == 0.0:
         from .net import surface_net
@@ -175,8 +177,13 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         from .graded import graded_net_quads
 
         to_chart = chart(surface, smap)
-        X, segs = graded_net_quads(surface, lambda P: to_chart(P)[0], smap.mean_director_3d(), theta, spacing,
-                                   np.radians(options.grading))
+        bar = _stage_bar(progress, None, "laying the graded net", "curve")
+        try:
+            X, segs = graded_net_quads(surface, lambda P: to_chart(P)[0], smap.mean_director_3d(), theta, spacing,
+                                       np.radians(options.grading), on_curve=bar.update if bar is not None else None)
+        finally:
+            if bar is not None:
+                bar.close()
         net = net_from_arrays(X, segs, surface, smap, alpha0, f"{surface.path}: the automatic net")
     else:
         from .flatten import net_from_file
