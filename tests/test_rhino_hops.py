@@ -270,3 +270,11 @@ def test_a_port_in_use_is_one_line(capsys):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cannot listen on 127.0.0.1" in err[0]
+
+
+def test_a_polyline_struct_is_read_as_a_polyline_curve():
+    from xshells.rhino.hops import Param, decode_item
+
+    pts = [{"X": 0.0, "Y": 0.0, "Z": 0.0}, {"X": 1.0, "Y": 0.0, "Z": 0.0}, {"X": 1.0, "Y": 2.0, "Z": 0.0}]
+    c = decode_item({"type": "Rhino.Geometry.Polyline", "data": json.dumps(pts)}, Param("Lines", "Curve", "", many=True))
+    assert isinstance(c, rhino3dm.PolylineCurve) and _points(c).tolist() == [[0, 0, 0], [1, 0, 0], [1, 2, 0]]

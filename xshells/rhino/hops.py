@@ -134,6 +134,11 @@ def decode_item(item: dict, param: Param):
         return str(data)
     if kind.endswith("Line") and isinstance(data, dict) and "From" in data:  # Rhino.Geometry.Line, a struct
         return rhino3dm.LineCurve(rhino3dm.Point3d(*_point(data["From"])), rhino3dm.Point3d(*_point(data["To"])))
+    if isinstance(data, list) and len(data) >= 2 and all(isinstance(p, dict) and "X" in p for p in data):
+        pl = rhino3dm.Point3dList()  # Rhino.Geometry.Polyline, a struct: its points
+        for p in data:
+            pl.Add(*_point(p))
+        return rhino3dm.PolylineCurve(pl)
     if kind.endswith("Point3d") and isinstance(data, dict) and "X" in data:
         return rhino3dm.Point3d(*_point(data))
     if isinstance(data, dict):
