@@ -56,6 +56,19 @@ def _write_flat_outputs(out_dir: str, linkage: Linkage, design) -> None:
         write_drawings(out_dir, "flat_layout", design, linkage.rest_lengths)
 
 
+def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles) -> None:
+    _write_outputs(out_dir, "deployed", linkage)
+    from ..fabrication.run import plan_of, write_fabrication
+    from ..rhino.write import write_3dm
+
+    plan = plan_of(linkage, flat_angles, linkage.joint_angles())
+    if plan is not None:  # cut list, strips, assembly (docs/fabrication.md)
+        write_fabrication(out_dir, plan)
+    # the flat layout, the deployed state and the strips as one layered Rhino file (docs/rhino.md)
+    write_3dm(os.path.join(out_dir, "deployed.3dm"), flat_design=design if linkage.graph.is_planar else None,
+              deployed=linkage, strips=plan)
+
+
 def _stress_row(linkage, strength) -> dict:
     """The largest stress of a state and where it is (its beam, the joint nearest to it)."""
     from ..analysis.stress import beam_report, rod_stresses
@@ -175,16 +188,10 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         deployed["min_hessian_eigenvalue"] = res.min_hessian_eigenvalue
         deployed["stiffness_gap"] = res.stiffness_gap
         deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
-    _write_outputs(out_dir, "deployed", linkage)
-    from ..fabrication.run import plan_of, write_fabrication
-    from ..rhino.write import write_3dm
-
-    plan = plan_of(linkage, flat_angles, linkage.joint_angles())
-    if plan is not None:  # cut list, strips, assembly (docs/fabrication.md)
-        write_fabrication(out_dir, plan)
-    # the flat layout, the deployed state and the strips as one layered Rhino file (docs/rhino.md)
-    write_3dm(os.path.join(out_dir, "deployed.3dm"), flat_design=design if linkage.graph.is_planar else None,
-              deployed=linkage, strips=plan)
+    try:  # an interrupt while the files are written still leaves result.json (each file is whole or absent)
+        _write_deployed_outputs(out_dir, linkage, design, flat_angles)
+    except KeyboardInterrupt:
+        interrupted = True
     steps_out = [asdict(s) for s in (res.steps if res is not None else [])]
     for row, extra in zip(steps_out, stress_rows):
         row.update({k: v for k, v in extra.items() if k in ("max_von_mises", "utilization_max")})
