@@ -158,6 +158,7 @@ def test_a_deploy_killed_with_sigterm_leaves_only_complete_files(tmp_path):
     files = sorted(p for p in out.iterdir())
     assert not [p.name for p in files if ".tmp" in p.name or p.name.startswith(".")], files
     assert all(_complete(p) for p in files)
+    assert (out / "result.json").exists(), (proc.returncode, [p.name for p in files], err.decode()[-2000:])
     r = json.loads((out / "result.json").read_text())
     assert r["status"] == "interrupted"
     assert b"Traceback" not in err, err.decode()
@@ -269,3 +270,62 @@ def test_a_stop_swallowed_by_a_finalizer_still_stops_the_deployment(tmp_path, mo
                        out_dir=str(tmp_path / "out"), steps=5, progress=False)
     r = json.loads((tmp_path / "out" / "result.json").read_text())
     assert r["status"] == "interrupted"
+
+
+QUAD_MATERIAL = {"type": "rectangle", "params": [10, 7], "E": 20000, "nu": 0.3}
+
+
+def test_a_stop_while_the_last_files_are_written_waits_for_result_json(tmp_path, monkeypatch):
+    # The signal handler calls STOP.request(); landing while the deployed files are written, it must
+    # neither cut result.json off nor be lost.
+    import xshells.deploy.run as run
+    from xshells.deploy.case import material_from_spec
+    from xshells.errors import STOP
+
+    monkeypatch.setattr(STOP, "requested", False)
+    write = run._write_deployed_outputs
+
+    def write_then_signal(*args):
+        STOP.request()  # what the handler does; deferred here, so nothing is raised yet
+        write(*args)
+
+    monkeypatch.setattr(run, "_write_deployed_outputs", write_then_signal)
+    with pytest.raises(KeyboardInterrupt):
+        run.run_deployment(str(EXAMPLES / "quad.obj"), material_from_spec(QUAD_MATERIAL), out_dir=str(tmp_path / "out"),
+                           steps=3, progress=False)
+    r = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert r["status"] == "complete"  # the deployment itself finished before the stop
+    assert (tmp_path / "out" / "deployed.obj").exists() and (tmp_path / "out" / "deployment.csv").exists()
+
+
+def test_a_stop_turned_into_another_error_by_a_library_still_counts_as_a_stop(tmp_path, monkeypatch):
+    import xshells.deploy.run as run
+    from xshells.deploy.case import material_from_spec
+    from xshells.errors import STOP
+
+    monkeypatch.setattr(STOP, "requested", False)
+
+    def deploy_interrupted_inside_a_library(*args, **kwargs):
+        try:
+            STOP.request()
+        except KeyboardInterrupt:
+            raise RuntimeError("a C extension's own error") from None
+
+    monkeypatch.setattr(run, "deploy", deploy_interrupted_inside_a_library)
+    with pytest.raises(KeyboardInterrupt):
+        run.run_deployment(str(EXAMPLES / "quad.obj"), material_from_spec(QUAD_MATERIAL), out_dir=str(tmp_path / "out"),
+                           steps=3, progress=False)
+    assert json.loads((tmp_path / "out" / "result.json").read_text())["status"] == "interrupted"
+
+
+def test_stop_deferred_records_the_request_and_raises_at_the_next_check(monkeypatch):
+    from xshells.errors import STOP
+
+    monkeypatch.setattr(STOP, "requested", False)
+    with STOP.deferred():
+        STOP.request()  # no exception inside the region
+        assert STOP.requested
+    with pytest.raises(KeyboardInterrupt):
+        STOP.check()
+    with pytest.raises(KeyboardInterrupt):
+        STOP.request()  # outside a region the request raises at once

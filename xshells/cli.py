@@ -92,20 +92,22 @@ def main(argv: list[str] | None = None) -> int:
 
     STOP.requested = False
 
-    def _terminate(signum, frame):  # SIGTERM as Ctrl-C: work is kept and files are complete or absent
-        STOP.requested = True  # checked again at the next step, should a finalizer swallow the exception
-        raise KeyboardInterrupt
+    def _terminate(signum, frame):  # SIGTERM and Ctrl-C: work is kept and files are complete or absent
+        # The flag is checked again at the next step, should a finalizer swallow the
+        # exception; inside STOP.deferred() (a run's last files) nothing is raised yet.
+        STOP.request()
 
-    previous = None
-    try:
-        previous = signal.signal(signal.SIGTERM, _terminate)
-    except (ValueError, AttributeError):  # not the main thread, or no SIGTERM here
-        pass
+    previous = {}
+    for name in ("SIGTERM", "SIGINT"):
+        try:
+            previous[name] = signal.signal(getattr(signal, name), _terminate)
+        except (ValueError, AttributeError):  # not the main thread, or no such signal here
+            pass
     try:
         return _run(args, debug)
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for name, handler in previous.items():
+            signal.signal(getattr(signal, name), handler)
 
 
 def _execute(args) -> int:

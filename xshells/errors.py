@@ -1,4 +1,5 @@
 """Errors that describe bad input in one line."""
+import contextlib
 
 
 class InputError(ValueError):
@@ -25,11 +26,31 @@ class _StopRequest:
 
     def __init__(self):
         self.requested = False
+        self.deferring = 0  # > 0: inside :meth:`deferred`, the handler only records the request
 
     def check(self) -> None:
         """Raise KeyboardInterrupt if a stop was requested."""
         if self.requested:
             raise KeyboardInterrupt
+
+    def request(self) -> None:
+        """What the command line's signal handler does: record the stop, and raise unless deferred."""
+        self.requested = True
+        if not self.deferring:
+            raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def deferred(self):
+        """A region a stop must not cut short (the last summaries and files of a run).
+
+        A stop that arrives inside it waits: the region runs to its end, and
+        :meth:`check` afterwards raises. Keep such regions short (seconds).
+        """
+        self.deferring += 1
+        try:
+            yield
+        finally:
+            self.deferring -= 1
 
 
 STOP = _StopRequest()

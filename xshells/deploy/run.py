@@ -176,19 +176,39 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         STOP.check()
     except KeyboardInterrupt:
         interrupted = True
+    except Exception:
+        if not STOP.requested:
+            raise
+        interrupted = True  # the stop was raised inside library code that turned it into another error
     finally:
+        # A stop from here on waits until the last files and result.json are written (seconds):
+        # cut short, the run would leave deployed files without the result that describes them.
+        STOP.deferring += 1
+    try:
         if bar is not None:
             bar.close()
-    t_deploy = time.perf_counter() - t2
+        t_deploy = time.perf_counter() - t2
+        if states is not None:
+            states["deployed"] = linkage
+        result = _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, {
+            "name": name, "flat": flat, "target_angle_deg": float(np.degrees(target_angle)), "warnings": warnings,
+            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}}, t0)
+    finally:
+        STOP.deferring -= 1
+    if interrupted or STOP.requested:
+        raise KeyboardInterrupt
+    return result
+
+
+def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, head, t0) -> dict:
+    """Write the deployed state's files, result.json, deployment.csv and deployment.png; returns the result."""
     deployed = _state_summary(linkage)
-    if states is not None:
-        states["deployed"] = linkage
     if res is not None:
         deployed["torque"] = res.torque
         deployed["min_hessian_eigenvalue"] = res.min_hessian_eigenvalue
         deployed["stiffness_gap"] = res.stiffness_gap
         deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
-    try:  # an interrupt while the files are written still leaves result.json (each file is whole or absent)
+    try:  # a Ctrl-C outside the command line's handler: result.json is still written (each file is whole or absent)
         _write_deployed_outputs(out_dir, linkage, design, flat_angles)
     except KeyboardInterrupt:
         interrupted = True
@@ -197,25 +217,25 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         row.update({k: v for k, v in extra.items() if k in ("max_von_mises", "utilization_max")})
     stress = _stress_summary(steps_out, stress_rows, strength, linkage)
     result = {
-        "name": name,
+        "name": head["name"],
         "segments": linkage.num_segments,
         "joints": linkage.num_joints,
         "dof": linkage.num_vars,
         "subdivision": linkage.subdivision,
         "rest_lengths": linkage.rest_lengths.tolist(),
-        "flat": flat,
+        "flat": head["flat"],
         "deployed": deployed,
-        "target_angle_deg": float(np.degrees(target_angle)),
+        "target_angle_deg": head["target_angle_deg"],
         # complete: reached the target; stopped: ended short of it (the message says why); interrupted: Ctrl-C/SIGTERM
         "status": "interrupted" if interrupted else ("complete" if res.converged else "stopped"),
         "reached": bool(res is not None and res.converged),
         "message": "interrupted by the user" if interrupted else res.message,
         "steps": steps_out,
-        "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy, "total": time.perf_counter() - t0},
+        "timings_s": {**head["timings_s"], "total": time.perf_counter() - t0},
         "newton_iterations": res.newton_iterations if res is not None else 0,
         "stress": stress,
         "utilization_max": stress["utilization_max"],
-        "warnings": warnings,
+        "warnings": head["warnings"],
     }
     if res is not None:
         # how the assembly state was held when it first relaxed (see DeployOptions.start)
@@ -231,7 +251,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         from ..viz.render import plot_deployment
 
         plot_deployment(os.path.join(out_dir, "deployment.png"), [s["average_angle_deg"] for s in steps_out],
-                        [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], title=name or "",
+                        [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], title=head["name"] or "",
                         utilization=[s["utilization_max"] for s in steps_out] if strength is not None else None)
     if interrupted:
         raise KeyboardInterrupt
