@@ -1,7 +1,6 @@
 """The one adapter around CHOLMOD (through cvxopt) for sparse Cholesky.
 
-One symbolic analysis is kept and reused while the sparsity pattern stays
-the same; a matrix that is not positive definite raises
+The symbolic analysis of each sparsity pattern is kept and reused; a matrix that is not positive definite raises
 :class:`NotPositiveDefinite` instead of returning a wrong factor.
 """
 from __future__ import annotations
@@ -19,14 +18,29 @@ class NotPositiveDefinite(ArithmeticError):
 
 
 class SparseCholesky:
-    """Factorize symmetric positive-definite sparse matrices of one pattern."""
+    """Factorize symmetric positive-definite sparse matrices, keeping the symbolic analysis of each pattern.
+
+    A solver alternates between a few patterns (a Hessian, the same with a
+    dense block added for a constraint, a shifted one): each keeps its own
+    symbolic analysis (up to ``MAX_PATTERNS``, the least recently used one is
+    dropped), so switching back costs a numeric factorization only.
+    """
+
+    MAX_PATTERNS = 4
 
     def __init__(self):
-        self._pattern = None
-        self._A = None
-        self._symbolic = None
+        self._patterns = {}  # key -> [spmatrix holding the values, symbolic (factored in place)]
+        self._last_arrays = None  # (indptr, indices, key) of the last matrix: the same arrays need no hashing
         self._numeric = None
         self.n = 0
+
+    def _key(self, L):
+        last = self._last_arrays
+        if last is not None and L.indptr is last[0] and L.indices is last[1]:
+            return last[2]  # the very pattern arrays of the last call (a linkage's Hessians share them)
+        key = (L.shape, len(L.indices), hash(L.indptr.tobytes()), hash(L.indices.tobytes()))
+        self._last_arrays = (L.indptr, L.indices, key)
+        return key
 
     def factorize(self, A: sp.spmatrix) -> None:
         """Factorize ``A``: a symmetric sparse matrix, full or lower triangle (only the lower triangle is read).
@@ -41,22 +55,25 @@ class SparseCholesky:
         if not L.has_sorted_indices:
             L = L.copy()
             L.sort_indices()
-        key = (L.shape, len(L.indices), hash(L.indptr.tobytes()), hash(L.indices.tobytes()))
-        if key != self._pattern:
-            self.n = L.shape[0]
+        key = self._key(L)
+        entry = self._patterns.pop(key, None)
+        if entry is None:
             cols = np.repeat(np.arange(L.shape[1]), np.diff(L.indptr))
-            self._A = spmatrix(L.data.astype(float), L.indices.astype(int).tolist(), cols.tolist(), L.shape)
+            Am = spmatrix(L.data.astype(float), L.indices.astype(int).tolist(), cols.tolist(), L.shape)
             # the spmatrix holds Aᵀ (CSR arrays read as CSC): its upper triangle is the lower one of A
-            self._symbolic = cholmod.symbolic(self._A, uplo="U")
-            self._pattern = key
+            entry = [Am, cholmod.symbolic(Am, uplo="U")]
+            if len(self._patterns) >= self.MAX_PATTERNS:
+                self._patterns.pop(next(iter(self._patterns)))
         else:
-            self._A.V = matrix(L.data.astype(float))
-        self._numeric = self._symbolic  # cvxopt factors in place on the symbolic object
+            entry[0].V = matrix(L.data if L.data.dtype == np.float64 else L.data.astype(float))
+        self._patterns[key] = entry  # most recently used last
+        self.n = L.shape[0]
+        self._numeric = None
         try:
-            cholmod.numeric(self._A, self._symbolic)
+            cholmod.numeric(entry[0], entry[1])  # cvxopt factors in place on the symbolic object
         except ArithmeticError as exc:
-            self._numeric = None
             raise NotPositiveDefinite(str(exc)) from None
+        self._numeric = entry[1]
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """Solve ``A x = b`` for ``b`` of shape (n,) or (n, k)."""
