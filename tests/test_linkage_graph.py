@@ -200,6 +200,17 @@ def test_valence_above_four_names_the_node(tmp_path):
     assert "\n" not in str(err.value)
 
 
+def test_overlapping_segments_at_a_joint_are_named(tmp_path):
+    # Found by the deploy fuzz test: nodes 1 and 3 coincide, so two segments of the X lie on top of
+    # each other and the beam through them folds back (it was an internal error in the joint frames).
+    path = tmp_path / "x.obj"
+    path.write_text("v 0 0 0\nv 0 100 0\nv 100 100 0\nv 0 100 0\nv 50 50 0\nl 1 5\nl 5 3\nl 2 5\nl 5 4\n")
+    with pytest.raises(InputError, match=r"x\.obj: node 4 \(line 5\): its segments to node 1 \(line 2\) and "
+                                         r"node 3 \(line 4\) overlap") as err:
+        analyze(read_design(path))
+    assert "\n" not in str(err.value)
+
+
 def test_disconnected_design_names_components(tmp_path):
     path = tmp_path / "two.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 5 5 0\nv 6 5 0\nv 6 6 0\nv 9 9 9\nl 1 2 3\nl 4 5 6\n")

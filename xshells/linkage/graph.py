@@ -348,6 +348,11 @@ def _pair_beams(design: Design, v: int, incident: list[list[int]], valence: np.n
     segs = incident[v]
     u = _outward_directions(design.vertices, E, v, segs)
     cos = u @ u.T
+    same = np.argwhere(np.triu(cos > 1.0 - 1e-12, k=1))
+    if len(same):  # two segments leaving in one direction lie on top of each other (a beam through them folds back)
+        a, b = (_far_vertex(E, segs[i], v) for i in same[0])
+        raise InputError(f"{design.label()}: {design.where_vertex(v)}: its segments to {design.where_vertex(a)} and "
+                         f"{design.where_vertex(b)} overlap (they leave it in the same direction)")
     slots = np.full((2, 2), _NONE, dtype=np.int64)
     if len(segs) == 2:
         # A corner: each beam ends here, so each segment is its own beam.
