@@ -329,3 +329,24 @@ def test_stop_deferred_records_the_request_and_raises_at_the_next_check(monkeypa
         STOP.check()
     with pytest.raises(KeyboardInterrupt):
         STOP.request()  # outside a region the request raises at once
+
+
+def test_a_deploy_that_fails_with_an_error_leaves_stops_undeferred(tmp_path, monkeypatch):
+    # The deferral of stops begins as the deploy ends; a deploy that raised a real error used to
+    # leave it on, and every later stop in the same process (the app, a sweep worker) was only recorded.
+    import xshells.deploy.run as run
+    from xshells.deploy.case import material_from_spec
+    from xshells.errors import STOP
+
+    monkeypatch.setattr(STOP, "requested", False)
+
+    def broken_deploy(*args, **kwargs):
+        raise RuntimeError("a solver bug")
+
+    monkeypatch.setattr(run, "deploy", broken_deploy)
+    with pytest.raises(RuntimeError, match="a solver bug"):
+        run.run_deployment(str(EXAMPLES / "quad.obj"), material_from_spec(QUAD_MATERIAL), out_dir=str(tmp_path / "out"),
+                           steps=3, progress=False)
+    assert STOP.deferring == 0
+    with pytest.raises(KeyboardInterrupt):
+        STOP.request()

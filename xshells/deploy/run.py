@@ -168,23 +168,25 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     t2 = time.perf_counter()
     res = None
     interrupted = False
-    try:  # an interrupt from here on keeps what is done: the flat files, the steps so far, result.json
-        _write_flat_outputs(out_dir, linkage, design)
-        t2 = time.perf_counter()
-        res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start),
-                     callback=on_step)
-        STOP.check()
-    except KeyboardInterrupt:
-        interrupted = True
-    except Exception:
-        if not STOP.requested:
-            raise
-        interrupted = True  # the stop was raised inside library code that turned it into another error
-    finally:
-        # A stop from here on waits until the last files and result.json are written (seconds):
-        # cut short, the run would leave deployed files without the result that describes them.
-        STOP.deferring += 1
-    try:
+    try:  # the outer try only undoes the deferral that the inner one's finally starts
+        try:  # an interrupt from here on keeps what is done: the flat files, the steps so far, result.json
+            _write_flat_outputs(out_dir, linkage, design)
+            t2 = time.perf_counter()
+            res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start),
+                         callback=on_step)
+            STOP.check()
+        except KeyboardInterrupt:
+            interrupted = True
+        except Exception:
+            if not STOP.requested:
+                raise
+            interrupted = True  # the stop was raised inside library code that turned it into another error
+        finally:
+            # A stop from here on waits until the last files and result.json are written (seconds):
+            # cut short, the run would leave deployed files without the result that describes them.
+            # (Not ``with STOP.deferred()``: the deferral must begin the moment the deploy ends,
+            # inside this finally, with no gap for a signal to land in.)
+            STOP.deferring += 1
         if bar is not None:
             bar.close()
         t_deploy = time.perf_counter() - t2
@@ -194,7 +196,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
             "name": name, "flat": flat, "target_angle_deg": float(np.degrees(target_angle)), "warnings": warnings,
             "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}}, t0)
     finally:
-        STOP.deferring -= 1
+        STOP.deferring -= 1  # also when the deploy failed with an error (the counter was left raised before)
     if interrupted or STOP.requested:
         raise KeyboardInterrupt
     return result
