@@ -56,21 +56,20 @@ def test_fixed_variables_stay_put():
     assert P.x[0] == 5.0 and np.allclose(P.x[1:], [0.5, 1 / 3])
 
 
+class Quartic(Quadratic):
+    """E = -x0² + x0⁴ + x1²: x = 0 is a saddle with zero gradient; minima at x0 = ±1/√2."""
+
+    def energy(self):
+        return -self.x[0] ** 2 + self.x[0] ** 4 + self.x[1] ** 2
+
+    def gradient(self):
+        return np.array([-2 * self.x[0] + 4 * self.x[0] ** 3, 2 * self.x[1]])
+
+    def hessian(self):
+        return sp.csr_matrix(np.diag([-2 + 12 * self.x[0] ** 2, 2.0]))
+
+
 def test_escapes_an_exact_saddle():
-    # E = -x0² + x0⁴ + x1²: x = 0 is a saddle with zero gradient; minima at x0 = ±1/√2
-    P = Quadratic(np.diag([-2.0, 2.0]), np.zeros(2), x0=np.zeros(2))
-    P.c = 0.0
-
-    class Quartic(Quadratic):
-        def energy(self):
-            return -self.x[0] ** 2 + self.x[0] ** 4 + self.x[1] ** 2
-
-        def gradient(self):
-            return np.array([-2 * self.x[0] + 4 * self.x[0] ** 3, 2 * self.x[1]])
-
-        def hessian(self):
-            return sp.csr_matrix(np.diag([-2 + 12 * self.x[0] ** 2, 2.0]))
-
     Q = Quartic(np.eye(2), np.zeros(2), x0=np.zeros(2))
     report = minimize(Q, options=NewtonOptions(gradient_tolerance=1e-10, saddle_step=1e-2))
     assert report.converged and report.saddle_escapes >= 1
@@ -146,3 +145,45 @@ def test_a_trial_point_outside_the_domain_shortens_the_step():
     P = LogBarrier(np.eye(1), np.zeros(1), x0=np.array([3.0]))
     report = minimize(P, options=NewtonOptions(gradient_tolerance=1e-12))
     assert report.converged and abs(P.x[0] - 1.0) < 1e-10
+
+
+class RoundedQuadratic(Quadratic):
+    """A quadratic around a large constant whose energy is garbage below 1e-12 of its size,
+    as a sum of many terms is: any move off the starting point reads as a small increase."""
+
+    def energy(self):
+        return 1e3 + super().energy() + 1e-3 * np.abs(self.x - self.start).max()
+
+
+def test_a_newton_step_below_the_energys_round_off_is_judged_by_the_gradient():
+    # The wiggly banana's deployment stalled so: full Newton steps predicted a decrease of
+    # 1e-13 of the energy, measured an increase (round-off), and backtracked to nothing.
+    A = np.diag([1.0, 2.0, 4.0])
+    b = np.array([1.0, 1.0, 1.0])
+    x_min = np.linalg.solve(A, b)
+    P = RoundedQuadratic(A, b, x0=x_min + 1e-4)
+    P.start = P.x.copy()
+    report = minimize(P, options=NewtonOptions(gradient_tolerance=1e-10))
+    assert report.converged, report.message
+    assert np.allclose(P.x, x_min, atol=1e-12)
+    # an energy decrease that is resolvable is still required: far from the minimum the
+    # same noise does not count, and the step is judged by the energy
+    P = RoundedQuadratic(A, b, x0=x_min + 1.0)
+    P.start = P.x.copy()
+    report = minimize(P, options=NewtonOptions(gradient_tolerance=1e-10))
+    assert report.converged and np.allclose(P.x, x_min, atol=1e-12)
+
+
+def test_the_shift_decays_by_the_option_after_an_indefinite_spell():
+    # started at an indefinite point of the quartic: the shift then divides by shift_decay each step
+    for decay in (2.0, 10.0):
+        Q = Quartic(np.eye(2), np.zeros(2), x0=np.array([0.1, 1.0]))
+        report = minimize(Q, options=NewtonOptions(gradient_tolerance=1e-10, shift_decay=decay))
+        assert report.converged and np.isclose(abs(Q.x[0]), 1 / np.sqrt(2), atol=1e-8)
+        s = np.array(report.sigma)
+        first = int(np.flatnonzero(s > 0)[0])
+        k = first + 1
+        while k < len(s) and s[k] > 0 and s[k] < s[k - 1]:  # a decaying run (not a new spell)
+            assert np.isclose(s[k - 1] / s[k], decay), (decay, s)
+            k += 1
+        assert k > first + 1, s  # it did decay at least once

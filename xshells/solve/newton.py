@@ -8,9 +8,10 @@ with ``get_vars()``, ``set_vars(x)``, ``energy()``, ``gradient()``,
 Indefinite Hessians are modified to ``H + σM`` with ``M`` the mass matrix,
 so a modified step is the step of fixed kinetic energy that lowers the
 energy most; ``σ`` starts at ``sigma_factor · λmax(H)/λmax(M)``, is
-multiplied by 4 until the factorization succeeds and halved after each
-success. Near a saddle (indefinite ``H``, small gradient) the step adds the
-most negative generalized eigenvector of ``H d = λ M d``.
+multiplied by 4 until the factorization succeeds and divided by
+``shift_decay`` after each success. Near a saddle (indefinite ``H``, small
+gradient) the step adds the most negative generalized eigenvector of
+``H d = λ M d``.
 """
 from __future__ import annotations
 
@@ -52,6 +53,17 @@ class NewtonOptions:
     require_minimum : bool
         At a point with a small gradient, also require a positive-definite
         Hessian (one extra factorization); a saddle is escaped, not accepted.
+    shift_decay : float
+        After an indefinite spell the shift σ is divided by this after every
+        accepted step, until it is below 1e-8 of its first value. Pure
+        Newton steps right after the spell (no decay) head back to the
+        saddle. Deployments use 10 (:class:`~xshells.deploy.DeployOptions`):
+        halving kept them shifted for up to 27 damped iterations (manta ray
+        at 10 steps: 137 Newton iterations with 2, 104 with 10, the same
+        equilibria to 4e-9 of the span). The default stays 2 for free
+        equilibria: a snap under torque control (the boat at 62°) did not
+        settle in 100 iterations with 10, and design optimization's inner
+        solves reached a slightly worse optimum (docs/design-notes.md).
     """
 
     max_iterations: int = 200
@@ -62,6 +74,7 @@ class NewtonOptions:
     armijo: float = 1e-4
     max_backtracks: int = 40
     require_minimum: bool = True
+    shift_decay: float = 2.0
 
 
 @dataclass
@@ -166,6 +179,10 @@ def _workspace(problem) -> _Workspace:
     except TypeError:  # not weak-referenceable or not hashable: nothing shared
         return _Workspace()
 
+
+SLOPE_ROUND_OFF = 1e-10
+"""A Newton step whose predicted decrease ``−g·d`` is below this fraction of ``|E|``
+may be judged by the gradient instead of the energy (see :func:`minimize`)."""
 
 ROUND_OFF_CURVATURE = 1e3 * np.finfo(float).eps
 """Generalized eigenvalues of ``H d = λ M d`` above ``−ROUND_OFF_CURVATURE·λmax``
@@ -291,19 +308,24 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             sigma0 = options.sigma_factor * _largest_eigenvalue(H) / lam_M
         return sigma0
 
+    def free_gradient():
+        """The free gradient, its norm (projected onto the constraint surface, if any) and the multiplier."""
+        g = (problem.gradient() - f)[free_idx]
+        if constraint is None:
+            return g, float(np.linalg.norm(g)), 0.0
+        lam = -float(a @ g) / aa
+        return g, float(np.linalg.norm(g + lam * a)), lam
+
     stalled = False  # the last step was below round-off: accept a gradient up to 4× the tolerance
     for it in range(options.max_iterations + 1):
         tolerance = options.gradient_tolerance * (4.0 if stalled else 1.0)
-        g = (problem.gradient() - f)[free_idx]
+        g, gnorm, lam = free_gradient()
         if constraint is not None:
             residual = target - float(a_full @ problem.get_vars())
-            lam = -float(a @ g) / aa
-            gnorm = float(np.linalg.norm(g + lam * a))
             report.multiplier = lam
             feasible = abs(residual) <= options.gradient_tolerance * np.sqrt(aa)
         else:
             residual, feasible = 0.0, True
-            gnorm = float(np.linalg.norm(g))
         report.energy.append(objective())
         report.gradient_norm.append(gnorm)
         H = None
@@ -343,9 +365,9 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             if sigma == 0:
                 rho = factor_unshifted(H)
             else:
-                # the shift decays by halves after an indefinite spell (pure Newton steps right
-                # away were tried: near a saddle they head back to it, and each new escape
-                # costs an eigen-solve)
+                # the shift decays (options.shift_decay) after an indefinite spell (pure Newton
+                # steps right away were tried: near a saddle they head back to it, and each new
+                # escape costs an eigen-solve)
                 H = augmented(H)
                 rho = aug if constraint is not None else 0.0
                 chol.factorize(shifted(H, sigma))
@@ -410,6 +432,11 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         resolvable = -slope > 1e-13 * max(abs(e0), 1e-300)
         if constraint is not None and abs(residual) > options.gradient_tolerance * np.sqrt(aa):
             resolvable = False  # a step restoring the constraint is taken in full
+        # A decrease this small is within a few hundred roundings of the energy (its terms'
+        # sum carries ~1e-13 relative error: the wiggly banana's full Newton steps measured
+        # dE = +3.2e-11 at E = 1.3e3 for a predicted -8e-11, then backtracked to nothing and
+        # stalled). There a positive-definite Newton step that lowers |g| is taken.
+        near_round_off = sigma == 0 and -slope < SLOPE_ROUND_OFF * max(abs(e0), 1e-300)
         for _ in range(options.max_backtracks):
             try:
                 problem.set_vars(x + alpha * full_d)
@@ -417,6 +444,8 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 alpha *= 0.5
                 continue
             if not resolvable or objective() <= e0 + options.armijo * alpha * min(slope, 0.0):
+                break
+            if near_round_off and alpha == 1.0 and free_gradient()[1] < gnorm:
                 break
             alpha *= 0.5
         else:
@@ -442,7 +471,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 report.message = f"step below round-off at |g| = {gnorm:.3e}"
                 break
             stalled = True
-        sigma = 0.0 if sigma < 1e-8 * (sigma0 or 0.0) else sigma / 2
+        sigma = 0.0 if sigma < 1e-8 * (sigma0 or 0.0) else sigma / options.shift_decay
         if callback is not None and callback(it, report):
             report.message = "stopped by callback"
             break
