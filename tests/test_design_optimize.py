@@ -103,13 +103,18 @@ def test_the_wiggly_banana_reaches_the_papers_result_with_the_default_weights():
     k = 10 as in the paper (8,970 DoF per state). Measured: after 12 iterations the flat energy is
     7.23x lower, the deployed 5.20x, and the fit (T/l0^2 = 1.14e-5) is no worse than the initial
     design's (1.13e-5) or the paper's optimized design's in the same objective (1.53e-5).
+
+    The run is the README's 25 iterations. After 14 the flat ratio depends on round-off (which
+    trial designs the trust region rejects): 7.23 on one machine, 6.92 on another with the same
+    code (2026-12-02, ad40082); after 25 it was 7.15-7.17 on both, with the code before and after
+    the deployment's shift-decay change.
     """
     from xshells.design.run import build_problem
 
     prob, _ = build_problem(EXAMPLES_DIR / "wiggly_banana_preopt" / "case.json", weights=DesignWeights())
     e_flat, e_deployed = prob.flat.L.energy(), prob.deployed.L.energy()
     fit0 = prob.terms(prob._q)["fit"]
-    res = optimize(prob, OptimizeOptions(max_iterations=14))
+    res = optimize(prob, OptimizeOptions(max_iterations=25))
     t = prob.terms(res.q)
     assert e_deployed / prob.deployed.L.energy() > 5.0
     assert e_flat / prob.flat.L.energy() > 7.0

@@ -129,11 +129,14 @@ class SparsifyResult:
 
 def _equilibrium_options(linkage, tau_ref) -> NewtonOptions:
     # Tight: the adjoint gradient is only as accurate as the equilibrium. The
-    # floor is what round-off in the stiff stretching terms leaves.
+    # floor is what round-off in the stiff stretching terms leaves. Up to 300
+    # iterations: a shape unstable under torque control snaps to another
+    # equilibrium, a long walk (the boat at 62°: not settled after 100 on one
+    # machine, |g| = 3e2, though it was on another; within 300 there).
     eps = np.finfo(float).eps
     coords = float(np.abs(linkage.rods.points).max())
     floor = 10.0 * eps * float(linkage.rods.ks.max()) * coords / float(linkage.rods.rest_lengths.min()) * np.sqrt(linkage.num_vars)
-    return NewtonOptions(gradient_tolerance=max(1e-9 * tau_ref * np.sqrt(linkage.num_joints), floor), max_iterations=100,
+    return NewtonOptions(gradient_tolerance=max(1e-9 * tau_ref * np.sqrt(linkage.num_joints), floor), max_iterations=300,
                          saddle_gradient_factor=float("inf"))
 
 
