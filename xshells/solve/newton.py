@@ -61,9 +61,8 @@ class NewtonOptions:
         halving kept them shifted for up to 27 damped iterations (manta ray
         at 10 steps: 137 Newton iterations with 2, 104 with 10, the same
         equilibria to 4e-9 of the span). The default stays 2 for free
-        equilibria: a snap under torque control (the boat at 62°) did not
-        settle in 100 iterations with 10, and design optimization's inner
-        solves reached a slightly worse optimum (docs/design-notes.md).
+        equilibria (torque control, loads, design optimization's inner
+        solves): 10 has not been measured there (docs/design-notes.md).
     """
 
     max_iterations: int = 200
