@@ -31,3 +31,43 @@ def test_indefinite_matrix_raises():
     A = spd(50, 2) - 100 * sp.eye(50)
     with pytest.raises(NotPositiveDefinite):
         SparseCholesky().factorize(A.tocsr())
+
+
+def test_alternating_patterns_each_keep_their_analysis_and_give_right_solves():
+    # A solver alternates a Hessian, its augmented and its shifted forms: every switch must
+    # still factor the matrix handed over (not the last pattern's), also past MAX_PATTERNS.
+    b = np.random.default_rng(3).standard_normal(120)
+    mats = [spd(120, seed) for seed in range(SparseCholesky.MAX_PATTERNS + 2)]
+    chol = SparseCholesky()
+    for round_ in range(2):
+        for k, A in enumerate(mats):
+            M = (A * (1.0 + round_ + k)).tocsr()
+            chol.factorize(M)
+            assert np.allclose(M @ chol.solve(b), b, atol=1e-9), (round_, k)
+    assert len(chol._patterns) == SparseCholesky.MAX_PATTERNS
+
+
+def test_new_values_on_the_very_same_pattern_arrays_are_factored():
+    # the pattern key is reused, unhashed, for the same index arrays: the values must still be read
+    A = spd(80, 5)
+    b = np.ones(80)
+    chol = SparseCholesky()
+    chol.factorize(A)
+    B = sp.csr_matrix((3.0 * A.data, A.indices, A.indptr), shape=A.shape)
+    B.indices, B.indptr = A.indices, A.indptr
+    chol.factorize(B)
+    assert np.allclose(B @ chol.solve(b), b, atol=1e-10)
+
+
+def test_a_failed_factorization_leaves_nothing_to_solve_with_and_the_pattern_usable():
+    A = spd(60, 6)
+    chol = SparseCholesky()
+    chol.factorize(A)
+    bad = sp.csr_matrix((A.data.copy(), A.indices, A.indptr), shape=A.shape)
+    bad.data[bad.indices == np.repeat(np.arange(60), np.diff(bad.indptr))] -= 100.0  # the diagonal
+    with pytest.raises(NotPositiveDefinite):
+        chol.factorize(bad)
+    with pytest.raises(RuntimeError):
+        chol.solve(np.ones(60))
+    chol.factorize(A)  # the same pattern factors again
+    assert np.allclose(A @ chol.solve(np.ones(60)), np.ones(60), atol=1e-10)

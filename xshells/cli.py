@@ -20,7 +20,7 @@ from .errors import InputError
 
 # One BLAS thread unless the user says otherwise (set before NumPy loads its BLAS): the solver's
 # dense kernels are small, and two OpenBLAS threads made the manta ray's deploy phase 15-20 %
-# slower on 2 cores (2.42 s against 2.02 s at 10 steps, 2026-12-02); the second core writes the outputs.
+# slower on 2 cores (2.42 s against 2.02 s at 10 steps, 2026-12-02).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # module path -> imported lazily so that ``xshells --help`` stays fast
