@@ -138,19 +138,34 @@ class Hold:
         problem.set_deployed_load(mu * self.load if mu > 0 else None)
 
 
+def _hold_back(problem, hold: Hold, mu: float, saved) -> None:
+    """Back to the hold μ and the deployed state ``saved`` there, after a failed release."""
+    from ..linkage.state import restore
+
+    restore(problem.deployed.L, saved)
+    try:
+        hold.apply(problem, mu)
+    except ArithmeticError:
+        # The saved state is the equilibrium the optimizer left at μ, converged to the optimizer's own
+        # tolerance; re-solving it to the equilibrium's can stall (on the breather's geodesic net: |g|
+        # 5.7e-4 after 100 iterations). Keep it as it is, with the hold μ set and its Hessian factorized.
+        restore(problem.deployed.L, saved)
+        problem.deployed.factorize()
+        problem._cache = {}
+
+
 def _release(problem, hold: Hold, mu_from: float, mu_to: float, depth: int = 4) -> float:
     """Lower the deployed state's hold from μ_from to μ_to, halving the step where the re-solve fails.
 
     Returns the factor reached (μ_to unless every halving failed)."""
-    from ..linkage.state import restore, snapshot
+    from ..linkage.state import snapshot
 
     saved = snapshot(problem.deployed.L)
     try:
         hold.apply(problem, mu_to)
         return mu_to
     except ArithmeticError:
-        restore(problem.deployed.L, saved)
-        hold.apply(problem, mu_from)
+        _hold_back(problem, hold, mu_from, saved)
         if depth == 0:
             return mu_from
         mid = _release(problem, hold, mu_from, 0.5 * (mu_from + mu_to), depth - 1)
