@@ -65,18 +65,18 @@ def realizable_surface(case_path: str, out_obj: str) -> dict:
     return {"spacing": seg, "angle": float(np.degrees(angle)), "material": case.material}
 
 
-def one(name: str, tmp: str, grading: float = 0.0) -> dict:
+def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto") -> dict:
     """Runs in a child process."""
     from xshells.deploy.case import DEFAULT_MATERIAL
     from xshells.inverse.run import InverseOptions, run_inverse
 
     if name in ANALYTIC:
-        surface, kind, opts, material = ANALYTIC[name], "analytic", InverseOptions(grading=grading), dict(DEFAULT_MATERIAL)
+        surface, kind, opts, material = ANALYTIC[name], "analytic", InverseOptions(grading=grading, beams=beams), dict(DEFAULT_MATERIAL)
     else:
         surface = os.path.join(tmp, f"{name}_target.obj")
         info = realizable_surface(REALIZABLE[name], surface)
         kind, material = "realizable", info["material"]
-        opts = InverseOptions(spacing=info["spacing"], angle=info["angle"], grading=grading)
+        opts = InverseOptions(spacing=info["spacing"], angle=info["angle"], grading=grading, beams=beams)
     r = run_inverse(surface, os.path.join(tmp, name), material, opts, progress=False)
     bar = BARS[kind]
     ok = r.get("status") in ("complete", "missed") and r.get("fit_mean", 1) <= bar[0] and r.get("fit_max", 1) <= bar[1] \
@@ -91,18 +91,19 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--targets", default="cap,hypar,barrel,wings,arch,breather")
     ap.add_argument("--grading", type=float, default=0.0, help="the automatic net's grading, degrees (default 0)")
+    ap.add_argument("--beams", default="auto", choices=("auto", "even", "geodesic"), help="the automatic net's beams (default auto)")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         with tempfile.TemporaryDirectory() as tmp:
-            print(json.dumps(one(args.child, tmp, args.grading)))
+            print(json.dumps(one(args.child, tmp, args.grading, args.beams)))
         return 0
     rows = []
     for name in args.targets.split(","):
         if name in ANALYTIC and not os.path.exists(ANALYTIC[name]):
             print(f"{name}: skipped (shared targets not found)", file=sys.stderr)
             continue
-        p = subprocess.run([sys.executable, __file__, "--child", name, "--grading", str(args.grading)], capture_output=True,
+        p = subprocess.run([sys.executable, __file__, "--child", name, "--grading", str(args.grading), "--beams", args.beams], capture_output=True,
                            text=True)
         if p.returncode:
             print(f"{name}: failed: {p.stderr.strip().splitlines()[-1] if p.stderr.strip() else p.returncode}", file=sys.stderr)

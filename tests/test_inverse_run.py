@@ -90,3 +90,70 @@ def test_bad_meshes_and_nets_get_one_line(tmp_path, capsys):
     nan.write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
     assert main(["inverse", str(nan), "--out", str(tmp_path / "o3"), "--no-progress"]) == 2
     assert "vertex 3 has a non-finite coordinate" in capsys.readouterr().err
+
+
+# --beams auto: the geodesic net where its flat layout closes, the better of the two kept ----------------------
+
+K = 350.0 / 1200.0**2  # the shared hypar's z = K (x² − y²), 2400 × 2400
+
+
+def _write_hypar(path, n=33):
+    from test_inverse_surface import grid
+
+    V, F = grid(n=n, size=2400.0, height=lambda x, y: K * (x**2 - y**2))
+    path.write_text("".join(f"v {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in V)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F))
+    return path
+
+
+def test_geodesics_are_tried_on_a_saddle_and_not_on_a_dome(tmp_path):
+    from xshells.inverse.run import InverseOptions, geodesic_closure
+    from xshells.inverse.surface import load_target
+
+    cap = load_target(CAP)
+    ok, why = geodesic_closure(cap, InverseOptions(), cap.diagonal / 12)
+    assert not ok and "does not close" in why  # geodesics gather on a dome
+    hypar = load_target(_write_hypar(tmp_path / "hypar.obj"))
+    ok, why = geodesic_closure(hypar, InverseOptions(), hypar.diagonal / 12)
+    assert ok and "closes" in why, why
+
+
+def test_the_better_candidate_is_adopted_by_status_then_fit(tmp_path):
+    from xshells.inverse.run import _adopt
+
+    for beams, text in (("even", "even case"), ("geodesic", "geodesic case")):
+        d = tmp_path / "candidates" / beams
+        (d / "deploy").mkdir(parents=True)
+        (d / "case.json").write_text(text)
+        (d / "deploy" / "result.json").write_text(text)
+    results = {"geodesic": {"status": "missed", "fit_mean": 0.004}, "even": {"status": "complete", "fit_mean": 0.009}}
+    r = _adopt(str(tmp_path), results, {}, "why", 0.0)
+    assert (tmp_path / "case.json").read_text() == "even case"  # complete beats a closer fit that missed
+    assert (tmp_path / "deploy" / "result.json").read_text() == "even case"
+    assert set(r["candidates"]) == {"even", "geodesic"} and "kept the even net" in r["beams_reason"]
+    assert json.loads((tmp_path / "result.json").read_text())["candidates"]["geodesic"]["fit_mean"] == 0.004
+    results["geodesic"]["status"] = "complete"
+    r = _adopt(str(tmp_path), results, {"x": "failed"}, "why", 0.0)
+    assert (tmp_path / "case.json").read_text() == "geodesic case"  # both complete: the closer fit
+    assert r["candidates"]["x"]["status"] == "failed"
+
+
+def test_auto_on_a_saddle_runs_both_nets_and_its_case_reproduces_the_result(tmp_path):
+    hypar = _write_hypar(tmp_path / "hypar.obj")
+    diag = float(np.linalg.norm([2400.0, 2400.0, 700.0]))
+    out = tmp_path / "out"
+    code = main(["inverse", str(hypar), "--spacing", f"{diag / 8:.3f}", "--out", str(out), "--no-progress"])
+    r = json.loads((out / "result.json").read_text())
+    assert set(r["candidates"]) == {"even", "geodesic"}
+    best = r["beams"]
+    assert r["candidates"][best]["fit_mean"] == r["fit_mean"]
+    assert (out / "case.json").read_text() == (out / "candidates" / best / "case.json").read_text()
+    assert r["valid"], r["message"]
+    assert code == (0 if r["status"] == "complete" else 1)
+    other = r["candidates"]["even" if best == "geodesic" else "geodesic"]
+    assert (r["status"] == "complete") >= (other["status"] == "complete")
+    # the adopted case, deployed as users deploy it, gives the reported joints
+    assert main(["deploy", str(out / "case.json"), "--out", str(tmp_path / "d"), "--no-progress"]) in (0, 1)
+    Y = np.array(json.loads((tmp_path / "d" / "result.json").read_text())["deployed"]["joint_positions"])
+    T = np.array(r["placement"])
+    assert np.abs(Y @ T[:3, :3].T + T[:3, 3] - np.array(r["deployed_joints"])).max() <= 1e-6 * diag

@@ -21,6 +21,11 @@ def register(subparsers) -> None:
                    help="grades the automatic net, degrees: its crossing angle runs from ANGLE+GRADING on its middle "
                         "line to ANGLE-GRADING at its sides, and its joint spacings vary with it (default 0: evenly "
                         "spaced joints; -25 reaches the spherical cap closest, see docs/inverse.md)")
+    p.add_argument("--beams", choices=("auto", "even", "geodesic"), default="auto",
+                   help="how the automatic net lays its beams: geodesic (two families of the surface's geodesics), "
+                        "even (joints evenly spaced along a scissor map's directions), or auto (the default: "
+                        "geodesics where their flat layout closes and covers the surface, as on saddles; even "
+                        "otherwise; see docs/inverse.md)")
     p.add_argument("--net", help="a 3D quad net (OBJ: quad faces or beam lines) drawn on or near the surface, used "
                                  "instead of the automatic one")
     p.add_argument("--direction", choices=("up", "down"), default="up",
@@ -48,12 +53,15 @@ def _inverse(args) -> int:
     spec = material_spec_from_option(args.material, args.young, args.poisson)
     opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
-                          max_iters=args.max_iters, force=args.force, grading=args.grading)
+                          max_iters=args.max_iters, force=args.force, grading=args.grading,
+                          beams=args.beams)
     r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
     if r["status"] in ("complete", "missed", "invalid"):
         print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "
               f"max {100 * r['fit_max']:.2f}% of the diagonal; coverage {100 * r['coverage']:.1f}% "
               f"({r['time_s']:.0f} s)")
     print(f"  {r['status']}: {r['message']}")
+    if r.get("beams"):
+        print(f"  beams: {r['beams']} ({r.get('beams_reason', '')})")
     print(f"  outputs in {args.out}/ (xshells deploy {args.out}/case.json reproduces the deployment)")
     return 0 if r["status"] == "complete" else 1

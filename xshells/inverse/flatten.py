@@ -71,6 +71,24 @@ def flatten_layout(lengths_3d: np.ndarray, segments: np.ndarray, nbr: np.ndarray
     return sol.x.reshape(-1, 2)
 
 
+def flat_crossing_angles(net: Net) -> np.ndarray:
+    """The flat layout's opening angle (radians) at each interior joint (both beams pass through), shape (k,).
+
+    Each beam's tangent is the central difference of its two neighbouring joints.
+    """
+    from ..io.design import design_from_arrays
+    from ..linkage.graph import analyze
+
+    q = np.asarray(net.flat, float)
+    graph = analyze(design_from_arrays(np.c_[q, np.zeros(len(q))], net.segments, source="the flat layout"))
+    nbr = beam_neighbours(graph)
+    jv = np.asarray(graph.joint_vertex)
+    inner = np.flatnonzero((nbr >= 0).all(axis=(1, 2)))
+    t = [q[jv[nbr[inner, f, 1]]] - q[jv[nbr[inner, f, 0]]] for f in (0, 1)]
+    ta, tb = t
+    return np.abs(np.arctan2(ta[:, 0] * tb[:, 1] - ta[:, 1] * tb[:, 0], (ta * tb).sum(1)))
+
+
 def net_from_file(path, surface, smap, flat_angle: float) -> Net:
     """A designer's quad net (:func:`.net.read_net`) with its flat layout."""
     X, segments = read_net(path)

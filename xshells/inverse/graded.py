@@ -51,6 +51,9 @@ class _Projector:
 
         self.V, self.F = surface.V, surface.F
         self._igl = igl
+        # one tree for every query (building it is most of a query's cost)
+        self._tree = igl.AABB()
+        self._tree.init(self.V, self.F)
         fn = surface.face_normals
         vn = np.zeros_like(self.V)
         np.add.at(vn, self.F.ravel(), np.repeat(fn * surface.face_areas[:, None], 3, axis=0))
@@ -58,7 +61,7 @@ class _Projector:
 
     def __call__(self, P: np.ndarray):
         """Closest points (k, 3), their unit normals (k, 3) and the distances (k,)."""
-        sq, fi, C = self._igl.point_mesh_squared_distance(np.ascontiguousarray(P, float), self.V, self.F)
+        sq, fi, C = self._tree.squared_distance(self.V, self.F, np.ascontiguousarray(P, float))
         fi = np.asarray(fi, np.int64)
         C = np.asarray(C, float)
         f = self.F[fi]
@@ -89,23 +92,30 @@ class _Field:
         return np.cos(w / 2) * g + sign * np.sin(w / 2) * e2
 
 
-def _trace(project, field, seeds, sign, step, max_steps):
+def _trace(project, field, seeds, sign, step, max_steps, straight=False):
     """Curves through each seed, both ways, until they leave the surface: a list of (k_i, 3) arrays
-    and, per curve, the index of its seed point in it."""
+    and, per curve, the index of its seed point in it.
+
+    The curves follow the field (midpoint steps projected back onto the
+    surface) or, ``straight``, leave each seed along the field and then run
+    straight on the surface (geodesics): the tangent is carried from point
+    to point with only its normal part removed, half a step to the midpoint
+    and a full step from the start along the tangent there.
+    """
     halves = []
     for direction in (1.0, -1.0):
         P = seeds.copy()
         _, n, _ = project(P)
+        T = direction * field(P, n, sign)
         alive = np.ones(len(P), bool)
         out = [[p.copy()] for p in P]
         for _ in range(max_steps):
             idx = np.flatnonzero(alive)
             if len(idx) == 0:
                 break
-            p, nn = P[idx], n[idx]
-            t = direction * field(p, nn, sign)
+            p, t = P[idx], T[idx]
             mid, nm, _ = project(p + 0.5 * step * t)
-            t = direction * field(mid, nm, sign)
+            t = _tangent(t, nm) if straight else direction * field(mid, nm, sign)
             q, nq, off = project(p + step * t)
             # a step that leaves the surface has met the boundary (inside, the projection moves a point
             # by about κh²/2 only)
@@ -113,7 +123,8 @@ def _trace(project, field, seeds, sign, step, max_steps):
             for k, i in enumerate(idx):
                 if ok[k]:
                     out[i].append(q[k])
-            P[idx[ok]], n[idx[ok]] = q[ok], nq[ok]
+            P[idx[ok]] = q[ok]
+            T[idx[ok]] = _tangent(t[ok], nq[ok]) if straight else direction * field(q[ok], nq[ok], sign)
             alive[idx[~ok]] = False
         halves.append(out)
     curves, origin = [], []
@@ -121,6 +132,19 @@ def _trace(project, field, seeds, sign, step, max_steps):
         curves.append(np.array(back[:0:-1] + fwd))
         origin.append(len(back) - 1)
     return curves, origin
+
+
+def _tangent(t, n):
+    """``t`` (k, 3) made tangent to the unit normals ``n`` (k, 3), unit."""
+    t = t - n * np.einsum("kd,kd->k", n, t)[:, None]
+    return t / np.maximum(np.linalg.norm(t, axis=1), 1e-300)[:, None]
+
+
+def surface_centre(surface: TargetSurface, project) -> np.ndarray:
+    """The surface point closest to the area-weighted centroid of its triangles, shape (3,)."""
+    V, areas = surface.V, surface.face_areas
+    centroid = (V[surface.F].mean(axis=1) * areas[:, None]).sum(0) / areas.sum()
+    return project(centroid[None])[0][0]
 
 
 def _middle_seeds(project, field, centre, spacing_on_middle, step, max_steps):
@@ -133,29 +157,6 @@ def _middle_seeds(project, field, centre, spacing_on_middle, step, max_steps):
     keys = np.arange(lo, hi + 1)
     pts = np.column_stack([np.interp(keys * spacing_on_middle, s, curve[:, d]) for d in range(3)])
     return keys, project(pts)[0]
-
-
-def _crossing(chart_a, chart_b):
-    """The first crossing of two polylines in the chart: (segment index in a, parameter along it,
-    segment index in b, parameter along it) or None."""
-    lo = np.maximum(chart_a.min(0), chart_b.min(0))
-    hi = np.minimum(chart_a.max(0), chart_b.max(0))
-    if (lo > hi).any():
-        return None
-    a0, a1 = chart_a[:-1], chart_a[1:]
-    b0, b1 = chart_b[:-1], chart_b[1:]
-    r = a1 - a0
-    s = b1 - b0
-    den = r[:, None, 0] * s[None, :, 1] - r[:, None, 1] * s[None, :, 0]
-    w = b0[None] - a0[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (w[..., 0] * s[None, :, 1] - w[..., 1] * s[None, :, 0]) / den
-        u = (w[..., 0] * r[:, None, 1] - w[..., 1] * r[:, None, 0]) / den
-    hit = np.argwhere((t >= 0) & (t <= 1) & (u >= 0) & (u <= 1))
-    if len(hit) == 0:
-        return None
-    i, j = hit[0]
-    return int(i), float(t[i, j]), int(j), float(u[i, j])
 
 
 class _Curve:
@@ -171,6 +172,30 @@ class _Curve:
         if len(self.points) < 2 or not self.s[0] <= s <= self.s[-1]:
             return None
         return np.array([np.interp(s, self.s, self.points[:, d]) for d in range(3)])
+
+
+def all_crossings(a: "_Curve", b: "_Curve") -> list:
+    """Every crossing of two curves in the chart, in the order of a's then b's segments: a list of
+    (point (3,), arc length on a, arc length on b)."""
+    if len(a.points) < 2 or len(b.points) < 2:
+        return []
+    lo = np.maximum(a.chart.min(0), b.chart.min(0))
+    hi = np.minimum(a.chart.max(0), b.chart.max(0))
+    if (lo > hi).any():
+        return []
+    a0, r = a.chart[:-1], np.diff(a.chart, axis=0)
+    b0, s = b.chart[:-1], np.diff(b.chart, axis=0)
+    den = r[:, None, 0] * s[None, :, 1] - r[:, None, 1] * s[None, :, 0]
+    w = b0[None] - a0[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[..., 0] * s[None, :, 1] - w[..., 1] * s[None, :, 0]) / den
+        u = (w[..., 0] * r[:, None, 1] - w[..., 1] * r[:, None, 0]) / den
+    out = []
+    for i, j in np.argwhere((t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)):
+        ti, uj = float(t[i, j]), float(u[i, j])
+        p = a.points[i] + ti * (a.points[i + 1] - a.points[i])
+        out.append((p, a.s[i] + ti * (a.s[i + 1] - a.s[i]), b.s[j] + uj * (b.s[j + 1] - b.s[j])))
+    return out
 
 
 class _Families:
@@ -191,16 +216,8 @@ class _Families:
     def crossing(self, i, j):
         """Joint (i, j): (point, arc length along A_i, arc length along B_j) or None."""
         if (i, j) not in self._cross:
-            a, b = self.curves[0][i], self.curves[1][j]
-            hit = _crossing(a.chart, b.chart) if len(a.points) >= 2 and len(b.points) >= 2 else None
-            if hit is None:
-                self._cross[i, j] = None
-            else:
-                ka, ta, kb, tb = hit
-                p = a.points[ka] + ta * (a.points[ka + 1] - a.points[ka])
-                sa = a.s[ka] + ta * (a.s[ka + 1] - a.s[ka])
-                sb = b.s[kb] + tb * (b.s[kb + 1] - b.s[kb])
-                self._cross[i, j] = (p, sa, sb)
+            hits = all_crossings(self.curves[0][i], self.curves[1][j])
+            self._cross[i, j] = hits[0] if hits else None
         return self._cross[i, j]
 
     def grow(self, family, step_sign) -> bool:
@@ -258,9 +275,7 @@ def graded_net_quads(surface: TargetSurface, chart, axis: np.ndarray, angle: flo
     """
     project = _Projector(surface)
     V = surface.V
-    areas = surface.face_areas
-    centroid = (V[surface.F].mean(axis=1) * areas[:, None]).sum(0) / areas.sum()
-    centre = project(centroid[None])[0][0]
+    centre = surface_centre(surface, project)
     d = (V - centre) @ axis
     d_max = float(np.abs(d).max())
     omega0 = angle + grading

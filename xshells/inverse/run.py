@@ -61,6 +61,13 @@ class InverseOptions:
         evenly (:func:`.net.surface_net`). Otherwise the graded net of
         :mod:`.graded`, whose crossing angle runs from ``angle + Δ`` on its
         middle line to ``angle − Δ`` at its sides.
+    beams : {"auto", "even", "geodesic"}
+        How the automatic net lays its beams: ``"even"`` spaces joints evenly
+        along a scissor map's directions (:func:`.net.surface_net`, or the
+        graded net when ``grading`` is set); ``"geodesic"`` lays two families
+        of geodesics (:mod:`.geodesic`); ``"auto"`` (the default) takes the
+        geodesic net where its flat layout closes and it covers the surface,
+        the evenly spaced one otherwise (:func:`_automatic_net`).
     gamma, beta : float
         The weights of eq. 5 (:class:`~xshells.design.objective.DesignWeights`).
     guide : GuideOptions
@@ -76,6 +83,7 @@ class InverseOptions:
     max_iters: int = 20
     force: bool = False
     grading: float = 0.0
+    beams: str = "auto"
     gamma: float = 0.9
     beta: float = 1000.0
     guide: GuideOptions = field(default_factory=GuideOptions)
@@ -94,6 +102,10 @@ def check_options(options: InverseOptions, surface) -> float:
                                                  and options.angle + abs(options.grading) < 180.0):
         raise InputError(f"--grading {options.grading:g}: the crossing angle would leave (0°, 180°) across the net "
                          f"(angle {options.angle:g}° ± {abs(options.grading):g}°)")
+    if options.beams not in ("auto", "even", "geodesic"):
+        raise InputError(f"--beams must be auto, even or geodesic, got {options.beams!r}")
+    if options.beams == "geodesic" and options.grading != 0.0:
+        raise InputError("--grading shapes the evenly spaced net: it cannot apply to --beams geodesic; give one or the other")
     if options.direction not in ("up", "down"):
         raise InputError(f"--direction must be up or down, got {options.direction!r}")
     spacing = options.spacing if options.spacing is not None else surface.diagonal / 12.0
@@ -120,6 +132,158 @@ def _stage_bar(progress, total, desc, unit="it"):
     return tqdm(total=total, desc=desc, unit=unit)
 
 
+#: ``--beams auto`` tries the geodesic net when every interior joint of its flat layout lies within this factor of
+#: the flat angle α₀ (and its beams cover as much of the surface as the bar asks)
+GEODESIC_CLOSURE = 2.0
+#: and when its beams cover at least this share of the surface. Only a gross shortfall: a net's cover before
+#: deploying says little about the deployment's (the hypar's evenly spaced net covers 99 %, its deployment 80 %),
+#: but a surface with a hole stops geodesics at its edge (the breather's cover 45 %)
+GEODESIC_MIN_COVERAGE = 0.75
+
+
+def _lay_curves(kind, surface, smap, options, spacing, progress):
+    from .flatten import chart, net_from_arrays
+    from .geodesic import geodesic_net_quads
+    from .graded import graded_net_quads
+
+    theta, alpha0 = np.radians(options.angle), np.radians(options.flat_angle)
+    to_chart = chart(surface, smap)
+    bar = _stage_bar(progress, None, f"laying the {kind} net", "curve")
+    tick = bar.update if bar is not None else None
+    try:
+        if kind == "geodesic":
+            X, segs = geodesic_net_quads(surface, lambda P: to_chart(P)[0], smap.mean_director_3d(), theta, spacing,
+                                         on_curve=tick)
+        else:
+            X, segs = graded_net_quads(surface, lambda P: to_chart(P)[0], smap.mean_director_3d(), theta, spacing,
+                                       np.radians(options.grading), on_curve=tick)
+    finally:
+        if bar is not None:
+            bar.close()
+    return net_from_arrays(X, segs, surface, smap, alpha0, f"{surface.path}: the automatic {kind} net")
+
+
+def _automatic_net(surface, smap, options, spacing, progress):
+    """The automatic net, which beams it has, and why: (Net, "even" | "graded" | "geodesic", reason)."""
+    if options.grading != 0.0:
+        return _lay_curves("graded", surface, smap, options, spacing, progress), "graded", "--grading"
+    if options.beams == "geodesic":
+        return _lay_curves("geodesic", surface, smap, options, spacing, progress), "geodesic", "--beams geodesic"
+    from .net import surface_net
+
+    return surface_net(surface, smap, np.radians(options.angle), spacing), "even", "--beams even"
+
+
+def geodesic_closure(surface, options, spacing: float, progress: bool = False) -> tuple[bool, str]:
+    """Whether the geodesic net is worth a try on ``surface``, and why (one line).
+
+    It is when its flattened layout closes (every interior joint's flat angle
+    within ``GEODESIC_CLOSURE`` of α₀) and its beams cover at least
+    ``GEODESIC_MIN_COVERAGE`` of the surface. Geodesics spread on saddles and their layout
+    closes; on domes they gather, and a layout with their lengths cannot
+    close (the shared cap: flat angles of 16–58° for α₀ = 20°).
+    """
+    from .flatten import flat_crossing_angles
+    from .metrics import coverage
+    from .scissor import scissor_map
+
+    alpha0 = np.radians(options.flat_angle)
+    smap = scissor_map(surface, np.radians(options.angle), alpha0, np.radians(options.orientation))
+    try:
+        net = _lay_curves("geodesic", surface, smap, options, spacing, progress)
+    except InputError as exc:
+        return False, f"no geodesic net: {exc}"
+    a = flat_crossing_angles(net)
+    cover = coverage(surface, net.joints, net.segments, 0.75 * spacing)
+    span = f"{np.degrees(a.min()):.1f}–{np.degrees(a.max()):.1f}°" if len(a) else "no interior joint"
+    if not (len(a) and a.min() >= alpha0 / GEODESIC_CLOSURE and a.max() <= alpha0 * GEODESIC_CLOSURE):
+        return False, f"the geodesic net's flat layout does not close (joint angles {span} for {options.flat_angle:g}°)"
+    if cover < GEODESIC_MIN_COVERAGE:
+        return False, f"the geodesic net covers only {100 * cover:.1f}% of the surface"
+    return True, (f"the geodesic net's flat layout closes (joint angles {span} for {options.flat_angle:g}°) and "
+                  f"covers {100 * cover:.1f}% of the surface")
+
+
+#: how ``--beams auto`` ranks its candidates' results: first by status, then by the mean fit
+_STATUS_RANK = {"complete": 0, "missed": 1, "invalid": 2, "stopped": 3, "interrupted": 4}
+
+
+def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOptions = InverseOptions(),
+                net_path=None, progress: bool = True) -> dict:
+    """Inverse design of an X-shell for a target surface; writes every output into ``out_dir``.
+
+    Returns the ``result.json`` content. Ctrl-C keeps and writes the best
+    design found so far (then re-raises KeyboardInterrupt).
+
+    With ``options.beams == "auto"`` (and no ``net_path`` or grading), the
+    evenly spaced net always runs; where :func:`geodesic_closure` says the
+    geodesic net is worth a try, it runs too, each into
+    ``out_dir/candidates/<beams>/``, and the better result (by status, then
+    mean fit) is copied into ``out_dir``. Its ``result.json`` lists both
+    under ``candidates``.
+    """
+    if net_path is not None or options.grading != 0.0 or options.beams != "auto":
+        return _run_once(surface_path, out_dir, material_spec, options, net_path, progress)
+    from dataclasses import replace
+
+    from .surface import load_target
+
+    t0 = time.perf_counter()
+    surface = load_target(surface_path)
+    spacing = check_options(options, surface)
+    worth, why = geodesic_closure(surface, options, spacing, progress)
+    if not worth:
+        return _run_once(surface_path, out_dir, material_spec, replace(options, beams="even"), None, progress,
+                         beams_reason=f"auto: evenly spaced, since {why}")
+    if progress:
+        import sys
+
+        print(f"xshells inverse: {why}: trying it and the evenly spaced net, keeping the better", file=sys.stderr)
+    results, errors = {}, {}
+    try:
+        for beams in ("geodesic", "even"):
+            current = os.path.join(out_dir, "candidates", beams, "result.json")
+            try:
+                results[beams] = _run_once(surface_path, os.path.join(out_dir, "candidates", beams), material_spec,
+                                           replace(options, beams=beams), None, progress, beams_reason=f"auto: {why}")
+            except InputError as exc:  # this net does not get through (a first layout that inverts, say)
+                errors[beams] = str(exc)
+    except KeyboardInterrupt:
+        if os.path.exists(current) and beams not in results:  # the interrupted candidate's design so far
+            with open(current) as fh:
+                results[beams] = json.load(fh)
+        if results:
+            _adopt(out_dir, results, errors, why, t0)
+        raise
+    if not results:
+        raise InputError(errors["even"])
+    return _adopt(out_dir, results, errors, why, t0)
+
+
+def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float) -> dict:
+    """Copy the best candidate's files into ``out_dir``; its result, with every candidate's figures."""
+    import shutil
+
+    best = min(results, key=lambda b: (_STATUS_RANK.get(results[b].get("status"), 9), results[b].get("fit_mean", np.inf)))
+    src = os.path.join(out_dir, "candidates", best)
+    for name in os.listdir(src):
+        a, b = os.path.join(src, name), os.path.join(out_dir, name)
+        if os.path.isdir(a):
+            if os.path.isdir(b):
+                shutil.rmtree(b)
+            shutil.copytree(a, b)
+        elif name != "result.json":
+            shutil.copy2(a, b)
+    r = dict(results[best])
+    r["candidates"] = {b: {k: v.get(k) for k in ("status", "fit_mean", "fit_max", "coverage", "segments", "time_s")}
+                       for b, v in results.items()}
+    r["candidates"].update({b: {"status": "failed", "message": m} for b, m in errors.items()})
+    r["beams_reason"] = f"auto: {why}; kept the {best} net's design, the better of the two (by status, then mean fit)"
+    r["time_s"] = time.perf_counter() - t0
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
+    return r
+
+
 def _design_from_flat(flat_xy: np.ndarray, segments: np.ndarray, mirror: bool):
     from ..io.design import design_from_arrays
 
@@ -143,13 +307,9 @@ def _bulge_sign(flat_joints: np.ndarray, heights: np.ndarray) -> float:
     return float(np.sign(np.dot(r2.mean() - r2, heights - heights.mean())) or 1.0)
 
 
-def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOptions = InverseOptions(),
-                net_path=None, progress: bool = True) -> dict:
-    """Inverse design of an X-shell for a target surface; writes every output into ``out_dir``.
-
-    Returns the ``result.json`` content. Ctrl-C keeps and writes the best
-    design found so far (then re-raises KeyboardInterrupt).
-    """
+def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress: bool,
+              beams_reason: str | None = None) -> dict:
+    """One inverse design with one net (``options.beams`` "even" or "geodesic", or a grading or ``net_path``)."""
     from ..deploy.case import material_from_spec
     from .surface import load_target
 
@@ -167,28 +327,16 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
 
     if net_path is not None and options.grading != 0.0:
         raise InputError("--grading shapes the automatic net: it cannot apply to a --net; give one or the other")
+    if net_path is not None and options.beams not in ("auto", "even"):
+        raise InputError("--beams chooses the automatic net: it cannot apply to a --net; give one or the other")
     smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation))
-    if net_path is None and options.grading == 0.0:
-        from .net import surface_net
-
-        net = surface_net(surface, smap, theta, spacing)
-    elif net_path is None:
-        from .flatten import chart, net_from_arrays
-        from .graded import graded_net_quads
-
-        to_chart = chart(surface, smap)
-        bar = _stage_bar(progress, None, "laying the graded net", "curve")
-        try:
-            X, segs = graded_net_quads(surface, lambda P: to_chart(P)[0], smap.mean_director_3d(), theta, spacing,
-                                       np.radians(options.grading), on_curve=bar.update if bar is not None else None)
-        finally:
-            if bar is not None:
-                bar.close()
-        net = net_from_arrays(X, segs, surface, smap, alpha0, f"{surface.path}: the automatic net")
+    if net_path is None:
+        net, beams, reason = _automatic_net(surface, smap, options, spacing, progress)
+        beams_reason = beams_reason or reason
     else:
         from .flatten import net_from_file
 
-        net = net_from_file(net_path, surface, smap, alpha0)
+        net, beams, beams_reason = net_from_file(net_path, surface, smap, alpha0), "given", "the --net file"
     times["net_s"] = time.perf_counter() - t
     if net.num_segments > MAX_SEGMENTS and not options.force:
         raise InputError(f"the net has {net.num_segments} segments, more than {MAX_SEGMENTS}: give a larger spacing, or --force")
@@ -326,7 +474,8 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
 
     result = {"surface": str(surface_path), "units": "those of the surface file (lengths) and of the material "
               "(Young's modulus): the bundled data use mm and MPa", "spacing": spacing, "angle_deg": options.angle,
-              "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "grading_deg": options.grading, "direction": options.direction,
+              "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "grading_deg": options.grading, "beams": beams, "beams_reason": beams_reason,
+              "direction": options.direction,
               "mirrored_layout": mirror, "scissor_residual": smap.residual, "held_rms": held_rms, "steadying_springs": steady if hold.steady is not None else 0.0,
               "segments": int(final_design.num_segments), "joints": int(flat_L.num_joints),
               "stages": [asdict(s) for s in stages], "load_released": released,
