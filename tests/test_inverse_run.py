@@ -1,5 +1,6 @@
-"""``xshells inverse`` end to end on the bundled spherical cap (coarse spacing, to stay quick)."""
+"""``xshells inverse`` end to end on the bundled spherical cap (coarse spacing, to stay quick), and ``--beams auto``."""
 import json
+import os
 
 import numpy as np
 import pytest
@@ -157,3 +158,24 @@ def test_auto_on_a_saddle_runs_both_nets_and_its_case_reproduces_the_result(tmp_
     Y = np.array(json.loads((tmp_path / "d" / "result.json").read_text())["deployed"]["joint_positions"])
     T = np.array(r["placement"])
     assert np.abs(Y @ T[:3, :3].T + T[:3, 3] - np.array(r["deployed_joints"])).max() <= 1e-6 * diag
+
+
+def test_ctrl_c_in_auto_keeps_the_candidate_that_finished(tmp_path, monkeypatch):
+    import xshells.inverse.run as run
+
+    def fake_once(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason=None):
+        os.makedirs(out_dir, exist_ok=True)
+        if options.beams == "even":  # the second candidate: interrupted before it wrote anything
+            raise KeyboardInterrupt
+        (tmp_path / "out" / "candidates" / "geodesic" / "case.json").write_text("geodesic case")
+        r = {"status": "complete", "fit_mean": 0.005, "beams": "geodesic"}
+        (tmp_path / "out" / "candidates" / "geodesic" / "result.json").write_text(json.dumps(r))
+        return r
+
+    monkeypatch.setattr(run, "_run_once", fake_once)
+    monkeypatch.setattr(run, "geodesic_closure", lambda *a, **k: (True, "it closes"))
+    with pytest.raises(KeyboardInterrupt):
+        run.run_inverse(str(_write_hypar(tmp_path / "h.obj", n=9)), str(tmp_path / "out"), {}, progress=False)
+    assert (tmp_path / "out" / "case.json").read_text() == "geodesic case"
+    r = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert r["beams"] == "geodesic" and set(r["candidates"]) == {"geodesic"}

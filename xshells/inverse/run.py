@@ -65,9 +65,10 @@ class InverseOptions:
         How the automatic net lays its beams: ``"even"`` spaces joints evenly
         along a scissor map's directions (:func:`.net.surface_net`, or the
         graded net when ``grading`` is set); ``"geodesic"`` lays two families
-        of geodesics (:mod:`.geodesic`); ``"auto"`` (the default) takes the
-        geodesic net where its flat layout closes and it covers the surface,
-        the evenly spaced one otherwise (:func:`_automatic_net`).
+        of geodesics (:mod:`.geodesic`); ``"auto"`` (the default) runs both
+        where the geodesic net's flat layout closes (:func:`geodesic_closure`)
+        and keeps the better design, and the evenly spaced net alone
+        elsewhere (:func:`run_inverse`).
     gamma, beta : float
         The weights of eq. 5 (:class:`~xshells.design.objective.DesignWeights`).
     guide : GuideOptions
@@ -133,7 +134,7 @@ def _stage_bar(progress, total, desc, unit="it"):
 
 
 #: ``--beams auto`` tries the geodesic net when every interior joint of its flat layout lies within this factor of
-#: the flat angle α₀ (and its beams cover as much of the surface as the bar asks)
+#: the flat angle α₀
 GEODESIC_CLOSURE = 2.0
 #: and when its beams cover at least this share of the surface. Only a gross shortfall: a net's cover before
 #: deploying says little about the deployment's (the hypar's evenly spaced net covers 99 %, its deployment 80 %),
@@ -142,6 +143,7 @@ GEODESIC_MIN_COVERAGE = 0.75
 
 
 def _lay_curves(kind, surface, smap, options, spacing, progress):
+    """The graded or geodesic net (``kind``), traced on the surface and flattened (a :class:`.net.Net`)."""
     from .flatten import chart, net_from_arrays
     from .geodesic import geodesic_net_quads
     from .graded import graded_net_quads
@@ -179,9 +181,9 @@ def geodesic_closure(surface, options, spacing: float, progress: bool = False) -
 
     It is when its flattened layout closes (every interior joint's flat angle
     within ``GEODESIC_CLOSURE`` of α₀) and its beams cover at least
-    ``GEODESIC_MIN_COVERAGE`` of the surface. Geodesics spread on saddles and their layout
-    closes; on domes they gather, and a layout with their lengths cannot
-    close (the shared cap: flat angles of 16–58° for α₀ = 20°).
+    ``GEODESIC_MIN_COVERAGE`` of the surface. Geodesics spread on saddles
+    and their layout closes; on domes they gather, and a layout with their
+    lengths cannot close (the shared cap: flat angles of 16–58° for α₀ = 20°).
     """
     from .flatten import flat_crossing_angles
     from .metrics import coverage
