@@ -8,7 +8,7 @@ bend its beams in their stiff direction wherever geodesics spread or gather
 (which is where the surface is curved). The planar opening then costs more
 than buckling onto the surface, and the layout rises the way the surface does.
 Measured on the shared hyperbolic paraboloid: the evenly spaced net fits to
-3.65 % of the diagonal (mean), this one to 0.57 % (``benchmarks/inverse.py``).
+2.99 % of the diagonal (mean), this one to 0.56 % (``xshells inverse``).
 
 Construction. As in :mod:`.graded` (which this module shares its tracing
 with): a middle geodesic through the surface's centre runs across the beams'
