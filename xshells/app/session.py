@@ -207,6 +207,7 @@ class Session:
             if getattr(self, "_preview_busy", False):
                 return
             self._preview_busy = True
+            generation = getattr(self, "_full_solves", 0)
         angle = self.angle_deg
 
         def job(cancel, progress):
@@ -225,7 +226,9 @@ class Session:
             with self._lock:
                 self._preview_busy = False
                 again = self._preview_next is not None
-            if view is not None:
+                # a preview that finishes after a full-accuracy solve began (its cancel came too late) is stale
+                stale = getattr(self, "_full_solves", 0) != generation
+            if view is not None and not stale:
                 self._deployed(view, stability=False)
             if again:
                 self.preview(self._preview_next)
@@ -391,6 +394,7 @@ class Session:
         self.worker.cancel("branch")  # a comparison of the state before is moot
         with self._lock:  # and so is a drag's preview
             self._preview_next, self._preview_busy = None, False
+            self._full_solves = getattr(self, "_full_solves", 0) + 1
         self.worker.cancel("preview")
         token = object()
 
