@@ -258,6 +258,16 @@ def test_drag_a_joint_in_the_plan_view(tmp_path):
                                        box["y"] + box["height"] / 2 - P[1] * px)
                 v = 40
                 x, y = to_screen(app._to_scene(s.layout.vertices[v]))
+                # hovering a joint labels it (the page relays the pointer; the relay's own field stays hidden)
+                assert not page.get_by_text("pointer", exact=True).is_visible()
+                page.mouse.move(x + 60, y + 60)
+                page.mouse.move(x + 3, y - 2, steps=5)
+                _wait(lambda: app._hovered is not None and app._hovered[0] == v, 10, "the hover label of joint 40")
+                assert "/hover" in app._extras and app._hovered[1].startswith(f"joint {v} ")
+                page.wait_for_timeout(300)
+                page.screenshot(path=os.path.join(ARTIFACTS, "05_plan_hover.png"))
+                page.mouse.move(x + 0.3 * px, y + 0.3 * px, steps=3)  # well away from every joint
+                _wait(lambda: app._hovered is None and "/hover" not in app._extras, 10, "the hover label to go")
                 page.mouse.click(x, y)
                 _wait(lambda: app._selected == v and app._gizmo is not None, 10, "the joint to be picked")
                 before = s.layout.vertices[v].copy()

@@ -51,6 +51,7 @@ class View:
     joints: np.ndarray
     info: object  # .sim.StateInfo
     solve_time_s: float = 0.0
+    joint_vertices: np.ndarray | None = None  # (n_joints,) the layout vertex of each row of ``joints``
 
 
 SIM_CACHE = 4  # simulations kept for undo/redo (each holds its deployed states)
@@ -369,7 +370,8 @@ class Session:
         name = FIELDS.get(self.field_name, "bending_energy_density")
         f = mesh.fields.get(name, np.zeros(len(mesh.vertices)))
         return View(mesh.vertices, mesh.triangles, np.sqrt(np.maximum(f, 0)) if "energy" in name else f, self.field_name,
-                    sim.linkage.joint_positions(), info or sim.flat_info, time.perf_counter() - t0)
+                    sim.linkage.joint_positions(), info or sim.flat_info, time.perf_counter() - t0,
+                    np.asarray(sim.linkage.graph.joint_vertex))
 
     def prepare(self) -> None:
         """Build the simulation in the background (assembly state and flat view)."""

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from ..errors import InputError
-from . import adapters, core
+from . import adapters, core, hover
 from .session import FIELDS, Session, View, material_summary, spec_summary
 
 EXAMPLES_DIR = os.path.join(os.path.dirname(__file__), "..", "data", "examples")
@@ -109,6 +109,7 @@ class App:
         self._opt_history: list[tuple[int, float]] = []
         self._opt_title = "objective J"
         self._shown_deployed: View | None = None
+        self._hovered = None  # (index, label) of the joint labelled under the pointer
         self._extras: dict = {}  # removable scene nodes by name: the swept meshes, the "before" ghost, the actuators
         self._build_gui()
         self._limit_uploads()
@@ -151,6 +152,10 @@ class App:
         self.status_md = gui.add_markdown(f"**xshells** — {s.name}: {s.layout.num_segments} segments; "
                                           "the solver starts when the page has loaded")
         self.progress = gui.add_progress_bar(0.0, animated=False)
+        # joint labels on hover: the page relays the pointer into this hidden field (see hover.py)
+        gui.add_html(hover.relay_html())
+        self.pointer = gui.add_text("pointer", "")
+        self.pointer.on_update(lambda ev: self._on_pointer(ev.client))
         tabs = gui.add_tab_group()
 
         with tabs.add_tab("Design"):
@@ -388,6 +393,35 @@ class App:
             seg = core.nearest_segment(s.layout, xy, radius)
             if seg is not None:
                 s.edit(core.delete_segment, seg)
+
+    def _hover_targets(self) -> tuple[np.ndarray, list[str]]:
+        """Scene positions of the joints that can be hovered (flat layout, then the shown deployed state) and their labels."""
+        layout = self.session.layout
+        P = [self._to_scene(layout.vertices) + [0, 0, 0.025]] if layout.num_vertices else []
+        labels = [f"joint {v}  ({x:.4g}, {y:.4g})" for v, (x, y) in enumerate(layout.vertices)]
+        view = self._shown_deployed
+        if view is not None and view.joint_vertices is not None and len(view.joints):
+            P.append(self._deployed_to_scene(view.joints, view))
+            labels += [f"joint {v}  (height {z:.4g})" for v, z in
+                       zip(view.joint_vertices.tolist(), view.joints[:, 2] - view.joints[:, 2].min())]
+        return (np.vstack(P) if P else np.zeros((0, 3))), labels
+
+    def _on_pointer(self, client) -> None:
+        """Label the joint under the pointer (the page sends where it is; hover.py), or clear the label."""
+        parsed = hover.parse_pointer(self.pointer.value)
+        k = None
+        if parsed is not None and client is not None:
+            pointer, w, h = parsed
+            cam = client.camera
+            P, labels = self._hover_targets()
+            k = hover.pick_on_screen(P, pointer, w, h, {"position": cam.position, "wxyz": cam.wxyz, "fov": cam.fov})
+        if k is None:
+            self._hovered = None
+            self._remove("/hover")
+            return
+        if getattr(self, "_hovered", None) != (k, labels[k]):
+            self._hovered = (k, labels[k])
+            self._extras["/hover"] = self.server.scene.add_label("/hover", labels[k], position=tuple(P[k] + [0, 0, 0.03]))
 
     def _mirror(self):
         axis = SYMMETRY.get(self.symmetry.value)
