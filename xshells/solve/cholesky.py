@@ -29,17 +29,18 @@ class SparseCholesky:
     MAX_PATTERNS = 4
 
     def __init__(self):
-        self._patterns = {}  # key -> [spmatrix holding the values, symbolic (factored in place)]
-        self._last_arrays = None  # (indptr, indices, key) of the last matrix: the same arrays need no hashing
+        self._patterns = {}  # key -> [spmatrix holding the values, symbolic (factored in place), entries read or None]
+        self._seen = []  # (indptr, indices, key) of recent matrices: the same arrays need no hashing
         self._numeric = None
         self.n = 0
 
     def _key(self, L):
-        last = self._last_arrays
-        if last is not None and L.indptr is last[0] and L.indices is last[1]:
-            return last[2]  # the very pattern arrays of the last call (a linkage's Hessians share them)
+        for indptr, indices, key in self._seen:
+            if L.indptr is indptr and L.indices is indices:
+                return key  # the very pattern arrays of a recent call (a linkage's Hessians share them)
         key = (L.shape, len(L.indices), hash(L.indptr.tobytes()), hash(L.indices.tobytes()))
-        self._last_arrays = (L.indptr, L.indices, key)
+        # a solver alternates a few patterns (plain, augmented, shifted): remember each one's arrays
+        self._seen = [(L.indptr, L.indices, key)] + self._seen[: 2 * self.MAX_PATTERNS - 1]
         return key
 
     def factorize(self, A: sp.spmatrix) -> None:
@@ -58,14 +59,23 @@ class SparseCholesky:
         key = self._key(L)
         entry = self._patterns.pop(key, None)
         if entry is None:
-            cols = np.repeat(np.arange(L.shape[1]), np.diff(L.indptr))
-            Am = spmatrix(L.data.astype(float), L.indices.astype(int).tolist(), cols.tolist(), L.shape)
-            # the spmatrix holds Aᵀ (CSR arrays read as CSC): its upper triangle is the lower one of A
-            entry = [Am, cholmod.symbolic(Am, uplo="U")]
+            # The spmatrix holds Aᵀ (CSR arrays read as CSC) and only the entries CHOLMOD reads: its upper
+            # triangle, the lower one of A (CHOLMOD copies that triangle out on every factorization, so
+            # the same values in the same order: the same factor as from the whole matrix, in half the copying).
+            cols = np.repeat(np.arange(L.shape[1], dtype=np.int64), np.diff(L.indptr))
+            lower = np.flatnonzero(L.indices <= cols)
+            take = None if len(lower) == len(cols) else lower
+            rows = L.indices.astype(np.int64)
+            data = L.data.astype(float)
+            if take is not None:
+                rows, cols, data = rows[take], cols[take], data[take]
+            Am = spmatrix(matrix(data), matrix(rows), matrix(cols), L.shape)
+            entry = [Am, cholmod.symbolic(Am, uplo="U"), take]
             if len(self._patterns) >= self.MAX_PATTERNS:
                 self._patterns.pop(next(iter(self._patterns)))
         else:
-            entry[0].V = matrix(L.data if L.data.dtype == np.float64 else L.data.astype(float))
+            data = L.data if entry[2] is None else L.data[entry[2]]
+            entry[0].V = matrix(data if data.dtype == np.float64 else data.astype(float))
         self._patterns[key] = entry  # most recently used last
         self.n = L.shape[0]
         self._numeric = None
