@@ -395,6 +395,36 @@ class Linkage:
         self._cache = {"key": tuple(np.array(a, copy=True) for a in key)}
         return self._cache
 
+    def _stencils(self, derivatives: bool = True):
+        """The analytic kernels' vertex stencils at the current state (cached): one evaluation of their
+        geometry serves the energy, then (completed with ``derivatives``) the gradient and the Hessian."""
+        c = self._cached()
+        s = c.get("stencils")
+        if s is None:
+            r = self.rods
+            s = c["stencils"] = _rods_module._analytic._Stencil(r._vertex_q(), r._vertex_params(), r.bending_energy,
+                                                                derivatives=derivatives)
+        elif derivatives:
+            s.first_derivatives()
+        return s
+
+    def _rod_energies(self) -> tuple:
+        """(stretch, bend, twist) at the current state (cached); at a state whose gradient is not
+        cached (a line search's trial point) the derivatives are not formed."""
+        c = self._cached()
+        if "rod" in c:
+            t = c["rod"]
+            return t["stretch"], t["bend"], t["twist"]
+        if "energies" not in c:
+            r = self.rods
+            if _rods_module._analytic is None or not r.num_stencils:
+                t = self._rod_terms()
+                return t["stretch"], t["bend"], t["twist"]
+            es = _rods_module.stretch_kernel(r._edge_q(), r.ks, hessian=False, gradient=False)[0]
+            s = self._stencils(derivatives=False)
+            c["energies"] = (float(np.sum(es)), float(np.sum(s.bend)), float(np.sum(s.twist)))
+        return c["energies"]
+
     def _rod_terms(self) -> dict:
         """Per-stencil rod energies and gradients at the current state (cached)."""
         c = self._cached()
@@ -403,7 +433,8 @@ class Linkage:
             es, ge, _ = _rods_module.stretch_kernel(r._edge_q(), r.ks, hessian=False)
             an = _rods_module._analytic
             if r.num_stencils and an is not None:
-                bend, twist, gv = an.vertex_energy_and_gradient(r._vertex_q(), r._vertex_params(), r.bending_energy)
+                s = self._stencils()
+                bend, twist, gv = s.bend, s.twist, s.gradient()
             elif r.num_stencils:
                 (bend, twist), gv = r._vertex_energies(), None
             else:
@@ -437,8 +468,7 @@ class Linkage:
         return cache[size]
 
     def energy_parts(self):
-        t = self._rod_terms()
-        return _rods_module.EnergyParts(t["stretch"], t["bend"], t["twist"])
+        return _rods_module.EnergyParts(*self._rod_energies())
 
     def energy(self) -> float:
         return self.energy_parts().total
@@ -499,12 +529,16 @@ class Linkage:
         r = self.rods
         c = self._cached()
         an = _rods_module._analytic
-        if "rod" in c or an is None or not r.num_stencils:
+        if an is None or not r.num_stencils:
             _, _, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
             return self._vertex_hessian_blocks(), he
+        if "rod" in c:
+            _, _, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
+            return an._hessian(self._stencils())[0], he
         es, ge, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
-        bend, twist, gv, hv = an.vertex_energy_gradient_hessian(r._vertex_q(), r._vertex_params(), r.bending_energy)
-        self._store_rod_terms(c, es, ge, bend, twist, gv)
+        s = self._stencils()
+        hv, gv = an._hessian(s)
+        self._store_rod_terms(c, es, ge, s.bend, s.twist, gv)
         return hv, he
 
     def hessian(self, with_rest_lengths: bool = False) -> sp.csr_matrix:

@@ -86,7 +86,9 @@ class _Stencil:
     Per-edge quantities are stacked as ``(3, 2, N)`` (or ``(2, N)``): edge 0, edge 1.
     """
 
-    def __init__(self, q, prm, variant):
+    def __init__(self, q, prm, variant, derivatives=True):
+        """``derivatives=False`` stops at the energies (a line search's trial point);
+        :meth:`first_derivatives` completes the stencils later, with the same values."""
         _check_variant(variant)
         q = np.asarray(q, dtype=float)
         prm = np.asarray(prm, dtype=float)
@@ -159,6 +161,22 @@ class _Stencil:
             bend = cb[0] * a1 * a1 + cb[1] * a2 * a2
             Fv = np.broadcast_to(cb[0] * a1, (2, n))
             Fu = np.broadcast_to(-cb[1] * a2, (2, n))
+        self.__dict__.update(
+            E=E, nn=nn, T=T, TS=TS, R=R, S=S, C=C, dts=dts, cs=cs, sn=sn, e0=e0, e1=e1, n0=n0, n1=n1, cr=cr,
+            den=den, inv_den=inv_den, kb=kb, U=U, V=V, ell=ell, dE_dm=dE_dm, kt=kt, cb=cb, Fu=Fu, Fv=Fv,
+            bend=bend, twist=twist_energy,
+        )
+        self.has_derivatives = False
+        if derivatives:
+            self.first_derivatives()
+
+    def first_derivatives(self):
+        """Complete the stencils with the first derivatives (once; the energies are kept)."""
+        if self.has_derivatives:
+            return self
+        R, S, cs, sn, Fu, Fv, U, V = self.R, self.S, self.cs, self.sn, self.Fu, self.Fv, self.U, self.V
+        dE_dm, kb, inv_den, nn, dts, C = self.dE_dm, self.kb, self.inv_den, self.nn, self.dts, self.C
+        e0, e1, n0, n1, cr = self.e0, self.e1, self.n0, self.n1, self.cr
         # Σ_a F_a m_a per edge, in the reference frame
         MJ = np.multiply(Fu * cs - Fv * sn, R)
         MJ += (Fu * sn + Fv * cs) * S
@@ -184,11 +202,9 @@ class _Stencil:
         ge1 += (dE_dm * inv_den / n1) * cr
         ge1 += wc[1] * C[:, 1]
 
-        self.__dict__.update(
-            E=E, nn=nn, T=T, TS=TS, R=R, S=S, C=C, dts=dts, cs=cs, sn=sn, e0=e0, e1=e1, n0=n0, n1=n1,
-            den=den, inv_den=inv_den, kb=kb, U=U, V=V, ell=ell, dE_dm=dE_dm, kt=kt, cb=cb, Fu=Fu, Fv=Fv,
-            MJ=MJ, M=M, kbM=kbM, dth=dth, ge0=ge0, ge1=ge1, bend=bend, twist=twist_energy,
-        )
+        self.__dict__.update(MJ=MJ, M=M, kbM=kbM, dth=dth, ge0=ge0, ge1=ge1)
+        self.has_derivatives = True
+        return self
 
     def gradient(self):
         g = np.empty((13, self.e0.shape[1]))
@@ -213,7 +229,7 @@ def vertex_energy_and_gradient(q, prm, variant="2008"):
 
 def vertex_energies(q, prm, variant="2008"):
     """Bending and twisting energy of each vertex stencil, stacked as (2, N)."""
-    s = _Stencil(q, prm, variant)
+    s = _Stencil(q, prm, variant, derivatives=False)
     return np.stack([s.bend, s.twist])
 
 

@@ -57,8 +57,8 @@ def _per_edge(name: str, value, num_edges: int, columns: int | None = None) -> n
     return arr
 
 
-def stretch_kernel(q: np.ndarray, ks: np.ndarray, hessian: bool = True):
-    """Stretching energy, gradient and Hessian of edge stencils.
+def stretch_kernel(q: np.ndarray, ks: np.ndarray, hessian: bool = True, gradient: bool = True):
+    """Stretching energy, gradient and Hessian of edge stencils (``gradient=False``: the energy alone, the same values).
 
     Parameters
     ----------
@@ -76,6 +76,8 @@ def stretch_kernel(q: np.ndarray, ks: np.ndarray, hessian: bool = True):
     t = e / n
     strain = n / L - 1.0
     energy = 0.5 * ks * L * strain**2
+    if not gradient:
+        return energy, None, None
     grad = np.empty((7, q.shape[1]))
     ge = ks * strain * t
     grad[0:3], grad[3:6] = -ge, ge
