@@ -390,15 +390,17 @@ class Linkage:
     def _cached(self) -> dict:
         key = self._state_key()
         c = getattr(self, "_cache", None)
-        if c is not None and all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(c["key"], key)):
+        if c is not None and all(a.shape == b.shape and (a == b).all() for a, b in zip(c["key"], key)):
             return c
         self._cache = {"key": tuple(np.array(a, copy=True) for a in key)}
         return self._cache
 
-    def _stencils(self, derivatives: bool = True):
+    # The helpers below take the cache ``c`` of the current state when their caller has it
+    # (each lookup compares the whole state: 10 arrays).
+    def _stencils(self, derivatives: bool = True, c=None):
         """The analytic kernels' vertex stencils at the current state (cached): one evaluation of their
         geometry serves the energy, then (completed with ``derivatives``) the gradient and the Hessian."""
-        c = self._cached()
+        c = self._cached() if c is None else c
         s = c.get("stencils")
         if s is None:
             r = self.rods
@@ -408,32 +410,32 @@ class Linkage:
             s.first_derivatives()
         return s
 
-    def _rod_energies(self) -> tuple:
+    def _rod_energies(self, c=None) -> tuple:
         """(stretch, bend, twist) at the current state (cached); at a state whose gradient is not
         cached (a line search's trial point) the derivatives are not formed."""
-        c = self._cached()
+        c = self._cached() if c is None else c
         if "rod" in c:
             t = c["rod"]
             return t["stretch"], t["bend"], t["twist"]
         if "energies" not in c:
             r = self.rods
             if _rods_module._analytic is None or not r.num_stencils:
-                t = self._rod_terms()
+                t = self._rod_terms(c)
                 return t["stretch"], t["bend"], t["twist"]
             es = _rods_module.stretch_kernel(r._edge_q(), r.ks, hessian=False, gradient=False)[0]
-            s = self._stencils(derivatives=False)
+            s = self._stencils(False, c)
             c["energies"] = (float(np.sum(es)), float(np.sum(s.bend)), float(np.sum(s.twist)))
         return c["energies"]
 
-    def _rod_terms(self) -> dict:
+    def _rod_terms(self, c=None) -> dict:
         """Per-stencil rod energies and gradients at the current state (cached)."""
-        c = self._cached()
+        c = self._cached() if c is None else c
         if "rod" not in c:
             r = self.rods
             es, ge, _ = _rods_module.stretch_kernel(r._edge_q(), r.ks, hessian=False)
             an = _rods_module._analytic
             if r.num_stencils and an is not None:
-                s = self._stencils()
+                s = self._stencils(True, c)
                 bend, twist, gv = s.bend, s.twist, s.gradient()
             elif r.num_stencils:
                 (bend, twist), gv = r._vertex_energies(), None
@@ -447,11 +449,11 @@ class Linkage:
         c["rod"] = {"stretch": float(np.sum(es)), "ge": ge, "bend": float(np.sum(bend)),
                     "twist": float(np.sum(twist)), "gv": gv}
 
-    def _rod_gradient(self, with_rest_lengths: bool = False) -> np.ndarray:
-        c = self._cached()
+    def _rod_gradient(self, with_rest_lengths: bool = False, c=None) -> np.ndarray:
+        c = self._cached() if c is None else c
         key = ("rod_grad", with_rest_lengths)
         if key not in c:
-            t = self._rod_terms()
+            t = self._rod_terms(c)
             if t["gv"] is None:
                 c[key] = self.rods.gradient(with_rest_lengths)
             else:
@@ -473,9 +475,9 @@ class Linkage:
     def energy(self) -> float:
         return self.energy_parts().total
 
-    def _instance_jacobian(self):
+    def _instance_jacobian(self, c=None):
         """Joint-map outputs (7, N) and Jacobian (7, 9, N) of every instance at the current state."""
-        c = self._cached()
+        c = self._cached() if c is None else c
         if "jac" not in c:
             c["jac"] = jk.outputs_and_jacobian(self._instance_q(self._x), self._inst_prm)
         return c["jac"]
@@ -497,11 +499,11 @@ class Linkage:
         key = ("grad", with_rest_lengths)
         if key in c:
             return c[key].copy()
-        g = self._rod_gradient(with_rest_lengths)
+        g = self._rod_gradient(with_rest_lengths, c)
         nv = self.rods.num_vars
         gx = np.zeros(self.num_vars)
         gx[self._free_reduced] = g[self._free_rod]
-        _, jac = self._instance_jacobian()
+        _, jac = self._instance_jacobian(c)
         contrib = np.einsum("oin,on->in", jac, g[self._inst_rows])
         gx[: self.num_joint_vars] += np.bincount(
             ((9 * self._inst_joint)[None, :] + np.arange(9)[:, None]).ravel(), weights=contrib.ravel(), minlength=self.num_joint_vars
@@ -511,15 +513,15 @@ class Linkage:
         c[key] = gx
         return gx.copy()
 
-    def _joint_hessian_blocks(self):
+    def _joint_hessian_blocks(self, c=None):
         """``∇²(g·joint_map)`` per instance, (9, 9, N), with ``g`` the rods' gradient."""
-        w = self._rod_gradient()[self._inst_rows]
+        w = self._rod_gradient(False, c)[self._inst_rows]
         return jk.weighted_hessian(self._instance_q(self._x), self._inst_prm, w)
 
     def _vertex_hessian_blocks(self) -> np.ndarray:
         return self.rods._vertex_hessian() if self.rods.num_stencils else np.zeros((13, 13, 0))
 
-    def _rod_hessian_blocks(self):
+    def _rod_hessian_blocks(self, c=None):
         """Vertex (13, 13, S) and edge (7, 7, E) Hessian blocks at the current state.
 
         At a state whose rod terms are not cached yet (a Newton step's new
@@ -527,16 +529,16 @@ class Linkage:
         each stencil's geometry and fill the cache for the gradient too.
         """
         r = self.rods
-        c = self._cached()
+        c = self._cached() if c is None else c
         an = _rods_module._analytic
         if an is None or not r.num_stencils:
             _, _, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
             return self._vertex_hessian_blocks(), he
         if "rod" in c:
             _, _, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
-            return an._hessian(self._stencils())[0], he
+            return an._hessian(self._stencils(True, c))[0], he
         es, ge, he = _rods_module.stretch_kernel(r._edge_q(), r.ks)
-        s = self._stencils()
+        s = self._stencils(True, c)
         hv, gv = an._hessian(s)
         self._store_rod_terms(c, es, ge, s.bend, s.twist, gv)
         return hv, he
@@ -558,9 +560,9 @@ class Linkage:
             asm = getattr(self, "_hess_asm", None)
             if asm is None:
                 asm = self._hess_asm = _ReducedHessianAssembler(self)
-            hv, he = self._rod_hessian_blocks()
-            _, jac = self._instance_jacobian()
-            H = asm.assemble(hv, he, jac, self._joint_hessian_blocks())
+            hv, he = self._rod_hessian_blocks(c)
+            _, jac = self._instance_jacobian(c)
+            H = asm.assemble(hv, he, jac, self._joint_hessian_blocks(c))
             c[key] = H
             return H
         H = self.rods.hessian(with_rest_lengths)
@@ -810,7 +812,8 @@ class _ReducedHessianAssembler:
         self.buffer = np.zeros(toff + 81 * n_inst)
         all_r = np.concatenate([e[1] for es in entries.values() for e in es])
         all_c = np.concatenate([e[2] for es in entries.values() for e in es])
-        keys = np.unique(all_r * size + all_c)
+        keys = np.sort(all_r * size + all_c)  # np.unique's values by a plain sort (np.unique hashed: 58 of 100 ms here)
+        keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))]
         self.indices = (keys % size).astype(np.int32)
         self.indptr = np.searchsorted(keys // size, np.arange(size + 1)).astype(np.int32)
         self.nnz = len(keys)
