@@ -8,7 +8,7 @@ another counts once, in the inner one):
 
 - gradient: rod stencil energies+gradients and the joint map (``Linkage.gradient``,
   and the energy/gradient evaluation a line-search trial triggers);
-- hessian: the Hessian blocks and their assembly (``Linkage.hessian``);
+- hessian: the Hessian blocks and their assembly (``Linkage.hessian``, ``hessian_lower``);
 - factorization / solve: CHOLMOD (``SparseCholesky``);
 - eigen-solves: ARPACK and dense LAPACK (``eigsh``, ``eigh``);
 - set_vars: the joint map to rod variables for a trial point;
@@ -66,6 +66,7 @@ def instrument() -> None:
     Linkage.gradient = timed("gradient", Linkage.gradient)
     Linkage._rod_terms = timed("gradient", Linkage._rod_terms)
     Linkage.hessian = timed("hessian", Linkage.hessian)
+    Linkage.hessian_lower = timed("hessian", Linkage.hessian_lower)
     Linkage.set_vars = timed("set_vars", Linkage.set_vars)
     Linkage.update_source_frame = timed("frames", Linkage.update_source_frame)
     SparseCholesky.factorize = timed("factorization", SparseCholesky.factorize)

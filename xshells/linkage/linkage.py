@@ -557,12 +557,7 @@ class Linkage:
         if key in c:
             return c[key]
         if not with_rest_lengths:
-            asm = getattr(self, "_hess_asm", None)
-            if asm is None:
-                asm = self._hess_asm = _ReducedHessianAssembler(self)
-            hv, he = self._rod_hessian_blocks(c)
-            _, jac = self._instance_jacobian(c)
-            H = asm.assemble(hv, he, jac, self._joint_hessian_blocks(c))
+            H = self._reduced_assembler().assemble(*self._hessian_parts(c))
             c[key] = H
             return H
         H = self.rods.hessian(with_rest_lengths)
@@ -578,6 +573,32 @@ class Linkage:
         H = (Hx + sp.csr_matrix((Hj.ravel(), (rows, cols)), shape=(size, size))).tocsr()
         c[key] = H
         return H
+
+    def hessian_lower(self) -> sp.csr_matrix:
+        """The lower triangle (row ≥ column) of :meth:`hessian` with the very same values: all that a
+        Cholesky factorization reads, at about half the assembly (the solver's path; its eigen-solves
+        take the whole :meth:`hessian`). Shares its pattern arrays across calls like :meth:`hessian`."""
+        c = self._cached()
+        if "hess_lower" not in c:
+            asm = self._reduced_assembler()
+            full = c.get(("hess", False))
+            c["hess_lower"] = asm.lower_of(full) if full is not None else asm.assemble(*self._hessian_parts(c), lower=True)
+        return c["hess_lower"]
+
+    def _reduced_assembler(self) -> "_ReducedHessianAssembler":
+        asm = getattr(self, "_hess_asm", None)
+        if asm is None:
+            asm = self._hess_asm = _ReducedHessianAssembler(self)
+        return asm
+
+    def _hessian_parts(self, c):
+        """What the reduced Hessian is assembled from (cached with the state: the whole Hessian and
+        its lower triangle may both be asked for at one state)."""
+        if "hess_parts" not in c:
+            hv, he = self._rod_hessian_blocks(c)
+            _, jac = self._instance_jacobian(c)
+            c["hess_parts"] = (hv, he, jac, self._joint_hessian_blocks(c))
+        return c["hess_parts"]
 
     def mass_matrix(self) -> sp.csr_matrix:
         """``Jᵀ M J / ρ̄`` with ``M`` the rods' lumped mass and ``ρ̄`` their largest density: symmetric positive
@@ -825,8 +846,15 @@ class _ReducedHessianAssembler:
             posv = np.concatenate([e[0] for e in es])
             slots = np.searchsorted(keys, np.concatenate([e[1] for e in es]) * size + np.concatenate([e[2] for e in es]))
             self.gather[src] = sp.csr_matrix((np.ones(len(posv)), (slots, posv)), shape=(self.nnz, sizes[src]))
+        # the lower triangle: the gathers' rows of its entries, unchanged (each entry sums the same terms in the same order)
+        row_of = keys // size
+        self.lower_slots = np.flatnonzero(row_of >= self.indices)
+        self.lower_indices = self.indices[self.lower_slots]
+        self.lower_indptr = np.searchsorted(row_of[self.lower_slots], np.arange(size + 1)).astype(np.int32)
+        self.gather_lower = {src: G[self.lower_slots] for src, G in self.gather.items()}
 
-    def assemble(self, hv, he, jac, hj) -> sp.csr_matrix:
+    def assemble(self, hv, he, jac, hj, lower: bool = False) -> sp.csr_matrix:
+        """The reduced Hessian, or with ``lower`` its lower triangle (row ≥ column), the same values."""
         buf = self.buffer
         for kind, ids, k, free_l, ctrl_l, slot_inst, P, off in self.groups:
             B = hv if kind == "v" else he
@@ -837,14 +865,23 @@ class _ReducedHessianAssembler:
             n, _, m = P.shape
             np.matmul(P.transpose(0, 2, 1), np.matmul(Bg, P), out=buf[off : off + n * m * m].reshape(n, m, m))
         buf[self.joint_offset :].reshape(-1, 9, 9)[:] = hj.transpose(2, 0, 1)
-        data = self.gather[2] @ buf
-        if 0 in self.gather:
-            data += self.gather[0] @ hv.ravel()
-        if 1 in self.gather:
-            data += self.gather[1] @ he.ravel()
-        H = sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape)
+        gather = self.gather_lower if lower else self.gather
+        data = gather[2] @ buf
+        if 0 in gather:
+            data += gather[0] @ hv.ravel()
+        if 1 in gather:
+            data += gather[1] @ he.ravel()
+        return self._matrix(data, lower)
+
+    def lower_of(self, H: sp.csr_matrix) -> sp.csr_matrix:
+        """The lower triangle of a matrix that :meth:`assemble` returned whole."""
+        return self._matrix(H.data[self.lower_slots], True)
+
+    def _matrix(self, data, lower: bool) -> sp.csr_matrix:
+        indices, indptr = (self.lower_indices, self.lower_indptr) if lower else (self.indices, self.indptr)
+        H = sp.csr_matrix((data, indices, indptr), shape=self.shape)
         # the constructor may copy the index arrays: share the pattern's own, so that all
         # Hessians of this linkage are recognisably on one pattern (cheap differences)
-        H.indices, H.indptr = self.indices, self.indptr
+        H.indices, H.indptr = indices, indptr
         H.has_canonical_format = True
         return H

@@ -127,23 +127,23 @@ class _Workspace:
 
     def __init__(self):
         self.chol = _ReusableCholesky()
-        self.sub = None  # (free index key, PrincipalSubmatrix)
+        self.sub = {}  # pattern kind ("lower" or "full") -> (free index key, PrincipalSubmatrix)
         self.sums = {}
         self.aug = None  # (a copy, ρ)
         self.skip_plain = 0  # factorizations left before the plain (unaugmented) Hessian is tried again
         self.eig_chol = None  # a second factor, of H + sM with the eigen-solve's shift s
 
-    def free_part(self, H, free_idx, n):
+    def free_part(self, H, free_idx, n, kind="full"):
         if H.format != "csr":
             H = H.tocsr()
         if len(free_idx) == n:
             return H
-        sub = self.sub
+        sub = self.sub.get(kind)
         if sub is None or not np.array_equal(sub[0], free_idx) or not sub[1].matches(H):
             if not H.has_canonical_format:
                 H = H.copy()
                 H.sum_duplicates()
-            sub = self.sub = (free_idx.copy(), PrincipalSubmatrix(H, free_idx))
+            sub = self.sub[kind] = (free_idx.copy(), PrincipalSubmatrix(H, free_idx))
         return sub[1](H)
 
     def combine(self, name, mats, coefficients):
@@ -235,12 +235,23 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     sigma, sigma0 = 0.0, None
     lam_M = None
     _mass = []
+    # A problem with hessian_lower() hands over the lower triangle of its Hessian: all that the
+    # factorizations read. The sums below (free part, augmentation, shift) then run on that
+    # triangle, entry for entry the same values; eigen-solves take the whole matrix.
+    lower = hasattr(problem, "hessian_lower")
+    kind = "lower" if lower else "full"
 
     def mass():
         """The free-variable mass matrix (only needed for indefinite Hessians)."""
         if not _mass:
             _mass.append(sp.csr_matrix(sp.csr_matrix(problem.mass_matrix())[free_idx][:, free_idx]))
+            _mass.append(sp.tril(_mass[0], format="csr") if lower else _mass[0])
         return _mass[0]
+
+    def mass_part():
+        """:func:`mass` as the Hessians are held (its lower triangle with ``lower``)."""
+        mass()
+        return _mass[1]
 
     def objective() -> float:
         return problem.energy() - f @ problem.get_vars()
@@ -254,6 +265,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         # a aᵀ as a sparse matrix on the support of a (a dense block there)
         a_outer = sp.csr_matrix((np.outer(a[nz], a[nz]).ravel(), np.tile(nz, len(nz)), len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))),
                                 shape=(len(a), len(a)))
+        a_outer_part = sp.tril(a_outer, format="csr") if lower else a_outer
         aug = None  # ρ of the augmented Hessian H + ρ a aᵀ, set from the first Hessian
         if ws.aug is not None and ws.aug[0].shape == a.shape and np.array_equal(ws.aug[0], a):
             aug = ws.aug[1]  # the same constraint as the previous call: the same ρ (and a reusable factor)
@@ -261,7 +273,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     def hessian():
         """The free-variable Hessian (without the augmentation)."""
         nonlocal aug
-        H = ws.free_part(problem.hessian(), free_idx, n)
+        H = ws.free_part(problem.hessian_lower() if lower else problem.hessian(), free_idx, n, kind)
         if constraint is not None and aug is None:
             aug = float(np.abs(H.diagonal()).max()) / aa
             ws.aug = (a.copy(), aug)
@@ -277,7 +289,14 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         """
         if constraint is None:
             return H
-        return ws.combine("aug", [H, a_outer], [1.0, aug])
+        return ws.combine("aug", [H, a_outer_part], [1.0, aug])
+
+    def whole_augmented():
+        """The whole (not only lower) augmented free Hessian at the current state, for eigen-solves."""
+        H = ws.free_part(problem.hessian(), free_idx, n, "full")
+        if constraint is None:
+            return H
+        return ws.combine("aug_whole" if lower else "aug", [H, a_outer], [1.0, aug])
 
     def factor_unshifted(H) -> float:
         """Factorize ``H`` if it is positive definite, else its augmented form; returns the ρ used.
@@ -297,14 +316,14 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         return aug if constraint is not None else 0.0
 
     def shifted(H, sigma):
-        return ws.combine("shift", [H, mass()], [1.0, sigma])
+        return ws.combine("shift", [H, mass_part()], [1.0, sigma])
 
-    def first_shift(H) -> float:
-        """σ0 = sigma_factor·λmax(H)/λmax(M), computed once per call."""
+    def first_shift() -> float:
+        """σ0 = sigma_factor·λmax(H)/λmax(M) of the augmented Hessian, computed once per call."""
         nonlocal sigma0, lam_M
         if sigma0 is None:
             lam_M = lam_M or _largest_eigenvalue(mass())
-            sigma0 = options.sigma_factor * _largest_eigenvalue(H) / lam_M
+            sigma0 = options.sigma_factor * _largest_eigenvalue(whole_augmented()) / lam_M
         return sigma0
 
     def free_gradient():
@@ -346,7 +365,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             # lengths) need not factor: its zero eigenvalues come out of the rounding as
             # ±ε·λmax. Curvature that small is not a saddle to escape (the uniform grid's
             # rest-length solve spent 92 escapes on eigenvalues of −2e-16·λmax).
-            s_round = ROUND_OFF_CURVATURE / options.sigma_factor * first_shift(augmented(H))
+            s_round = ROUND_OFF_CURVATURE / options.sigma_factor * first_shift()
             try:
                 chol.factorize(shifted(augmented(H), s_round))
                 report.converged = True
@@ -374,7 +393,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             indefinite = True
             H = augmented(H) if sigma == 0 else H
             rho = aug if constraint is not None else 0.0
-            sigma = first_shift(H) if sigma == 0 else 4 * sigma
+            sigma = first_shift() if sigma == 0 else 4 * sigma
             while True:
                 try:
                     chol.factorize(shifted(H, sigma))
@@ -396,7 +415,8 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 if ws.eig_chol is None:
                     ws.eig_chol = SparseCholesky()
                 chol.forget()  # its factor may be overwritten by the shift search
-                v, s_eig = _most_negative_direction(H, mass(), chol.chol, sigma, ws.eig_chol, lambda s: shifted(H, s))
+                v, s_eig = _most_negative_direction(whole_augmented(), mass(), chol.chol, sigma, ws.eig_chol,
+                                                    lambda s: shifted(H, s))
                 # H + s_eig·M factors too (s_eig is within 100× of |λmin|): the next steps' shift
                 # decays from 100·s_eig, not from σ (at σ ≫ |λmin| a step barely moves the soft
                 # modes: Darth Vader took 16 such steps after its buckling escape)
@@ -489,12 +509,15 @@ def _constrained_tangent(problem, fixed, a_full: np.ndarray):
     n = len(a_full)
     free_idx = free_indices(n, fixed)
     a = np.asarray(a_full, float)[free_idx]
-    H = ws.free_part(problem.hessian(), free_idx, n)
+    lower = hasattr(problem, "hessian_lower")  # as minimize holds it
+    H = ws.free_part(problem.hessian_lower() if lower else problem.hessian(), free_idx, n, "lower" if lower else "full")
     if ws.aug is None or ws.aug[0].shape != a.shape or not np.array_equal(ws.aug[0], a):
         return None
     nz = np.flatnonzero(a)
     a_outer = sp.csr_matrix((np.outer(a[nz], a[nz]).ravel(), np.tile(nz, len(nz)), len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))),
                             shape=(len(a), len(a)))
+    if lower:
+        a_outer = sp.tril(a_outer, format="csr")
     try:
         # as minimize: the plain Hessian if it factors (then the augmented one would too), else the augmented
         if ws.skip_plain <= 0:
