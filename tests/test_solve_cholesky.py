@@ -71,3 +71,21 @@ def test_a_failed_factorization_leaves_nothing_to_solve_with_and_the_pattern_usa
         chol.solve(np.ones(60))
     chol.factorize(A)  # the same pattern factors again
     assert np.allclose(A @ chol.solve(np.ones(60)), np.ones(60), atol=1e-10)
+
+
+def test_a_second_object_on_a_known_pattern_gives_the_very_same_solves():
+    # a new SparseCholesky copies the structure analysed by another (shared templates): the factor,
+    # from the whole matrix or from its lower triangle, must be the same to the last bit
+    A = spd(150, 7)
+    b = np.random.default_rng(8).standard_normal(150)
+    first = SparseCholesky()
+    first.factorize(A)
+    for M in (A, (A * 1.5).tocsr(), sp.tril(A, format="csr")):
+        fresh, again = SparseCholesky(), SparseCholesky()
+        fresh.factorize(M)
+        again.factorize(M)
+        assert np.array_equal(fresh.solve(b), again.solve(b))
+    assert np.allclose(A @ first.solve(b), b, atol=1e-10)
+    lower = SparseCholesky()
+    lower.factorize(sp.tril(A, format="csr"))
+    assert np.array_equal(lower.solve(b), first.solve(b))

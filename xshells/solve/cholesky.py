@@ -13,6 +13,13 @@ cholmod.options["supernodal"] = 2  # supernodal LLᵀ: fastest here for our size
 cholmod.options["print"] = 0
 
 
+# The index structure of each recently analysed pattern, shared by all SparseCholesky objects: a solver
+# keeps a second factor of a pattern (the eigen-solves' shift search alternates two), and building an
+# spmatrix from triplets (a sort) took twice as long as CHOLMOD's analysis; a copy of one is a memcpy.
+_TEMPLATES: dict = {}  # pattern key -> (entries read or None, spmatrix of that structure)
+_MAX_TEMPLATES = 8
+
+
 class NotPositiveDefinite(ArithmeticError):
     """The matrix handed to :meth:`SparseCholesky.factorize` is not positive definite."""
 
@@ -59,17 +66,29 @@ class SparseCholesky:
         key = self._key(L)
         entry = self._patterns.pop(key, None)
         if entry is None:
-            # The spmatrix holds Aᵀ (CSR arrays read as CSC) and only the entries CHOLMOD reads: its upper
-            # triangle, the lower one of A (CHOLMOD copies that triangle out on every factorization, so
-            # the same values in the same order: the same factor as from the whole matrix, in half the copying).
-            cols = np.repeat(np.arange(L.shape[1], dtype=np.int64), np.diff(L.indptr))
-            lower = np.flatnonzero(L.indices <= cols)
-            take = None if len(lower) == len(cols) else lower
-            rows = L.indices.astype(np.int64)
-            data = L.data.astype(float)
-            if take is not None:
-                rows, cols, data = rows[take], cols[take], data[take]
-            Am = spmatrix(matrix(data), matrix(rows), matrix(cols), L.shape)
+            template = _TEMPLATES.get(key)
+            if template is not None:
+                take, Am = template[0], +template[1]  # a copy of the structure; the values are set below
+                data = L.data if take is None else L.data[take]
+                Am.V = matrix(data if data.dtype == np.float64 else data.astype(float))
+            else:
+                # The spmatrix holds Aᵀ (CSR arrays read as CSC) and only the entries CHOLMOD reads: its upper
+                # triangle, the lower one of A (CHOLMOD copies that triangle out on every factorization, so
+                # the same values in the same order: the same factor as from the whole matrix, in half the copying).
+                cols = np.repeat(np.arange(L.shape[1], dtype=np.int64), np.diff(L.indptr))
+                lower = np.flatnonzero(L.indices <= cols)
+                take = None if len(lower) == len(cols) else lower
+                rows = L.indices.astype(np.int64)
+                data = L.data.astype(float)
+                if take is not None:
+                    rows, cols, data = rows[take], cols[take], data[take]
+                Am = spmatrix(matrix(data), matrix(rows), matrix(cols), L.shape)
+                try:  # the oldest goes (threads may share the table: a lost race only costs a rebuild)
+                    while len(_TEMPLATES) >= _MAX_TEMPLATES:
+                        _TEMPLATES.pop(next(iter(_TEMPLATES)), None)
+                except (StopIteration, RuntimeError):
+                    pass
+                _TEMPLATES[key] = (take, +Am)
             entry = [Am, cholmod.symbolic(Am, uplo="U"), take]
             if len(self._patterns) >= self.MAX_PATTERNS:
                 self._patterns.pop(next(iter(self._patterns)))
