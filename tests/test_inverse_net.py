@@ -87,3 +87,33 @@ def test_a_net_far_from_the_surface_is_refused(tmp_path):
     path.write_text("v 0 0 500\nv 100 0 500\nv 100 100 500\nv 0 100 500\nf 1 2 3 4\n")
     with pytest.raises(InputError, match="vertex 1 lies 500 from the surface"):
         net_from_file(path, s, m, np.radians(20))
+
+
+def test_close_like_turns_beam_b_around_where_the_start_reads_the_supplement():
+    from xshells.inverse.flatten import close_like
+
+    c, s = np.cos(np.radians(10)), np.sin(np.radians(10))
+    start = np.array([[0, 0], [-c, -s], [c, s], [c, -s], [-c, s]], float)  # joint 0; beam A 1-0-2, beam B 3-0-4
+    nbr = -np.ones((5, 2, 2), np.int64)
+    nbr[0] = [[1, 2], [3, 4]]  # B runs from lower right to upper left: A and B read 160°
+    out = close_like(nbr, start)
+    assert out[0].tolist() == [[1, 2], [4, 3]]
+    assert close_like(out, start)[0].tolist() == [[1, 2], [4, 3]]  # already closing the small angle: kept
+
+
+@pytest.mark.parametrize("deployed", [70.0, 120.0])
+def test_a_designers_net_deployed_past_90_degrees_closes_its_own_angle(deployed):
+    """A net crossing at 120° on the surface reads 60° from its 3D geometry: its layout must still close the
+    120° (the layout the scissor map gives, up to a rigid motion), not fold into the other 20° layout."""
+    from xshells.inverse.flatten import flat_crossing_angles, net_from_arrays
+
+    s = check_target(*grid(n=13, size=1200.0, height=lambda x, y: -(x**2 + y**2) / 6000.0))
+    m = scissor_map(s, np.radians(deployed), np.radians(20))
+    auto = surface_net(s, m, np.radians(deployed), 150.0)
+    net = net_from_arrays(auto.joints, auto.segments, s, m, np.radians(20), "the net")
+    assert np.abs(net.segment_lengths(flat=True) / net.segment_lengths() - 1).max() < 0.01
+    ang = np.degrees(flat_crossing_angles(net))
+    assert np.all((ang > 15) & (ang < 25)), (ang.min(), ang.max())
+    A, B = net.flat - net.flat.mean(axis=0), auto.flat - auto.flat.mean(axis=0)
+    U, _, Vt = np.linalg.svd(A.T @ B)
+    assert np.abs(A @ (U @ Vt) - B).max() < 0.01 * np.ptp(B, axis=0).max()  # folded the other way: 41 %

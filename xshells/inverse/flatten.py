@@ -32,6 +32,29 @@ def beam_neighbours(graph) -> np.ndarray:
     return nbr
 
 
+def close_like(nbr: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """``nbr`` (:func:`beam_neighbours`) with beam B turned around everywhere if ``start`` (k, 2) closes its other angle.
+
+    Which of a joint's two supplementary angles a net's beam labelling reads
+    as its opening angle depends on how the graph was traced, and on a 3D net
+    deployed past 90° it reads the deployed angle's supplement. The flat layout
+    must close the angle that the start (the scissor map's image, which closes
+    the deployed angle) closes; otherwise it folds the net the other way
+    (measured on the pointy wings' own deployed net: 1.6 m from its layout
+    instead of 36 mm).
+    """
+    inner = np.flatnonzero((nbr >= 0).all(axis=(1, 2)))
+    if not len(inner):
+        return nbr
+    ta = start[nbr[inner, 0, 1]] - start[nbr[inner, 0, 0]]
+    tb = start[nbr[inner, 1, 1]] - start[nbr[inner, 1, 0]]
+    if np.median(np.sum(ta * tb, axis=1) / (np.linalg.norm(ta, axis=1) * np.linalg.norm(tb, axis=1))) >= 0:
+        return nbr
+    out = nbr.copy()
+    out[:, 1] = nbr[:, 1, ::-1]
+    return out
+
+
 def flatten_layout(lengths_3d: np.ndarray, segments: np.ndarray, nbr: np.ndarray, flat_angle: float, start: np.ndarray,
                    smooth: float = 0.05, angle_weight: float = 0.05) -> np.ndarray:
     """Planar joint positions (k, 2) near ``start`` with the given segment lengths, smooth beams, angles α₀.
@@ -133,7 +156,8 @@ def net_from_arrays(X, segments, surface, smap, flat_angle: float, source: str) 
     inner = (sj >= 0).all(axis=1)  # joint-to-joint segments carry the flattening
     lengths = np.linalg.norm(X[segments[inner, 1]] - X[segments[inner, 0]], axis=1)
     q = start.copy()
-    q[jv] = flatten_layout(lengths, sj[inner], beam_neighbours(graph), flat_angle, start[jv])
+    nbr = close_like(beam_neighbours(graph), start[jv])
+    q[jv] = flatten_layout(lengths, sj[inner], nbr, flat_angle, start[jv])
     # free ends: along their beam's direction at the joint, at their length on the surface
     for v in np.asarray(graph.free_end_vertex):
         s = int(np.flatnonzero((segments == v).any(axis=1))[0])
