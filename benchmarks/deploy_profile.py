@@ -65,6 +65,8 @@ def instrument() -> None:
 
     Linkage.gradient = timed("gradient", Linkage.gradient)
     Linkage._rod_terms = timed("gradient", Linkage._rod_terms)
+    if hasattr(Linkage, "_rod_energies"):  # a line-search trial's energies alone
+        Linkage._rod_energies = timed("gradient", Linkage._rod_energies)
     Linkage.hessian = timed("hessian", Linkage.hessian)
     Linkage.hessian_lower = timed("hessian", Linkage.hessian_lower)
     Linkage.set_vars = timed("set_vars", Linkage.set_vars)
