@@ -117,3 +117,16 @@ def test_a_designers_net_deployed_past_90_degrees_closes_its_own_angle(deployed)
     A, B = net.flat - net.flat.mean(axis=0), auto.flat - auto.flat.mean(axis=0)
     U, _, Vt = np.linalg.svd(A.T @ B)
     assert np.abs(A @ (U @ Vt) - B).max() < 0.01 * np.ptp(B, axis=0).max()  # folded the other way: 41 %
+
+
+def test_a_nets_bisector_is_that_of_the_angle_nearest_the_deployed_one():
+    from xshells.inverse.flatten import net_bisector
+
+    a, b = np.array([np.cos(np.pi / 3), np.sin(np.pi / 3), 0]), np.array([np.cos(np.pi / 3), -np.sin(np.pi / 3), 0])
+    n = 5
+    X = np.array([100.0 * (i * a + j * b) for i in range(n) for j in range(n)])  # beams crossing at 120° and 60°
+    idx = np.arange(n * n).reshape(n, n)
+    S = np.r_[np.c_[idx[:-1].ravel(), idx[1:].ravel()], np.c_[idx[:, :-1].ravel(), idx[:, 1:].ravel()]]
+    assert abs(net_bisector(X, S, np.radians(120))[0]) == pytest.approx(1.0, abs=1e-9)  # opens about x
+    assert abs(net_bisector(X, S, np.radians(60))[1]) == pytest.approx(1.0, abs=1e-9)  # the other angle: about y
+    assert abs(net_bisector(X[:, [1, 0, 2]], S, np.radians(110))[1]) == pytest.approx(1.0, abs=1e-9)

@@ -37,3 +37,11 @@ def test_curved_surfaces_have_layouts_closed_uniformly_to_within_a_small_residua
         m = scissor_map(s, np.radians(90), np.radians(20))
         assert m.residual < 5e-3
         assert (np.linalg.det(m.frames.jacobians(m.flat)) > 0).all()  # no triangle flips: the layout is one sheet
+
+
+@pytest.mark.parametrize("axis", [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (1.0, 1.0, 0.0)])
+def test_a_plane_closes_about_the_axis_it_is_given(axis):
+    s = check_target(*grid(n=9))
+    m = scissor_map(s, np.radians(110), np.radians(20), axis=axis)
+    d3 = m.frames.to_3d(m.director)
+    assert np.allclose(np.abs(d3 @ np.asarray(axis) / np.linalg.norm(axis)), 1.0, atol=1e-8)

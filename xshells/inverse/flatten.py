@@ -112,6 +112,38 @@ def flat_crossing_angles(net: Net) -> np.ndarray:
     return np.abs(np.arctan2(ta[:, 0] * tb[:, 1] - ta[:, 1] * tb[:, 0], (ta * tb).sum(1)))
 
 
+def net_bisector(X: np.ndarray, segments: np.ndarray, deployed_angle: float, source: str = "the net") -> np.ndarray:
+    """The mean direction (3,) in which a 3D quad net opens: at each joint where both beams pass through, the
+    bisector of whichever of its two supplementary crossing angles is nearer ``deployed_angle`` (radians).
+
+    The scissor map of a designer's net starts from this axis, so that it closes the net's own opening angle
+    (the surface's longest axis can be the other bisector: on the pointy wings' own net, 1.95 m off).
+    """
+    from ..io.design import design_from_arrays
+    from ..linkage.graph import analyze
+
+    try:
+        graph = analyze(design_from_arrays(X, segments, source=source))
+    except InputError as exc:
+        raise InputError(f"{source}: not a quad net of beams: {exc}") from None
+    nbr = beam_neighbours(graph)
+    P = np.asarray(X, float)[np.asarray(graph.joint_vertex)]
+    inner = np.flatnonzero((nbr >= 0).all(axis=(1, 2)))
+    if not len(inner):
+        raise InputError(f"{source}: no joint where two beams cross: not a quad net of beams")
+    ta = P[nbr[inner, 0, 1]] - P[nbr[inner, 0, 0]]
+    tb = P[nbr[inner, 1, 1]] - P[nbr[inner, 1, 0]]
+    ta /= np.linalg.norm(ta, axis=1)[:, None]
+    tb /= np.linalg.norm(tb, axis=1)[:, None]
+    theta = np.arccos(np.clip(np.sum(ta * tb, axis=1), -1.0, 1.0))
+    if np.median(np.abs(theta - deployed_angle)) > np.median(np.abs(np.pi - theta - deployed_angle)):
+        tb = -tb  # the labelling reads the supplement
+    b = ta + tb
+    b /= np.maximum(np.linalg.norm(b, axis=1), 1e-12)[:, None]
+    _, _, vt = np.linalg.svd(b, full_matrices=False)  # a line field: the principal direction of ±b
+    return vt[0]
+
+
 def net_from_file(path, surface, smap, flat_angle: float) -> Net:
     """A designer's quad net (:func:`.net.read_net`) with its flat layout."""
     X, segments = read_net(path)

@@ -331,14 +331,18 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         raise InputError("--grading shapes the automatic net: it cannot apply to a --net; give one or the other")
     if net_path is not None and options.beams not in ("auto", "even"):
         raise InputError("--beams chooses the automatic net: it cannot apply to a --net; give one or the other")
-    smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation))
     if net_path is None:
+        smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation))
         net, beams, reason = _automatic_net(surface, smap, options, spacing, progress)
         beams_reason = beams_reason or reason
     else:
-        from .flatten import net_from_file
+        from .flatten import net_bisector, net_from_arrays
+        from .net import read_net
 
-        net, beams, beams_reason = net_from_file(net_path, surface, smap, alpha0), "given", "the --net file"
+        X, segs = read_net(net_path)
+        # closed about the net's own bisector (--orientation turns it further)
+        smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation), axis=net_bisector(X, segs, theta, str(net_path)))
+        net, beams, beams_reason = net_from_arrays(X, segs, surface, smap, alpha0, str(net_path)), "given", "the --net file"
     times["net_s"] = time.perf_counter() - t
     if net.num_segments > MAX_SEGMENTS and not options.force:
         raise InputError(f"the net has {net.num_segments} segments, more than {MAX_SEGMENTS}: give a larger spacing, or --force")

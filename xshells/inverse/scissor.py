@@ -142,14 +142,17 @@ class ScissorMap:
         return e / np.linalg.norm(e)
 
 
-def _initial_director_uv(V, uv, orientation: float) -> np.ndarray:
-    """The direction in the LSCM plane of the surface's longest principal axis (the file's x axis where two
-    axes are within 5 %), turned by ``orientation``."""
+def _initial_director_uv(V, uv, orientation: float, axis=None) -> np.ndarray:
+    """The direction in the LSCM plane of ``axis`` (3,), or by default of the surface's longest principal
+    axis (the file's x axis where two axes are within 5 %), turned by ``orientation``."""
     A = np.c_[uv - uv.mean(0), np.ones(len(uv))]
     coef, *_ = np.linalg.lstsq(A, V - V.mean(0), rcond=None)  # V ≈ uv @ coef[:2] + c
     _, sv, vt = np.linalg.svd(V - V.mean(0), full_matrices=False)
-    axis = vt[0]
-    if sv[1] > 0.95 * sv[0]:
+    if axis is not None:
+        axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    elif sv[1] <= 0.95 * sv[0]:
+        axis = vt[0]
+    else:
         # no clear longest axis (a square or round surface): the file's x axis in the mean plane, so that the
         # choice does not hang on round-off
         n = vt[2]
@@ -163,12 +166,12 @@ def _initial_director_uv(V, uv, orientation: float) -> np.ndarray:
 
 
 def scissor_map(surface: TargetSurface, deployed_angle: float, flat_angle: float, orientation: float = 0.0,
-                iterations: int = 200, tolerance: float = 1e-7) -> ScissorMap:
+                iterations: int = 200, tolerance: float = 1e-7, axis=None) -> ScissorMap:
     """Flatten ``surface`` as an X-shell closed from ``deployed_angle`` to ``flat_angle`` (radians).
 
-    ``orientation`` (radians) turns the beams' bisector away from the
-    surface's longest principal axis. Iterates until the relative change of
-    the residual falls below ``tolerance``.
+    ``orientation`` (radians) turns the beams' bisector away from ``axis``
+    (3,), by default the surface's longest principal axis. Iterates until the
+    relative change of the residual falls below ``tolerance``.
     """
     import igl
 
@@ -182,7 +185,7 @@ def scissor_map(surface: TargetSurface, deployed_angle: float, flat_angle: float
     uv, _ = igl.lscm(V, F, np.array([i0, i1]), np.array([[0.0, 0.0], [1.0, 0.0]]))
     J = frames.jacobians(uv)
     uv = uv / np.sqrt(np.abs(np.linalg.det(J)) @ frames.area / frames.area.sum())
-    d = _initial_director_uv(V, uv, orientation)
+    d = _initial_director_uv(V, uv, orientation, axis)
     R = np.array([[d[0], -d[1]], [d[1], d[0]]])  # e₁ of the uv plane along d
     psi = (uv @ R) @ np.diag([a, b])
     solver = PoissonSolver(frames, pin=i0)
