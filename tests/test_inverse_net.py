@@ -110,7 +110,7 @@ def test_a_designers_net_deployed_past_90_degrees_closes_its_own_angle(deployed)
     s = check_target(*grid(n=13, size=1200.0, height=lambda x, y: -(x**2 + y**2) / 6000.0))
     m = scissor_map(s, np.radians(deployed), np.radians(20))
     auto = surface_net(s, m, np.radians(deployed), 150.0)
-    net = net_from_arrays(auto.joints, auto.segments, s, m, np.radians(20), "the net")
+    net = net_from_arrays(auto.joints, auto.segments, s, m, np.radians(20), "the net", follow_start=True)
     assert np.abs(net.segment_lengths(flat=True) / net.segment_lengths() - 1).max() < 0.01
     ang = np.degrees(flat_crossing_angles(net))
     assert np.all((ang > 15) & (ang < 25)), (ang.min(), ang.max())

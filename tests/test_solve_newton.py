@@ -187,3 +187,38 @@ def test_the_shift_decays_by_the_option_after_an_indefinite_spell():
             assert np.isclose(s[k - 1] / s[k], decay), (decay, s)
             k += 1
         assert k > first + 1, s  # it did decay at least once
+
+
+def test_the_lower_triangle_is_used_only_where_the_class_of_hessian_defines_it():
+    """A wrapper that adds to a linkage's Hessian and hands the rest to it (``__getattr__``), or a subclass
+    that overrides ``hessian``, must be solved with its own Hessian, not the linkage's lower triangle."""
+    from xshells.design.equilibrium import _Tethered
+    from xshells.linkage.linkage import Linkage
+    from xshells.solve.newton import uses_lower_triangle
+
+    class Own:
+        def hessian(self):
+            return sp.eye(2)
+
+        def hessian_lower(self):
+            return sp.eye(2)
+
+    class Delegating:
+        def __init__(self, inner):
+            self._inner = inner
+
+        def __getattr__(self, name):
+            return getattr(self._inner, name)
+
+        def hessian(self):
+            return 2 * self._inner.hessian()
+
+    class Overriding(Own):
+        def hessian(self):
+            return 2 * sp.eye(2)
+
+    assert uses_lower_triangle(Own())
+    assert hasattr(Delegating(Own()), "hessian_lower") and not uses_lower_triangle(Delegating(Own()))
+    assert not uses_lower_triangle(Overriding())
+    assert "hessian_lower" in vars(Linkage) and "hessian" in vars(Linkage)
+    assert "hessian" in vars(_Tethered) and "hessian_lower" not in vars(_Tethered)

@@ -342,7 +342,8 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         X, segs = read_net(net_path)
         # closed about the net's own bisector (--orientation turns it further)
         smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation), axis=net_bisector(X, segs, theta, str(net_path)))
-        net, beams, beams_reason = net_from_arrays(X, segs, surface, smap, alpha0, str(net_path)), "given", "the --net file"
+        net, beams, beams_reason = net_from_arrays(X, segs, surface, smap, alpha0, str(net_path), follow_start=True), "given", \
+            "the --net file"
     times["net_s"] = time.perf_counter() - t
     if net.num_segments > MAX_SEGMENTS and not options.force:
         raise InputError(f"the net has {net.num_segments} segments, more than {MAX_SEGMENTS}: give a larger spacing, or --force")

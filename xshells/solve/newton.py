@@ -195,6 +195,20 @@ def _largest_eigenvalue(A: sp.spmatrix) -> float:
         return float(np.max(np.abs(A).sum(axis=1)))  # Gershgorin bound
 
 
+def uses_lower_triangle(problem) -> bool:
+    """Whether ``problem``'s ``hessian_lower()`` is the lower triangle of its own ``hessian()``.
+
+    Only where the class that defines ``hessian`` defines ``hessian_lower`` too: a wrapper that adds terms
+    to a linkage's Hessian and hands every other attribute to the linkage (``__getattr__``), or a
+    subclass that overrides ``hessian``, would otherwise be solved with the linkage's Hessian alone (the
+    design optimization's tethered equilibria were, and the graded cap could no longer be held).
+    """
+    for klass in type(problem).__mro__:
+        if "hessian" in vars(klass):
+            return "hessian_lower" in vars(klass)
+    return False
+
+
 def minimize(problem, *, fixed=None, force=None, constraint=None, options: NewtonOptions = NewtonOptions(),
              callback=None, saddle_hint=None) -> NewtonReport:
     """Minimize ``problem.energy() − force·x`` over the variables not in ``fixed``.
@@ -238,7 +252,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     # A problem with hessian_lower() hands over the lower triangle of its Hessian: all that the
     # factorizations read. The sums below (free part, augmentation, shift) then run on that
     # triangle, entry for entry the same values; eigen-solves take the whole matrix.
-    lower = hasattr(problem, "hessian_lower")
+    lower = uses_lower_triangle(problem)
     kind = "lower" if lower else "full"
 
     def mass():
@@ -509,7 +523,7 @@ def _constrained_tangent(problem, fixed, a_full: np.ndarray):
     n = len(a_full)
     free_idx = free_indices(n, fixed)
     a = np.asarray(a_full, float)[free_idx]
-    lower = hasattr(problem, "hessian_lower")  # as minimize holds it
+    lower = uses_lower_triangle(problem)  # as minimize holds it
     H = ws.free_part(problem.hessian_lower() if lower else problem.hessian(), free_idx, n, "lower" if lower else "full")
     if ws.aug is None or ws.aug[0].shape != a.shape or not np.array_equal(ws.aug[0], a):
         return None
