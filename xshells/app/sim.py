@@ -43,7 +43,7 @@ class SimSettings:
         Deployed states kept for the animation (oldest extra states dropped).
     """
 
-    max_step_deg: float = 2.0
+    max_step_deg: float = 6.0
     direction: str = "up"
     max_stored: int = 400
 
