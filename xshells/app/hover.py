@@ -47,7 +47,7 @@ if (!window.__xshellsHover) { window.__xshellsHover = 1;
     const r = c.getBoundingClientRect();
     later(((e.clientX - r.left) / r.width * 2 - 1).toFixed(5) + ' ' + (1 - (e.clientY - r.top) / r.height * 2).toFixed(5)
           + ' ' + r.width.toFixed(1) + ' ' + r.height.toFixed(1)); }, { passive: true });
-  document.addEventListener('pointerleave', () => later(''));
+  document.addEventListener('pointerout', (e) => { if (!e.relatedTarget) later(''); });
   const i = field(); if (i) hide(i); }
 """
 
