@@ -462,22 +462,32 @@ class App:
             c, k = self._frame
             return (np.asarray(g.position[:2]) - [-GAP, 0.0]) / k + c
 
-        @g.on_update
-        def _(_ev) -> None:  # the lines and the deployed view follow; recorded for undo only on release
-            try:
-                layout = fn(self.session.layout, *args(dragged_to()))
-            except InputError:
-                return
-            self._draw_layout(layout, keep_frame=True)
-            if self.session.live:
-                self.session.preview(layout)
+        released, order = [False], threading.Lock()
 
-        @g.on_drag_end
-        def _(_ev) -> None:
-            if self.session.edit(fn, *args(dragged_to())) and handle is None and v is None:
-                self._drop_gizmo()  # a brush stroke is done; the next click starts another
-            if self.session.live and self.check_cold.value:
-                self.session.check_branch()
+        @g.on_update
+        def _(ev) -> None:
+            # viser runs these callbacks in a thread pool, out of order: an "update" (a preview) could run
+            # after the "end" (the full solve) and was then shown as the final state. So one callback takes
+            # every phase, the phases of one handle run one at a time, and an update after the release is
+            # dropped: a preview asked for before the release is superseded by its full solve.
+            phase = getattr(ev, "phase", "update")
+            with order:
+                if phase == "start":
+                    released[0] = False
+                elif phase == "end":
+                    released[0] = True
+                    if self.session.edit(fn, *args(dragged_to())) and handle is None and v is None:
+                        self._drop_gizmo()  # a brush stroke is done; the next click starts another
+                    if self.session.live and self.check_cold.value:
+                        self.session.check_branch()
+                elif not released[0]:
+                    try:  # the lines and the deployed view follow; recorded for undo only on release
+                        layout = fn(self.session.layout, *args(dragged_to()))
+                    except InputError:
+                        return
+                    self._draw_layout(layout, keep_frame=True)
+                    if self.session.live:
+                        self.session.preview(layout)
 
     def _set_camera(self, which: str, client) -> None:
         """``Plan``: look straight down on the flat layout (a narrow field of view: nearly orthographic); ``3D``: as at start."""
