@@ -419,7 +419,7 @@ class App:
             self._hovered = None
             self._remove("/hover")
             return
-        if getattr(self, "_hovered", None) != (k, labels[k]):
+        if self._hovered != (k, labels[k]):
             self._hovered = (k, labels[k])
             self._extras["/hover"] = self.server.scene.add_label("/hover", labels[k], position=tuple(P[k] + [0, 0, 0.03]))
 

@@ -32,6 +32,15 @@ def beam_neighbours(graph) -> np.ndarray:
     return nbr
 
 
+def crossing_tangents(nbr: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At each joint both of whose beams pass through: its index, and beam A's and beam B's central differences.
+
+    ``nbr`` as :func:`beam_neighbours`, ``P`` (k, d) joint positions. Returns ``inner`` (m,), ``ta``, ``tb`` (m, d).
+    """
+    inner = np.flatnonzero((nbr >= 0).all(axis=(1, 2)))
+    return inner, P[nbr[inner, 0, 1]] - P[nbr[inner, 0, 0]], P[nbr[inner, 1, 1]] - P[nbr[inner, 1, 0]]
+
+
 def close_like(nbr: np.ndarray, start: np.ndarray) -> np.ndarray:
     """``nbr`` (:func:`beam_neighbours`) with beam B turned around everywhere if ``start`` (k, 2) closes its other angle.
 
@@ -43,11 +52,9 @@ def close_like(nbr: np.ndarray, start: np.ndarray) -> np.ndarray:
     (measured on the pointy wings' own deployed net: 1.6 m from its layout
     instead of 36 mm).
     """
-    inner = np.flatnonzero((nbr >= 0).all(axis=(1, 2)))
+    inner, ta, tb = crossing_tangents(nbr, start)
     if not len(inner):
         return nbr
-    ta = start[nbr[inner, 0, 1]] - start[nbr[inner, 0, 0]]
-    tb = start[nbr[inner, 1, 1]] - start[nbr[inner, 1, 0]]
     if np.median(np.sum(ta * tb, axis=1) / (np.linalg.norm(ta, axis=1) * np.linalg.norm(tb, axis=1))) >= 0:
         return nbr
     out = nbr.copy()
@@ -106,9 +113,7 @@ def flat_crossing_angles(net: Net) -> np.ndarray:
     graph = analyze(design_from_arrays(np.c_[q, np.zeros(len(q))], net.segments, source="the flat layout"))
     nbr = beam_neighbours(graph)
     jv = np.asarray(graph.joint_vertex)
-    inner = np.flatnonzero((nbr >= 0).all(axis=(1, 2)))
-    t = [q[jv[nbr[inner, f, 1]]] - q[jv[nbr[inner, f, 0]]] for f in (0, 1)]
-    ta, tb = t
+    _, ta, tb = crossing_tangents(nbr, q[jv])
     return np.abs(np.arctan2(ta[:, 0] * tb[:, 1] - ta[:, 1] * tb[:, 0], (ta * tb).sum(1)))
 
 
@@ -128,11 +133,9 @@ def net_bisector(X: np.ndarray, segments: np.ndarray, deployed_angle: float, sou
         raise InputError(f"{source}: not a quad net of beams: {exc}") from None
     nbr = beam_neighbours(graph)
     P = np.asarray(X, float)[np.asarray(graph.joint_vertex)]
-    inner = np.flatnonzero((nbr >= 0).all(axis=(1, 2)))
+    inner, ta, tb = crossing_tangents(nbr, P)
     if not len(inner):
         raise InputError(f"{source}: no joint where two beams cross: not a quad net of beams")
-    ta = P[nbr[inner, 0, 1]] - P[nbr[inner, 0, 0]]
-    tb = P[nbr[inner, 1, 1]] - P[nbr[inner, 1, 0]]
     ta /= np.linalg.norm(ta, axis=1)[:, None]
     tb /= np.linalg.norm(tb, axis=1)[:, None]
     theta = np.arccos(np.clip(np.sum(ta * tb, axis=1), -1.0, 1.0))
