@@ -74,7 +74,7 @@ def _deploy(args) -> int:
                   rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input), direction=args.direction or "up")
         design = args.input
     result = run_deployment(design, material, out_dir=args.out, start=args.start, progress=not args.no_progress,
-                            strength=material_strength(spec), **kw)
+                            strength=material_strength(spec), background=True, **kw)
     _print_summary(result, args.out, warned=not args.no_progress)
     return 0 if result["reached"] else 1
 
@@ -87,7 +87,7 @@ def _demo(args) -> int:
     check_counts(None, args.steps)
     material = Material.uniform("rectangle", [10, 7], E=20000, nu=0.3)
     result = run_deployment(DEMO_DESIGN, material, out_dir=args.out, subdivision=8, target_angle=np.radians(93),
-                            steps=args.steps, progress=not args.no_progress, name="manta_ray")
+                            steps=args.steps, progress=not args.no_progress, name="manta_ray", background=True)
     _print_summary(result, args.out, warned=not args.no_progress)
     return 0 if result["reached"] else 1
 

