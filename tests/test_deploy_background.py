@@ -53,9 +53,14 @@ def test_inline_jobs_run_at_once(tmp_path):
 
 
 @fork_only
-def test_a_deployment_writes_the_same_files_in_the_background_as_inline(tmp_path):
+def test_a_deployment_writes_the_same_files_in_the_background_as_inline(tmp_path, monkeypatch):
+    import xshells.deploy.background as bg
     from xshells.deploy.case import material_from_spec
     from xshells.deploy.run import run_deployment
+
+    started = []
+    monkeypatch.setattr(bg.IdleCores, "idle", lambda self: 2.0)  # a spare core, however busy the machine is
+    monkeypatch.setattr(bg, "_fork", lambda f=bg._fork: started.append(1) or f())
 
     material = material_from_spec({"type": "rectangle", "params": [10, 7], "E": 20000, "nu": 0.3})
     results = {}
@@ -63,6 +68,7 @@ def test_a_deployment_writes_the_same_files_in_the_background_as_inline(tmp_path
         out = tmp_path / str(background)
         results[background] = run_deployment(str(EXAMPLES / "quad.obj"), material, out_dir=str(out), steps=3,
                                               progress=False, background=background)
+    assert started  # the second run forked its writers
     inline, forked = tmp_path / "False", tmp_path / "True"
     names = sorted(os.listdir(inline))
     assert names == sorted(os.listdir(forked))
@@ -92,3 +98,15 @@ def test_a_second_lane_runs_beside_the_first_and_reports_its_errors(tmp_path):
     w.submit(_fail, "lane one failed", lane=1)
     with pytest.raises(InputError, match="lane one failed"):
         w.join()
+
+
+def test_idle_cores_counts_a_busy_interval_as_busy():
+    import time
+
+    from xshells.deploy.background import IdleCores
+
+    c = IdleCores()
+    t = time.perf_counter()
+    while time.perf_counter() - t < 0.3:
+        pass
+    assert 0.0 <= c.idle() <= (os.cpu_count() or 1) - 0.5

@@ -173,13 +173,18 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     the first angle at which a beam would break (docs/analysis.md).
     ``background``: write the files in forked processes on the other core
     while the deployment goes on (:mod:`xshells.deploy.background`; the
-    command line's choice), not in this process in turn.
+    command line's choice), not in this process in turn, where at least
+    3/4 of a core idled while the linkage was built and its rest lengths solved.
 
     Returns the ``result.json`` content. Interrupting (Ctrl-C) keeps and
     writes the steps finished so far.
     """
     os.makedirs(out_dir, exist_ok=True)
     t0 = time.perf_counter()
+    if background:  # the writers only where a core idles beside this one (see .background)
+        from .background import IdleCores
+
+        idle = IdleCores()
     design = read_design(design_path)
     p = read_rest_lengths(rest_lengths_path, design.num_segments) if rest_lengths_path else None
     linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
@@ -232,7 +237,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     writer = None
     try:  # the outer try only undoes the deferral that the inner one's finally starts
         try:  # an interrupt from here on keeps what is done: the flat files, the steps so far, result.json
-            writer = _start_writer(out_dir, linkage, design, background)
+            writer = _start_writer(out_dir, linkage, design, background and idle.idle() >= 0.75)
             t2 = time.perf_counter()
             res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start),
                          callback=on_step)
