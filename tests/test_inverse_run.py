@@ -145,14 +145,15 @@ def test_auto_on_a_saddle_runs_both_nets_and_its_case_reproduces_the_result(tmp_
     out = tmp_path / "out"
     code = main(["inverse", str(hypar), "--spacing", f"{diag / 8:.3f}", "--out", str(out), "--no-progress"])
     r = json.loads((out / "result.json").read_text())
-    assert set(r["candidates"]) == {"even", "geodesic"}
+    assert {"even", "geodesic"} <= set(r["candidates"]) <= {"even", "geodesic", "fanned"}
+    assert ("fanned" in r["candidates"]) == any(c["first_fit"] is not None for c in r["fan_screen"])
     best = r["beams"]
     assert r["candidates"][best]["fit_mean"] == r["fit_mean"]
     assert (out / "case.json").read_text() == (out / "candidates" / best / "case.json").read_text()
     assert r["valid"], r["message"]
     assert code == (0 if r["status"] == "complete" else 1)
-    other = r["candidates"]["even" if best == "geodesic" else "geodesic"]
-    assert (r["status"] == "complete") >= (other["status"] == "complete")
+    for name, other in r["candidates"].items():
+        assert (r["status"] == "complete") >= (other["status"] == "complete"), name
     # the adopted case, deployed as users deploy it, gives the reported joints
     assert main(["deploy", str(out / "case.json"), "--out", str(tmp_path / "d"), "--no-progress"]) in (0, 1)
     Y = np.array(json.loads((tmp_path / "d" / "result.json").read_text())["deployed"]["joint_positions"])
@@ -174,6 +175,7 @@ def test_ctrl_c_in_auto_keeps_the_candidate_that_finished(tmp_path, monkeypatch)
 
     monkeypatch.setattr(run, "_run_once", fake_once)
     monkeypatch.setattr(run, "geodesic_closure", lambda *a, **k: (True, "it closes"))
+    monkeypatch.setattr(run, "_screen", lambda *a, **k: ([], None, "no fan"))
     with pytest.raises(KeyboardInterrupt):
         run.run_inverse(str(_write_hypar(tmp_path / "h.obj", n=9)), str(tmp_path / "out"), {}, progress=False)
     assert (tmp_path / "out" / "case.json").read_text() == "geodesic case"

@@ -21,11 +21,15 @@ def register(subparsers) -> None:
                    help="grades the automatic net, degrees: its crossing angle runs from ANGLE+GRADING on its middle "
                         "line to ANGLE-GRADING at its sides, and its joint spacings vary with it (default 0: evenly "
                         "spaced joints; -25 reaches the spherical cap closest, see docs/inverse.md)")
-    p.add_argument("--beams", choices=("auto", "even", "geodesic"), default="auto",
+    p.add_argument("--beams", choices=("auto", "even", "geodesic", "fanned"), default="auto",
                    help="how the automatic net lays its beams: geodesic (two families of the surface's geodesics), "
-                        "even (joints evenly spaced along a scissor map's directions), or auto (the default: "
-                        "geodesics where their flat layout closes and covers the surface, as on saddles; even "
-                        "otherwise; see docs/inverse.md)")
+                        "even (joints evenly spaced along a scissor map's directions), fanned (straight flat beams "
+                        "whose angle varies across each family, so the layout buckles; the fan is screened unless "
+                        "--fan gives it), or auto (the default: even, the best screened fan, and geodesics where "
+                        "their flat layout closes, the best design kept; see docs/inverse.md)")
+    p.add_argument("--fan", type=float,
+                   help="with --beams fanned: the fan K, in (-0.5, 0.5): the flat layout opens by FLAT_ANGLE*(1+K) on "
+                        "its middle lines and FLAT_ANGLE*(1-K) at its ends (default: screened)")
     p.add_argument("--net", help="a 3D quad net (OBJ: quad faces or beam lines) drawn on or near the surface, used "
                                  "instead of the automatic one")
     p.add_argument("--direction", choices=("up", "down"), default="up",
@@ -54,7 +58,7 @@ def _inverse(args) -> int:
     opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
                           max_iters=args.max_iters, force=args.force, grading=args.grading,
-                          beams=args.beams)
+                          beams=args.beams, fan=args.fan)
     r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
     if r["status"] in ("complete", "missed", "invalid"):
         print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "

@@ -101,20 +101,29 @@ def flatten_layout(lengths_3d: np.ndarray, segments: np.ndarray, nbr: np.ndarray
     return sol.x.reshape(-1, 2)
 
 
-def flat_crossing_angles(net: Net) -> np.ndarray:
-    """The flat layout's opening angle (radians) at each interior joint (both beams pass through), shape (k,).
-
-    Each beam's tangent is the central difference of its two neighbouring joints.
-    """
+def _flat_tangents(net: Net):
     from ..io.design import design_from_arrays
     from ..linkage.graph import analyze
 
     q = np.asarray(net.flat, float)
     graph = analyze(design_from_arrays(np.c_[q, np.zeros(len(q))], net.segments, source="the flat layout"))
-    nbr = beam_neighbours(graph)
-    jv = np.asarray(graph.joint_vertex)
-    _, ta, tb = crossing_tangents(nbr, q[jv])
-    return np.abs(np.arctan2(ta[:, 0] * tb[:, 1] - ta[:, 1] * tb[:, 0], (ta * tb).sum(1)))
+    _, ta, tb = crossing_tangents(beam_neighbours(graph), q[np.asarray(graph.joint_vertex)])
+    return ta, tb, np.abs(np.arctan2(ta[:, 0] * tb[:, 1] - ta[:, 1] * tb[:, 0], (ta * tb).sum(1)))
+
+
+def flat_crossing_angles(net: Net) -> np.ndarray:
+    """The flat layout's opening angle (radians) at each interior joint (both beams pass through), shape (k,).
+
+    Each beam's tangent is the central difference of its two neighbouring joints.
+    """
+    return _flat_tangents(net)[2]
+
+
+def flat_beam_gaps(net: Net) -> np.ndarray:
+    """At each interior joint of the flat layout, the distance (k,) to the nearest neighbouring beam of the
+    same family: half the shorter central difference times the sine of the opening angle."""
+    ta, tb, a = _flat_tangents(net)
+    return 0.5 * np.minimum(np.linalg.norm(ta, axis=1), np.linalg.norm(tb, axis=1)) * np.sin(np.minimum(a, np.pi - a))
 
 
 def net_bisector(X: np.ndarray, segments: np.ndarray, deployed_angle: float, source: str = "the net") -> np.ndarray:

@@ -69,6 +69,9 @@ class InverseOptions:
         where the geodesic net's flat layout closes (:func:`geodesic_closure`)
         and keeps the better design, and the evenly spaced net alone
         elsewhere (:func:`run_inverse`).
+    fan : float or None
+        κ of the fanned net (:mod:`.fanned`, ``beams="fanned"``): its flat lines open by ``α₀ (1 + κ)`` on
+        the middle lines and ``α₀ (1 − κ)`` at the ends. None: screened (:func:`.fanned.screen_fans`).
     gamma, beta : float
         The weights of eq. 5 (:class:`~xshells.design.objective.DesignWeights`).
     guide : GuideOptions
@@ -85,6 +88,7 @@ class InverseOptions:
     force: bool = False
     grading: float = 0.0
     beams: str = "auto"
+    fan: float | None = None
     gamma: float = 0.9
     beta: float = 1000.0
     guide: GuideOptions = field(default_factory=GuideOptions)
@@ -103,8 +107,16 @@ def check_options(options: InverseOptions, surface) -> float:
                                                  and options.angle + abs(options.grading) < 180.0):
         raise InputError(f"--grading {options.grading:g}: the crossing angle would leave (0°, 180°) across the net "
                          f"(angle {options.angle:g}° ± {abs(options.grading):g}°)")
-    if options.beams not in ("auto", "even", "geodesic"):
-        raise InputError(f"--beams must be auto, even or geodesic, got {options.beams!r}")
+    if options.beams not in ("auto", "even", "geodesic", "fanned"):
+        raise InputError(f"--beams must be auto, even, geodesic or fanned, got {options.beams!r}")
+    if options.fan is not None:
+        if options.beams != "fanned":
+            raise InputError(f"--fan shapes the fanned net: give it with --beams fanned (got --beams {options.beams})")
+        if not (np.isfinite(options.fan) and -0.5 < options.fan < 0.5):
+            raise InputError(f"--fan {options.fan:g}: the fan must lie strictly between -0.5 and 0.5 (at ±0.5 the "
+                             f"flat layout's end or middle lines close completely)")
+    if options.beams == "fanned" and options.grading != 0.0:
+        raise InputError("--grading shapes the evenly spaced net: it cannot apply to --beams fanned; give one or the other")
     if options.beams == "geodesic" and options.grading != 0.0:
         raise InputError("--grading shapes the evenly spaced net: it cannot apply to --beams geodesic; give one or the other")
     if options.direction not in ("up", "down"):
@@ -171,6 +183,11 @@ def _automatic_net(surface, smap, options, spacing, progress):
         return _lay_curves("graded", surface, smap, options, spacing, progress), "graded", "--grading"
     if options.beams == "geodesic":
         return _lay_curves("geodesic", surface, smap, options, spacing, progress), "geodesic", "--beams geodesic"
+    if options.beams == "fanned":
+        from .fanned import fanned_net
+
+        kappa = 0.0 if options.fan is None else options.fan
+        return fanned_net(surface, smap, np.radians(options.angle), spacing, kappa), "fanned", f"fan {kappa:g}"
     from .net import surface_net
 
     return surface_net(surface, smap, np.radians(options.angle), spacing), "even", "--beams even"
@@ -224,7 +241,8 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     mean fit) is copied into ``out_dir``. Its ``result.json`` lists both
     under ``candidates``.
     """
-    if net_path is not None or options.grading != 0.0 or options.beams != "auto":
+    if net_path is not None or options.grading != 0.0 or options.beams in ("even", "geodesic") or \
+            (options.beams == "fanned" and options.fan is not None):
         return _run_once(surface_path, out_dir, material_spec, options, net_path, progress)
     from dataclasses import replace
 
@@ -233,21 +251,31 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     t0 = time.perf_counter()
     surface = load_target(surface_path)
     spacing = check_options(options, surface)
+    screened, fan_options, fan_why = _screen(surface, material_spec, options, spacing, progress)
+    if options.beams == "fanned":
+        if fan_options is None:
+            raise InputError(f"{surface.path}: {fan_why}")
+        r = _run_once(surface_path, out_dir, material_spec, fan_options, None, progress, beams_reason=fan_why)
+        r["fan_screen"] = screened
+        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
+        return r
     worth, why = geodesic_closure(surface, options, spacing, progress)
-    if not worth:
-        return _run_once(surface_path, out_dir, material_spec, replace(options, beams="even"), None, progress,
-                         beams_reason=f"auto: evenly spaced, since {why}")
+    plan = {"geodesic": replace(options, beams="geodesic")} if worth else {}
+    plan["even"] = replace(options, beams="even")
+    if fan_options is not None:
+        plan["fanned"] = fan_options
+    why = f"{why}; {fan_why}"
     if progress:
         import sys
 
-        print(f"xshells inverse: {why}: trying it and the evenly spaced net, keeping the better", file=sys.stderr)
+        print(f"xshells inverse: trying the {', '.join(plan)} nets, keeping the best ({why})", file=sys.stderr)
     results, errors = {}, {}
     try:
-        for beams in ("geodesic", "even"):
+        for beams, opts in plan.items():
             current = os.path.join(out_dir, "candidates", beams, "result.json")
             try:
                 results[beams] = _run_once(surface_path, os.path.join(out_dir, "candidates", beams), material_spec,
-                                           replace(options, beams=beams), None, progress, beams_reason=f"auto: {why}")
+                                           opts, None, progress, beams_reason=f"auto: {why}")
             except InputError as exc:  # this net does not get through (a first layout that inverts, say)
                 errors[beams] = str(exc)
     except KeyboardInterrupt:
@@ -255,14 +283,48 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
             with open(current) as fh:
                 results[beams] = json.load(fh)
         if results:
-            _adopt(out_dir, results, errors, why, t0)
+            _adopt(out_dir, results, errors, why, t0, screened)
         raise
     if not results:
         raise InputError(errors["even"])
-    return _adopt(out_dir, results, errors, why, t0)
+    return _adopt(out_dir, results, errors, why, t0, screened)
 
 
-def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float) -> dict:
+#: the fans that ``--beams fanned`` and ``auto`` screen, each about both bisectors (:func:`.fanned.screen_fans`)
+FAN_KAPPAS = (0.1, 0.15, 0.2)
+
+
+def _screen(surface, material_spec, options, spacing, progress):
+    """Screen the fans; (their figures for result.json, the options of the best one or None, one line: why)."""
+    from dataclasses import replace
+
+    from ..deploy.case import material_from_spec
+    from .fanned import screen_fans
+
+    kappas = FAN_KAPPAS if options.fan is None else (options.fan,)
+    bar = _stage_bar(progress, 2 * len(kappas), "screening fanned nets", "net")
+
+    def tick(c):
+        if bar is not None:
+            bar.set_postfix(fan=c.kappa, fit="-" if c.first_fit is None else f"{100 * c.first_fit:.2f}%")
+            bar.update(1)
+
+    try:
+        cands = screen_fans(surface, material_from_spec(material_spec), options.angle, options.flat_angle, spacing,
+                            options.orientation, kappas, options.steps, options.subdivision, options.direction, tick)
+    finally:
+        if bar is not None:
+            bar.close()
+    screened = [asdict(c) for c in cands]
+    best = cands[0] if cands and cands[0].first_fit is not None else None
+    if best is None:
+        return screened, None, "no fanned net deploys (" + "; ".join(sorted({c.message for c in cands}))[:300] + ")"
+    why = (f"the fanned net of fan {best.kappa:g} about the {'other' if best.orientation != options.orientation else 'first'} "
+           f"bisector deploys freely closest to the surface (first fit {100 * best.first_fit:.2f}% of the diagonal)")
+    return screened, replace(options, beams="fanned", fan=best.kappa, orientation=best.orientation), why
+
+
+def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float, screened=None) -> dict:
     """Copy the best candidate's files into ``out_dir``; its result, with every candidate's figures."""
     import shutil
 
@@ -280,10 +342,24 @@ def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float) -> dict:
     r["candidates"] = {b: {k: v.get(k) for k in ("status", "fit_mean", "fit_max", "coverage", "segments", "time_s")}
                        for b, v in results.items()}
     r["candidates"].update({b: {"status": "failed", "message": m} for b, m in errors.items()})
-    r["beams_reason"] = f"auto: {why}; kept the {best} net's design, the better of the two (by status, then mean fit)"
+    r["beams_reason"] = f"auto: {why}; kept the {best} net's design, the best of {len(r['candidates'])} (by status, then mean fit)"
+    if screened is not None:
+        r["fan_screen"] = screened
     r["time_s"] = time.perf_counter() - t0
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
     return r
+
+
+def _min_beam_gap(net, alpha0: float) -> float:
+    """The flat layout's narrowest gap between neighbouring beams of a family (:func:`.flatten.flat_beam_gaps`;
+    the shortest segment times sin α₀ where no joint is interior)."""
+    from .flatten import flat_beam_gaps
+
+    try:
+        g = flat_beam_gaps(net)
+    except InputError:
+        g = ()
+    return float(np.min(g)) if len(g) else float(np.min(net.segment_lengths(flat=True))) * np.sin(alpha0)
 
 
 def _design_from_flat(flat_xy: np.ndarray, segments: np.ndarray, mirror: bool):
@@ -348,7 +424,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     if net.num_segments > MAX_SEGMENTS and not options.force:
         raise InputError(f"the net has {net.num_segments} segments, more than {MAX_SEGMENTS}: give a larger spacing, or --force")
     width = float(np.ptp(material.outline[0], axis=0).max()) if material.outline else 0.0
-    gap = float(np.min(net.segment_lengths(flat=True))) * np.sin(alpha0)
+    gap = _min_beam_gap(net, alpha0)
     if width > 0 and gap < width:
         raise InputError(f"--flat-angle {options.flat_angle:g}°: closed that far, neighbouring beams "
                          f"({width:.3g} wide) would overlap (gap {gap:.3g}): open it, or use a larger spacing")
