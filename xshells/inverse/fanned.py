@@ -46,6 +46,10 @@ from .surface import TargetSurface
 
 #: how far (in spacings) a joint may lie outside the surface's chart and still be kept
 OUTSIDE = 0.35
+#: how far (in spacings) beyond the surface's boundary a new joint may be predicted and still join the net.
+#: Joints up to 0.2 spacings beyond cover the boundary band fully (the wings: 100 % against 94 %), but that
+#: net ended with overlapping beams (2.45 %) where this one reaches 0.50 % / 1.46 %, coverage 89.6 %
+GROW = 1e-3
 #: rings of lattice points beyond the surface's own into which the net may grow
 MARGIN = 6
 #: the second-difference weight that fixes what the segment lengths leave free
@@ -318,8 +322,7 @@ def _grow(active: np.ndarray, blocked: np.ndarray, U: np.ndarray, lift: ChartLif
     cand = ~active & ~blocked & ~np.isnan(guess[..., 0])
     if not cand.any():
         return 0
-    _, out = lift(guess[cand])
-    ok = out <= 1e-3 * spacing
+    ok = lift.outside(guess[cand]) <= GROW * spacing
     idx = np.argwhere(cand)[ok]
     blocked[tuple(np.argwhere(cand)[~ok].T)] = True
     active[tuple(idx.T)] = True
