@@ -104,11 +104,11 @@ def test_the_screen_ranks_its_candidates_by_their_first_deployment(cap):
     assert all(x.message for x in c if x.first_fit is None)
 
 
-def test_the_cli_refuses_a_fan_without_fanned_beams(capsys):
+def test_the_cli_refuses_a_fan_without_fanned_beams(capsys, tmp_path):
     from xshells.cli import main
 
-    assert main(["inverse", str(CAP), "--fan", "0.1", "--out", "/tmp/never"]) == 2
+    assert main(["inverse", str(CAP), "--fan", "0.1", "--out", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--fan" in err[0]
-    assert main(["inverse", str(CAP), "--beams", "fanned", "--fan", "0.7", "--out", "/tmp/never"]) == 2
+    assert main(["inverse", str(CAP), "--beams", "fanned", "--fan", "0.7", "--out", str(tmp_path / "b")]) == 2
     assert "between -0.5 and 0.5" in capsys.readouterr().err

@@ -44,11 +44,12 @@ from .net import Net, _check_connected, _locate, _tidy, net_coordinates
 from .scissor import ScissorMap
 from .surface import TargetSurface
 
-#: how far (in spacings) a joint may lie outside the surface's chart and still be kept
+#: how far (in spacings) a joint may lie beyond the surface's boundary (:meth:`ChartLift.outside`) and still be kept
 OUTSIDE = 0.35
 #: how far (in spacings) beyond the surface's boundary a new joint may be predicted and still join the net.
 #: Joints up to 0.2 spacings beyond cover the boundary band fully (the wings: 100 % against 94 %), but that
-#: net ended with overlapping beams (2.45 %) where this one reaches 0.50 % / 1.46 %, coverage 89.6 %
+#: net ended with overlapping beams (2.45 %) where this one reaches 0.50 % / 1.46 %, coverage 89.6 %; at 0.1,
+#: 0.39 % / 1.47 %, coverage 96.2 %, but two beams of a family 11.6 apart in the flat state (12 wide)
 GROW = 1e-3
 #: rings of lattice points beyond the surface's own into which the net may grow
 MARGIN = 6
@@ -56,6 +57,10 @@ MARGIN = 6
 SMOOTH = 0.1
 #: the shortest flat segment kept, in spacings: shorter ones are where a strong fan's lines meet
 MIN_STEP = 0.4
+#: the fans screened: the paper's designs open their middle lines more than their ends (K > 0); stronger fans
+#: (0.25-0.33) bring a family's lines together over a footprint that is not a lens, and their first layouts
+#: inverted or stalled on the wings and the manta ray
+FAN_KAPPAS = (0.1, 0.15, 0.2)
 #: a weak pull of each joint to where it started: the lengths leave the net free to slide along the surface
 ANCHOR = 0.02
 
@@ -89,16 +94,19 @@ class ChartLift:
         sq, fi, _ = igl.point_mesh_squared_distance(np.c_[u, np.zeros(len(u))], self._U3, self.F)
         return np.asarray(fi, np.int64), np.sqrt(np.maximum(np.asarray(sq, float), 0.0))
 
-    def __call__(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _lift(self, u: np.ndarray):
         fi, d = self.faces(u)
         f = self.F[fi]
         bc = _barycentric(u, self.U[f[:, 0]], self.U[f[:, 1]], self.U[f[:, 2]])
-        return np.einsum("nk,nkd->nd", bc, self.V[f]), d
+        return np.einsum("nk,nkd->nd", bc, self.V[f]), d, f
+
+    def __call__(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        X, d, _ = self._lift(u)
+        return X, d
 
     def jacobian(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The lifted points (k, 3) and their derivatives (k, 3, 2): each chart triangle maps affinely."""
-        X, _ = self(u)
-        f = self.F[self.faces(u)[0]]
+        X, _, f = self._lift(u)
         E3 = np.stack([self.V[f[:, 1]] - self.V[f[:, 0]], self.V[f[:, 2]] - self.V[f[:, 0]]], axis=2)
         E2 = np.stack([self.U[f[:, 1]] - self.U[f[:, 0]], self.U[f[:, 2]] - self.U[f[:, 0]]], axis=2)
         return X, E3 @ np.linalg.inv(E2)
@@ -169,6 +177,13 @@ def fan_lines(smap: ScissorMap, chart_points: np.ndarray, I: np.ndarray, J: np.n
     centre = smap.flat.mean(axis=0)
     xs = (smap.flat - centre) @ e
     return FanLines(o, a, b, e, centre, float(0.5 * np.ptp(xs)), float(0.5 * (xs.max() + xs.min())), float(kappa))
+
+
+def _index(active: np.ndarray) -> np.ndarray:
+    """Node numbers of the active lattice points, −1 elsewhere (same shape)."""
+    G = -np.ones(active.shape, np.int64)
+    G[active] = np.arange(int(active.sum()))
+    return G
 
 
 def _grid_pairs(G: np.ndarray):
@@ -248,9 +263,7 @@ def fanned_net(surface: TargetSurface, smap: ScissorMap, angle: float, spacing: 
     active, blocked = inside.copy(), np.zeros_like(inside)
     U = chart.copy()
     for rnd in range(max_rounds + 1):
-        G = -np.ones(I.shape, np.int64)
-        G[active] = np.arange(int(active.sum()))
-        segs, _, trip = _grid_pairs(G)
+        segs, _, trip = _grid_pairs(_index(active))
         U[active] = _place_on_surface(lift, U[active], flat[active], segs, trip, spacing)
         out = lift.outside(U[active])
         far = np.zeros_like(active)
@@ -259,9 +272,7 @@ def fanned_net(surface: TargetSurface, smap: ScissorMap, angle: float, spacing: 
         blocked |= far
         if rnd == max_rounds or not _grow(active, blocked, U, lift, spacing):
             break
-    G = -np.ones(I.shape, np.int64)
-    G[active] = np.arange(int(active.sum()))
-    segs, fam, _ = _grid_pairs(G)
+    segs, fam, _ = _grid_pairs(_index(active))
     # where neighbouring lines of a family come close or cross (a strong fan, far from the axis), the net ends
     step = flat[active][segs[:, 1]] - flat[active][segs[:, 0]]
     along = np.einsum("sd,sd->s", step, np.where(fam[:, None] == 0, lines.a, lines.b))
@@ -274,9 +285,7 @@ def fanned_net(surface: TargetSurface, smap: ScissorMap, angle: float, spacing: 
         if active.sum() < 0.5 * n_before:
             raise InputError(f"{surface.path}: with a fan of {kappa:g}, neighbouring beams of one family cross "
                              f"inside the flat layout: the fan is too strong for this surface")
-        G = -np.ones(I.shape, np.int64)
-        G[active] = np.arange(int(active.sum()))
-        segs, fam, _ = _grid_pairs(G)
+        segs, fam, _ = _grid_pairs(_index(active))
     X, _ = lift(U[active])
     joints, segments, family, fl = _largest_piece(*_tidy(X, segs, fam, flat[active]))
     if len(segments) == 0:
@@ -375,9 +384,9 @@ def first_deployment_fit(surface: TargetSurface, net: Net, material, angle: floa
 
 
 def screen_fans(surface: TargetSurface, material, angle_deg: float, flat_angle_deg: float, spacing: float,
-                orientation: float = 0.0, kappas=(-0.2, -0.1, 0.0, 0.1, 0.2), steps: int = 30, subdivision: int = 8,
+                orientation: float = 0.0, kappas=None, steps: int = 30, subdivision: int = 8,
                 direction: str = "up", on_candidate=None) -> list[FanCandidate]:
-    """Every fan ``kappas`` about both bisectors (``orientation`` and ``orientation + 90``), each laid on the
+    """Every fan ``kappas`` (default :data:`FAN_KAPPAS`) about both bisectors (``orientation`` and ``orientation + 90``), each laid on the
     surface and deployed freely from its flat layout; sorted best first (failed ones last).
 
     ``on_candidate(FanCandidate)`` is called after each.
@@ -385,6 +394,7 @@ def screen_fans(surface: TargetSurface, material, angle_deg: float, flat_angle_d
     from .scissor import scissor_map
 
     theta, alpha0 = np.radians(angle_deg), np.radians(flat_angle_deg)
+    kappas = FAN_KAPPAS if kappas is None else kappas
     out = []
     for o in (orientation, orientation + 90.0):
         smap = scissor_map(surface, theta, alpha0, np.radians(o))

@@ -234,12 +234,13 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     Returns the ``result.json`` content. Ctrl-C keeps and writes the best
     design found so far (then re-raises KeyboardInterrupt).
 
-    With ``options.beams == "auto"`` (and no ``net_path`` or grading), the
-    evenly spaced net always runs; where :func:`geodesic_closure` says the
-    geodesic net is worth a try, it runs too, each into
-    ``out_dir/candidates/<beams>/``, and the better result (by status, then
-    mean fit) is copied into ``out_dir``. Its ``result.json`` lists both
-    under ``candidates``.
+    With ``options.beams == "auto"`` (and no ``net_path`` or grading), the fans
+    are screened (:func:`.fanned.screen_fans`); the evenly spaced net, the best
+    fan (where one deploys) and, where :func:`geodesic_closure` says it is
+    worth a try, the geodesic net each run into ``out_dir/candidates/<beams>/``,
+    and the best result (by status, then mean fit) is copied into ``out_dir``.
+    Its ``result.json`` lists them under ``candidates`` and the screen under
+    ``fan_screen``. ``"fanned"`` without ``options.fan`` runs the best fan alone.
     """
     if net_path is not None or options.grading != 0.0 or options.beams in ("even", "geodesic") or \
             (options.beams == "fanned" and options.fan is not None):
@@ -290,19 +291,14 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     return _adopt(out_dir, results, errors, why, t0, screened)
 
 
-#: the fans that ``--beams fanned`` and ``auto`` screen, each about both bisectors (:func:`.fanned.screen_fans`)
-FAN_KAPPAS = (0.1, 0.15, 0.2)
-
-
 def _screen(surface, material_spec, options, spacing, progress):
     """Screen the fans; (their figures for result.json, the options of the best one or None, one line: why)."""
     from dataclasses import replace
 
     from ..deploy.case import material_from_spec
-    from .fanned import screen_fans
+    from .fanned import FAN_KAPPAS, screen_fans
 
-    kappas = FAN_KAPPAS if options.fan is None else (options.fan,)
-    bar = _stage_bar(progress, 2 * len(kappas), "screening fanned nets", "net")
+    bar = _stage_bar(progress, 2 * len(FAN_KAPPAS), "screening fanned nets", "net")
 
     def tick(c):
         if bar is not None:
@@ -311,7 +307,7 @@ def _screen(surface, material_spec, options, spacing, progress):
 
     try:
         cands = screen_fans(surface, material_from_spec(material_spec), options.angle, options.flat_angle, spacing,
-                            options.orientation, kappas, options.steps, options.subdivision, options.direction, tick)
+                            options.orientation, FAN_KAPPAS, options.steps, options.subdivision, options.direction, tick)
     finally:
         if bar is not None:
             bar.close()
