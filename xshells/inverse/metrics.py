@@ -81,30 +81,3 @@ def coverage(surface: TargetSurface, beam_points: np.ndarray, beam_edges: np.nda
     samples = a[i] + t[:, None] * (b[i] - a[i])
     d, _ = cKDTree(samples).query(C)
     return float(A[d <= radius].sum() / A.sum())
-
-
-def beam_overlaps(linkage, width: float) -> str:
-    """Where two beams of the same family come closer than ``width`` in the flat state ("" if nowhere).
-
-    Rod points of different beams of one family (A or B) are compared; the
-    two families lie in different layers and cross at the joints.
-    """
-    from scipy.spatial import cKDTree
-
-    g = linkage.graph
-    rods = linkage.rods
-    pts = rods.points
-    seg_of_point = np.repeat(np.arange(rods.num_rods), np.diff(rods.vertex_offsets))  # one rod per segment
-    owner = np.asarray(g.beam_of_segment)[seg_of_point]
-    label = np.array([_beam_family(g, b) for b in range(g.num_beams)])[owner]
-    tree = cKDTree(pts[:, :2])
-    for i, j in tree.query_pairs(width):
-        if owner[i] != owner[j] and label[i] == label[j]:
-            return f"beams {owner[i]} and {owner[j]} come within {np.linalg.norm(pts[i, :2] - pts[j, :2]):.3g} of each other"
-    return ""
-
-
-def _beam_family(graph, b: int) -> int:
-    s = int(graph.beams[b][0, 0])
-    lab = graph.segment_labels[s]
-    return int(lab[lab >= 0][0]) if (lab >= 0).any() else 0

@@ -506,11 +506,14 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     Tinv = np.linalg.inv(T0)
 
     def after_stage(mu):
+        from ..linkage.clearance import beam_overlaps
         from ..solve import NewtonOptions, minimize
 
         fwd = copy.deepcopy(problem.flat.L)
         # as `xshells deploy` treats a case with rest lengths: the flat state settles with its angles free
         minimize(fwd, fixed=fwd.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+        if width > 0 and beam_overlaps(fwd, width):
+            return  # not buildable: the verification would refuse it
         res = deploy(fwd, theta, DeployOptions(steps=options.steps, direction=options.direction))
         if not res.converged:
             return
@@ -524,7 +527,8 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     interrupted = False
     stages = []
     try:
-        stages = guided_optimization(problem, hold, g, min_angle=eps, callback=on_iter, after_stage=after_stage)
+        stages = guided_optimization(problem, hold, g, min_angle=eps, callback=on_iter, after_stage=after_stage,
+                                     min_beam_gap=width)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -592,7 +596,8 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
     from ..deploy.run import run_deployment
     from ..deploy.simulate import folded_joint
     from ..viz.render import render_fit
-    from .metrics import apply, beam_overlaps, coverage, place, surface_distances
+    from ..linkage.clearance import beam_overlaps
+    from .metrics import apply, coverage, place, surface_distances
 
     states = {}
     dep = run_deployment(os.path.join(out_dir, "flat_design.obj"), material, out_dir=os.path.join(out_dir, "deploy"),

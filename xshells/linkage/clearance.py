@@ -1,0 +1,55 @@
+"""Clearance between the beams of one family in the flat state.
+
+The two families of an X-shell lie in two layers and cross at the joints,
+so only beams of the *same* family can collide: in the flat, nearly closed
+layout neighbouring beams of a family run side by side, a few beam widths
+apart. Where two of them come closer than the beams are wide, the layout
+cannot be built.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def beam_family(graph, b: int) -> int:
+    """The family (0 or 1) of beam ``b``: the label of its first segment (0 where unlabelled)."""
+    s = int(graph.beams[b][0, 0])
+    lab = graph.segment_labels[s]
+    return int(lab[lab >= 0][0]) if (lab >= 0).any() else 0
+
+
+def family_clearance(linkage, within: float) -> tuple[float, int, int]:
+    """The smallest in-plane distance between rod points of two different beams of one family.
+
+    Only pairs closer than ``within`` are looked at (a k-d tree query).
+
+    Returns
+    -------
+    (gap, beam_a, beam_b) : (float, int, int)
+        ``(inf, -1, -1)`` when no two such points are within ``within``.
+    """
+    from scipy.spatial import cKDTree
+
+    g = linkage.graph
+    rods = linkage.rods
+    pts = np.asarray(rods.points)[:, :2]
+    seg_of_point = np.repeat(np.arange(rods.num_rods), np.diff(rods.vertex_offsets))  # one rod per segment
+    owner = np.asarray(g.beam_of_segment)[seg_of_point]
+    family = np.array([beam_family(g, b) for b in range(g.num_beams)])[owner]
+    pairs = cKDTree(pts).query_pairs(within, output_type="ndarray")
+    if len(pairs):
+        i, j = pairs[:, 0], pairs[:, 1]
+        pairs = pairs[(owner[i] != owner[j]) & (family[i] == family[j])]
+    if not len(pairs):
+        return float("inf"), -1, -1
+    d = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
+    k = int(np.argmin(d))
+    return float(d[k]), int(owner[pairs[k, 0]]), int(owner[pairs[k, 1]])
+
+
+def beam_overlaps(linkage, width: float) -> str:
+    """Where two beams of the same family come closer than ``width`` ("" if nowhere), in words."""
+    gap, a, b = family_clearance(linkage, width)
+    if gap >= width:
+        return ""
+    return f"beams {min(a, b)} and {max(a, b)} come within {gap:.3g} of each other"
