@@ -122,27 +122,3 @@ def test_the_wiggly_banana_reaches_the_papers_result_with_the_default_weights():
     z = prob.flat.L.joint_positions()[:, 2]
     assert np.ptp(z) < 1e-6 * np.ptp(prob.flat.L.joint_positions(), axis=0).max()
 
-
-def test_a_trial_design_that_brings_beams_of_a_family_together_is_rejected(monkeypatch):
-    """With ``min_beam_gap``, a trial whose flat state brings two beams of a family closer is rejected
-    and never kept; where the start already does, the bound is not enforced."""
-    import xshells.linkage.clearance as clearance
-
-    prob = banana_problem()
-    q0 = prob._q.copy()
-    # every state but the start has two beams too close: nothing may be accepted
-    monkeypatch.setattr(clearance, "beam_overlaps",
-                        lambda L, gap: "" if np.array_equal(prob._q, q0) else "beams 1 and 2 come within 0.1 of each other")
-    res = optimize(prob, OptimizeOptions(max_iterations=2, min_beam_gap=5.0))
-    assert res.iterations == 0 and np.array_equal(res.q, q0)
-    assert "trial designs rejected" in res.message
-    # the start itself too close: not enforced, the optimization proceeds
-    monkeypatch.setattr(clearance, "beam_overlaps", lambda L, gap: "beams 1 and 2 come within 0.1 of each other")
-    prob = banana_problem()
-    res = optimize(prob, OptimizeOptions(max_iterations=2, min_beam_gap=5.0))
-    assert res.iterations == 2 and res.history[-1].J < res.history[0].J
-
-
-def test_a_negative_beam_gap_is_refused():
-    with pytest.raises(InputError, match="min_beam_gap"):
-        OptimizeOptions(min_beam_gap=-1.0)

@@ -100,15 +100,6 @@ class OptimizeOptions:
         Newton steps allowed to the equilibria of a trial design before it
         is rejected (the trust region shrinks); a flat state that turns
         indefinite is rejected at once.
-    min_beam_gap : float
-        Trust-region methods: a trial design whose flat state brings two
-        beams of one family closer than this (in-plane, between centre-line
-        points; :func:`~xshells.linkage.clearance.family_clearance`) is
-        rejected, and such a design is never kept as the best. Give the
-        beams' width so that the flat layout stays buildable: the fit alone
-        can pull neighbouring beams together (an inverse design of the pointy
-        wings ended with two of them 11.6 apart, 12 wide). 0 (default): off.
-        Not enforced when the starting design already violates it.
     """
 
     method: str = "newton-cg"
@@ -126,7 +117,6 @@ class OptimizeOptions:
     hold_stability: bool = True
     stability_modes: int = 4
     trial_newton_iterations: int = 30
-    min_beam_gap: float = 0.0
 
     def __post_init__(self):
         if self.method not in ("newton-cg", "bfgs", "trust-constr"):
@@ -135,8 +125,6 @@ class OptimizeOptions:
             raise InputError(f"max_iterations must be at least 1, got {self.max_iterations}")
         if not (0 < self.min_rest_length_factor < 1):
             raise InputError(f"min_rest_length_factor must lie in (0, 1), got {self.min_rest_length_factor}")
-        if not (np.isfinite(self.min_beam_gap) and self.min_beam_gap >= 0):
-            raise InputError(f"min_beam_gap must be a finite length of at least 0, got {self.min_beam_gap}")
 
 
 @dataclass
@@ -202,11 +190,9 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
                          f"KS minimum angle is {np.degrees(ks0):.4g}°")
     history: list[OptimizeRecord] = []
     best = {"J": np.inf, "q": q0.copy(), "states": None}
-    clash = _clash_check(problem, options.min_beam_gap)
 
     def feasible(plan, ang):
-        return (plan <= options.planarity_tolerance * 1.01 and ang >= eps - 1e-9 and not folded_joint(problem.flat.L)
-                and not clash(problem.flat.L))
+        return plan <= options.planarity_tolerance * 1.01 and ang >= eps - 1e-9 and not folded_joint(problem.flat.L)
 
     def record(q, it):
         t = problem.terms(q)
@@ -226,7 +212,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
         if options.method == "trust-constr":
             message, success = _scipy_trust_constr(problem, q0, options, eps, record, failures)
         else:
-            message, success = _trust_region(problem, q0, options, eps, record, failures, clash)
+            message, success = _trust_region(problem, q0, options, eps, record, failures)
     except _Stop:
         message = "stopped by request"
     except KeyboardInterrupt:
@@ -246,21 +232,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
                           message=message, time_s=time.perf_counter() - start, success=success)
 
 
-def _clash_check(problem, gap: float):
-    """``clash(L)``: '' or where the flat state ``L`` brings two beams of a family closer than ``gap``
-    (always '' when ``gap`` is 0 or the current flat state already does)."""
-    from ..linkage.clearance import beam_overlaps
-
-    if gap <= 0:
-        return lambda L: ""
-    start = beam_overlaps(problem.flat.L, gap)
-    if start:
-        _log.info("min_beam_gap not enforced: the starting design already has %s", start)
-        return lambda L: ""
-    return lambda L: beam_overlaps(L, gap)
-
-
-def _trust_region(problem, q0, options, eps, record, failures, clash=lambda L: ""):
+def _trust_region(problem, q0, options, eps, record, failures):
     """Projected trust-region iteration with exact (Newton-CG) or BFGS model Hessians.
 
     It minimizes ``Φ = J − μ log(KS − ε) − μ log(σ − σ_min)``: log barriers
@@ -385,8 +357,6 @@ def _trust_region(problem, q0, options, eps, record, failures, clash=lambda L: "
                     reason = f"flat state left the plane (c = {plan:.2e})"
                 elif folded := folded_joint(problem.flat.L):
                     reason = f"flat state: {folded}"
-                elif too_close := clash(problem.flat.L):
-                    reason = f"flat state: {too_close}"
                 elif not np.isfinite(f_trial):
                     reason = "minimum angle or flat stability out of bounds"
             except (ArithmeticError, InputError) as exc:

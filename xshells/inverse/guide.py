@@ -175,7 +175,7 @@ def _release(problem, hold: Hold, mu_from: float, mu_to: float, depth: int = 4) 
 
 
 def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOptions(), min_angle: float | None = None,
-                        callback=None, after_stage=None, min_beam_gap: float = 0.0) -> list:
+                        callback=None, after_stage=None) -> list:
     """Design optimization (eq. 5) of ``problem`` at the holds μ·``hold`` of ``options.schedule``.
 
     ``problem`` is a :class:`~xshells.design.objective.DesignProblem` whose
@@ -184,8 +184,6 @@ def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOption
     optimization iteration (``record`` an ``OptimizeRecord``); returning
     True stops. Ctrl-C stops too, keeping the best design so far.
     ``after_stage(mu)`` is called after each stage's optimization.
-    ``min_beam_gap``: no design is accepted whose flat state brings two
-    beams of a family closer (:class:`~xshells.design.optimize.OptimizeOptions`).
 
     Returns the list of :class:`StageRecord`.
     """
@@ -205,8 +203,7 @@ def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOption
                 return stages
             mu_now = mu
         last = i == len(options.schedule) - 1
-        opts = OptimizeOptions(max_iterations=options.final_iterations if last else options.iterations, min_angle=min_angle,
-                               min_beam_gap=min_beam_gap)
+        opts = OptimizeOptions(max_iterations=options.final_iterations if last else options.iterations, min_angle=min_angle)
         res = optimize(problem, opts, callback=(lambda rec, mu=mu: callback(mu, rec)) if callback else None)
         stages.append(StageRecord(mu, res.iterations, res.history[-1].J if res.history else float("nan"), res.message,
                                   time.perf_counter() - t0))

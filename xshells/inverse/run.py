@@ -527,8 +527,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     interrupted = False
     stages = []
     try:
-        stages = guided_optimization(problem, hold, g, min_angle=eps, callback=on_iter, after_stage=after_stage,
-                                     min_beam_gap=width)
+        stages = guided_optimization(problem, hold, g, min_angle=eps, callback=on_iter, after_stage=after_stage)
     except KeyboardInterrupt:
         interrupted = True
     finally:
