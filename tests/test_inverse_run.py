@@ -181,3 +181,26 @@ def test_ctrl_c_in_auto_keeps_the_candidate_that_finished(tmp_path, monkeypatch)
     assert (tmp_path / "out" / "case.json").read_text() == "geodesic case"
     r = json.loads((tmp_path / "out" / "result.json").read_text())
     assert r["beams"] == "geodesic" and set(r["candidates"]) == {"geodesic"}
+
+
+def test_max_iters_is_the_budget_of_the_last_stage(tmp_path, monkeypatch):
+    """``--max-iters`` reaches the optimization once the load is gone (it was once overridden by the
+    per-stage budget, 10, and did nothing)."""
+    import dataclasses
+
+    import xshells.inverse.guide as guide
+
+    seen = {}
+    real = guide.guided_optimization
+
+    def spy(problem, hold, options, **kw):
+        seen["final"] = options.final_iterations
+        return real(problem, hold, dataclasses.replace(options, schedule=(0.0,)), **kw)  # one stage: quick
+
+    monkeypatch.setattr(guide, "guided_optimization", spy)
+    code = main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--max-iters", "3",
+                 "--out", str(tmp_path), "--no-progress"])
+    assert code in (0, 1) and seen["final"] == 3
+    with open(tmp_path / "result.json") as fh:
+        stages = json.load(fh)["stages"]
+    assert len(stages) == 1 and stages[0]["iterations"] <= 3

@@ -489,7 +489,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     ks0 = problem.min_angle(problem._q)
     eps = max(ks0 - np.radians(0.5), 0.5 * ks0) if ks0 > 0 else ks0 - np.radians(0.5)
     g = options.guide
-    g = GuideOptions(**{**asdict(g), "final_iterations": g.iterations})
+    g = GuideOptions(**{**asdict(g), "final_iterations": options.max_iters})  # --max-iters: the last stage, load gone
     total = sum(g.iterations for _ in g.schedule[:-1]) + g.final_iterations
     bar = _stage_bar(progress, total, "optimizing while letting go")
 
