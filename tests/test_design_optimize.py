@@ -121,4 +121,3 @@ def test_the_wiggly_banana_reaches_the_papers_result_with_the_default_weights():
     assert t["fit"] < 1.05 * fit0
     z = prob.flat.L.joint_positions()[:, 2]
     assert np.ptp(z) < 1e-6 * np.ptp(prob.flat.L.joint_positions(), axis=0).max()
-

@@ -204,3 +204,23 @@ def test_max_iters_is_the_budget_of_the_last_stage(tmp_path, monkeypatch):
     with open(tmp_path / "result.json") as fh:
         stages = json.load(fh)["stages"]
     assert len(stages) == 1 and stages[0]["iterations"] <= 3
+
+
+def test_no_stage_whose_flat_state_overlaps_is_kept(tmp_path, monkeypatch):
+    """A stage whose flat layout brings two beams of a family closer than they are wide is not kept (the
+    verification would refuse it): with every flat state overlapping, none is, and the result says why."""
+    import dataclasses
+
+    import xshells.inverse.guide as guide
+    import xshells.linkage.clearance as clearance
+
+    real = guide.guided_optimization
+    monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
+        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2), **kw))
+    monkeypatch.setattr(clearance, "beam_overlaps", lambda L, width: "beams 1 and 2 come within 1 of each other")
+    main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--out", str(tmp_path), "--no-progress"])
+    with open(tmp_path / "result.json") as fh:
+        r = json.load(fh)
+    assert not r["load_released"] and r["status"] == "stopped" and r["chosen_stage_load"] is None
+    assert r["message"] == ("no stage's design could be kept (the last one: the flat layout is not buildable: "
+                            "beams 1 and 2 come within 1 of each other)")

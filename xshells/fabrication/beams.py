@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..linkage.clearance import beam_family
 
 # Lengths in the outputs are millimetres; a design drawn in other units says which.
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "ft": 304.8}
@@ -126,14 +127,6 @@ def beam_sections(materials, num_segments: int, to_mm: float = 1.0) -> list[Sect
     return [cache[id(mats[0] if len(mats) == 1 else mats[s])] for s in range(num_segments)]
 
 
-def _family_of(graph, steps: np.ndarray) -> str:
-    labels = graph.segment_labels[steps[:, 0]]
-    labels = labels[labels >= 0]
-    if labels.size == 0:
-        return "A"
-    return "AB"[int(np.bincount(labels, minlength=2).argmax())]
-
-
 def _family_axis(directions: np.ndarray) -> np.ndarray:
     """The mean undirected direction (2,) of unit vectors (n, 2), with a deterministic sign (x ≥ 0, or y > 0)."""
     if len(directions) == 0:
@@ -178,7 +171,7 @@ def trace_beams(graph, rest_lengths, sections: list[Section], *, xy=None, end_ma
         if graph.beam_closed[b] or np.linalg.norm(d) < 1e-12:  # a loop: its principal direction
             P = XY[verts] - XY[verts].mean(axis=0)
             d = np.linalg.eigh(P.T @ P)[1][:, -1]
-        raw.append((b, _family_of(graph, steps), steps, verts, d / np.linalg.norm(d)))
+        raw.append((b, "AB"[beam_family(graph, b)], steps, verts, d / np.linalg.norm(d)))
     beams = []
     for fam in "AB":
         members = [r for r in raw if r[1] == fam]

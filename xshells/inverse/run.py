@@ -512,10 +512,13 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         fwd = copy.deepcopy(problem.flat.L)
         # as `xshells deploy` treats a case with rest lengths: the flat state settles with its angles free
         minimize(fwd, fixed=fwd.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
-        if width > 0 and beam_overlaps(fwd, width):
-            return  # not buildable: the verification would refuse it
+        overlap = beam_overlaps(fwd, width) if width > 0 else ""
+        if overlap:  # not buildable: the verification would refuse it
+            best["why"] = f"the flat layout is not buildable: {overlap}"
+            return
         res = deploy(fwd, theta, DeployOptions(steps=options.steps, direction=options.direction))
         if not res.converged:
+            best["why"] = f"its deployment from flat stopped: {res.message}"
             return
         guess = apply(Tinv, problem.deployed.L.joint_positions())
         Y = fwd.joint_positions()
@@ -565,6 +568,8 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     if interrupted or not released:
         result.update(status="interrupted" if interrupted else "stopped",
                       message="interrupted by the user: the design so far is written, not verified" if interrupted
+                      else f"no stage's design could be kept (the last one: {best['why']})" if "why" in best and stages
+                      and stages[-1].load_factor == 0.0
                       else f"the holding load could not be let go ({stages[-1].message if stages else 'no stage ran'})")
         times["total_s"] = time.perf_counter() - t_start
         result["time_s"], result["stage_times_s"] = times["total_s"], times

@@ -12,10 +12,10 @@ import numpy as np
 
 
 def beam_family(graph, b: int) -> int:
-    """The family (0 or 1) of beam ``b``: the label of its first segment (0 where unlabelled)."""
-    s = int(graph.beams[b][0, 0])
-    lab = graph.segment_labels[s]
-    return int(lab[lab >= 0][0]) if (lab >= 0).any() else 0
+    """The family (0 = A, 1 = B) of beam ``b``: the label most of its segments carry (0 where none is labelled)."""
+    labels = graph.segment_labels[np.asarray(graph.beams[b])[:, 0]]
+    labels = labels[labels >= 0]
+    return int(np.bincount(labels, minlength=2).argmax()) if labels.size else 0
 
 
 def family_clearance(linkage, within: float) -> tuple[float, int, int]:
