@@ -79,6 +79,38 @@ def test_a_trial_design_that_folds_a_flat_joint_is_rejected(monkeypatch):
     assert "trial designs rejected" in res.message
 
 
+def test_the_rest_lengths_of_segments_to_free_ends_are_the_held_parameters():
+    from types import SimpleNamespace
+
+    from xshells.design.optimize import free_end_parameters
+    from xshells.io import read_design
+    from xshells.linkage.linkage import Linkage
+    from xshells.section import Material
+
+    L = Linkage(read_design(EXAMPLES_DIR / "uniform_linkage.obj"), Material.uniform("rectangle", [12.0, 8.0], E=20000, nu=0.3),
+                subdivision=4)
+    held = free_end_parameters(SimpleNamespace(flat=SimpleNamespace(L=L)))
+    ends = set(np.asarray(L.graph.free_end_vertex).tolist())
+    E = L.graph.design.edges
+    assert held.sum() == 4 == len(ends)  # the design's four free ends, one segment each
+    assert all(bool(set(E[s].tolist()) & ends) == bool(held[s]) for s in range(len(E)))
+
+
+def test_held_parameters_do_not_move(monkeypatch):
+    """A segment to a free end keeps its rest length through the optimization (nothing in J depends on it:
+    left free, its step is arbitrary). Here every seventh segment of the banana is held in its stead."""
+    import xshells.design.optimize as opt
+
+    prob = banana_problem()
+    held = np.zeros(len(prob.p0), bool)
+    held[::7] = True
+    monkeypatch.setattr(opt, "free_end_parameters", lambda problem: held)
+    res = optimize(prob, OptimizeOptions(max_iterations=2))
+    assert res.iterations >= 1
+    assert np.array_equal(res.q[held], np.ones(held.sum()))
+    assert np.abs(res.q[~held] - 1.0).max() > 1e-4  # the others moved
+
+
 @pytest.mark.skipif(not (EXAMPLES_DIR / "wiggly_banana_preopt" / "case.json").exists(), reason="bundled example missing")
 def test_an_active_minimum_angle_bound_is_followed_not_stalled_on():
     """k = 10, ε only 0.2° below the initial KS minimum: the bound is active from iteration 3 on. With

@@ -102,6 +102,13 @@ def test_the_screen_ranks_its_candidates_by_their_first_deployment(cap):
     fits = [x.first_fit for x in c if x.first_fit is not None]
     assert fits == sorted(fits) and all(np.isfinite(fits))
     assert all(x.message for x in c if x.first_fit is None)
+    # the two bisectors side by side in two processes: the same candidates, in the same order
+    seen2 = []
+    c2 = screen_fans(surf, mat, 90.0, 20.0, surf.diagonal / 8, kappas=(0.0, 0.15), steps=10, on_candidate=seen2.append,
+                     workers=2)
+    assert len(seen2) == 4
+    assert [(x.kappa, x.orientation, x.segments) for x in c2] == [(x.kappa, x.orientation, x.segments) for x in c]
+    assert [x.first_fit or 0.0 for x in c2] == pytest.approx([x.first_fit or 0.0 for x in c], rel=1e-9)
 
 
 def test_the_cli_refuses_a_fan_without_fanned_beams(capsys, tmp_path):

@@ -224,3 +224,48 @@ def test_no_stage_whose_flat_state_overlaps_is_kept(tmp_path, monkeypatch):
     assert not r["load_released"] and r["status"] == "stopped" and r["chosen_stage_load"] is None
     assert r["message"] == ("no stage's design could be kept (the last one: the flat layout is not buildable: "
                             "beams 1 and 2 come within 1 of each other)")
+
+
+@pytest.mark.parametrize("flag", [[], ["--no-free-ends"]])
+def test_beams_run_on_to_the_boundary_as_free_ends_unless_asked_not_to(tmp_path, monkeypatch, flag):
+    import dataclasses
+
+    import xshells.inverse.guide as guide
+
+    real = guide.guided_optimization
+    monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
+        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2), **kw))  # one short stage
+    main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--out", str(tmp_path), "--no-progress"]
+         + flag)
+    r = json.loads((tmp_path / "result.json").read_text())
+    edges = np.array([[int(x) for x in line.split()[1:3]] for line in (tmp_path / "flat_design.obj").read_text().splitlines()
+                      if line.startswith("l ")])
+    valence = np.bincount(edges.ravel() - 1)
+    assert int((valence == 1).sum()) == r["free_ends"]
+    assert (r["free_ends"] > 0) == (not flag)
+    # a free end's segment is drawn at its rest length: nothing loads it
+    V = np.array([[float(x) for x in line.split()[1:4]] for line in (tmp_path / "flat_design.obj").read_text().splitlines()
+                  if line.startswith("v ")])
+    p = np.loadtxt(tmp_path / "design_parameters.txt")
+    free = (valence[edges - 1] == 1).any(axis=1)
+    drawn = np.linalg.norm(V[edges[free, 1] - 1] - V[edges[free, 0] - 1], axis=1)
+    assert np.allclose(drawn, p[free], rtol=1e-12)
+
+
+def test_auto_lays_the_even_net_about_the_bisector_whose_scissor_map_closes_better(monkeypatch):
+    from types import SimpleNamespace
+
+    import xshells.inverse.scissor as scissor
+    from xshells.inverse.run import InverseOptions, even_bisector
+    from xshells.inverse.surface import load_target
+
+    cap = load_target(CAP)
+    # on the cap at 90° the two bisectors are alike (the same residual): the given orientation stands
+    assert even_bisector(cap, InverseOptions(orientation=10.0))[0] == 10.0
+    residual = {10.0: 7.5e-3, 100.0: 1e-3}  # as measured on Darth Vader's realizable target
+    monkeypatch.setattr(scissor, "scissor_map", lambda S, theta, alpha0, o, **kw: SimpleNamespace(
+        residual=residual[round(float(np.degrees(o)), 6)]))
+    o, why = even_bisector(cap, InverseOptions(orientation=10.0))
+    assert o == 100.0 and "other bisector" in why
+    residual[100.0] = 0.95 * residual[10.0]  # within the margin: no switch
+    assert even_bisector(cap, InverseOptions(orientation=10.0))[0] == 10.0

@@ -247,6 +247,9 @@ def _trust_region(problem, q0, options, eps, record, failures):
     lb = options.min_rest_length_factor
     exact = options.method == "newton-cg"
     q = np.maximum(np.array(q0, float), lb)
+    # a segment to a free end keeps its rest length: nothing in J depends on it (its end slides freely), so
+    # its curvature is round-off and the preconditioned step along it would be arbitrary
+    fixed = free_end_parameters(problem)
     mu = options.barrier * problem.objective(q)
     sigma_min = options.min_stability
 
@@ -278,7 +281,7 @@ def _trust_region(problem, q0, options, eps, record, failures):
     radius = None  # set on the first iteration, relative to the preconditioned gradient
     small = 0  # consecutive accepted steps that lowered J by less than the tolerance
     for it in range(1, options.max_iterations + 1):
-        held = (q <= lb) & (g > 0)
+        held = ((q <= lb) & (g > 0)) | fixed
         pg = np.where(held, 0.0, g)
         gnorm = float(np.linalg.norm(pg))
         if gnorm <= options.gradient_tolerance:
@@ -396,6 +399,11 @@ def _trust_region(problem, q0, options, eps, record, failures):
     return "reached the iteration limit", False
 
 
+def free_end_parameters(problem) -> np.ndarray:
+    """Which design parameters (S,) the optimization holds: the rest lengths of segments to a free end."""
+    return (np.asarray(problem.flat.L.graph.segment_joints) < 0).any(axis=1)
+
+
 @contextmanager
 def _trial_mode(problem, options):
     """Equilibrium solves of a trial design give up early (see :class:`ConstrainedEquilibrium`)."""
@@ -413,7 +421,9 @@ def _trial_mode(problem, options):
 def _scipy_trust_constr(problem, q0, options, eps, record, failures):
     """The same problem through scipy's interior-point ``trust-constr`` (exact ``hessp``)."""
     S = len(problem.p0)
-    bounds = Bounds(np.full(S, options.min_rest_length_factor), np.full(S, np.inf))
+    fixed = free_end_parameters(problem)
+    q0 = np.asarray(q0, float)
+    bounds = Bounds(np.where(fixed, q0, options.min_rest_length_factor), np.where(fixed, q0, np.inf))
 
     def lin_op(hv, q, v):
         return LinearOperator((S, S), matvec=lambda d: v[0] * hv(q, np.ravel(d)), dtype=float)

@@ -30,6 +30,9 @@ def register(subparsers) -> None:
     p.add_argument("--fan", type=float,
                    help="with --beams fanned: the fan K, in (-0.5, 0.5): the flat layout opens by FLAT_ANGLE*(1+K) on "
                         "its middle lines and FLAT_ANGLE*(1-K) at its ends (default: screened)")
+    p.add_argument("--no-free-ends", action="store_true",
+                   help="end each beam of the automatic net at its last joint instead of continuing it to the "
+                        "surface's boundary as a free end")
     p.add_argument("--net", help="a 3D quad net (OBJ: quad faces or beam lines) drawn on or near the surface, used "
                                  "instead of the automatic one")
     p.add_argument("--direction", choices=("up", "down"), default="up",
@@ -41,6 +44,7 @@ def register(subparsers) -> None:
     p.add_argument("--steps", type=int, default=30, help="deployment increments (default 30)")
     p.add_argument("--max-iters", type=int, default=20,
                    help="design-optimization iterations once the holding load is gone (default 20)")
+    p.add_argument("--workers", type=int, help="processes for the fan screen (default: the cores, at most 2)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
     p.add_argument("--out", default="inverse_out", help="output folder")
     p.add_argument("--no-progress", action="store_true")
@@ -58,7 +62,7 @@ def _inverse(args) -> int:
     opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
                           max_iters=args.max_iters, force=args.force, grading=args.grading,
-                          beams=args.beams, fan=args.fan)
+                          beams=args.beams, fan=args.fan, free_ends=not args.no_free_ends, workers=args.workers)
     r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
     if r["status"] in ("complete", "missed", "invalid"):
         print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "

@@ -385,27 +385,76 @@ def first_deployment_fit(surface: TargetSurface, net: Net, material, angle: floa
 
 def screen_fans(surface: TargetSurface, material, angle_deg: float, flat_angle_deg: float, spacing: float,
                 orientation: float = 0.0, kappas=None, steps: int = 30, subdivision: int = 8,
-                direction: str = "up", on_candidate=None) -> list[FanCandidate]:
+                direction: str = "up", on_candidate=None, workers: int = 1) -> list[FanCandidate]:
     """Every fan ``kappas`` (default :data:`FAN_KAPPAS`) about both bisectors (``orientation`` and ``orientation + 90``), each laid on the
     surface and deployed freely from its flat layout; sorted best first (failed ones last).
 
-    ``on_candidate(FanCandidate)`` is called after each.
+    ``on_candidate(FanCandidate)`` is called after each. With ``workers`` of 2 the two bisectors are
+    screened side by side in two processes (the same figures; on two cores about half the time).
     """
+    kappas = FAN_KAPPAS if kappas is None else tuple(kappas)
+    jobs = [(surface, material, angle_deg, flat_angle_deg, spacing, o, kappas, steps, subdivision, direction)
+            for o in (orientation, orientation + 90.0)]
+    found = {}
+    if workers > 1:
+        for i, cands in in_processes(_screen_bisector, jobs, workers):
+            found[i] = cands
+            for c in cands if on_candidate is not None else ():
+                on_candidate(c)
+    else:
+        for i, job in enumerate(jobs):
+            found[i] = _screen_bisector(*job, on_candidate=on_candidate)
+    out = [c for i in range(len(jobs)) for c in found[i]]  # in the jobs' order, however they finished
+    return sorted(out, key=lambda c: (c.first_fit is None, c.first_fit if c.first_fit is not None else 0.0))
+
+
+def _screen_bisector(surface, material, angle_deg, flat_angle_deg, spacing, o, kappas, steps, subdivision, direction,
+                     on_candidate=None) -> list[FanCandidate]:
+    """The fans of one bisector (see :func:`screen_fans`)."""
     from .scissor import scissor_map
 
     theta, alpha0 = np.radians(angle_deg), np.radians(flat_angle_deg)
-    kappas = FAN_KAPPAS if kappas is None else kappas
+    smap = scissor_map(surface, theta, alpha0, np.radians(o))
     out = []
-    for o in (orientation, orientation + 90.0):
-        smap = scissor_map(surface, theta, alpha0, np.radians(o))
-        for k in kappas:
-            try:
-                net = fanned_net(surface, smap, theta, spacing, float(k))
-                fit, h = first_deployment_fit(surface, net, material, theta, steps, subdivision, direction)
-                c = FanCandidate(float(k), float(o), net.num_segments, fit, h)
-            except (InputError, ArithmeticError) as exc:
-                c = FanCandidate(float(k), float(o), message=str(exc).splitlines()[0][:200])
-            out.append(c)
-            if on_candidate is not None:
-                on_candidate(c)
-    return sorted(out, key=lambda c: (c.first_fit is None, c.first_fit if c.first_fit is not None else 0.0))
+    for k in kappas:
+        try:
+            net = fanned_net(surface, smap, theta, spacing, float(k))
+            fit, h = first_deployment_fit(surface, net, material, theta, steps, subdivision, direction)
+            c = FanCandidate(float(k), float(o), net.num_segments, fit, h)
+        except (InputError, ArithmeticError) as exc:
+            c = FanCandidate(float(k), float(o), message=str(exc).splitlines()[0][:200])
+        out.append(c)
+        if on_candidate is not None:
+            on_candidate(c)
+    return out
+
+
+def _ignore_interrupts():
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the workers
+
+
+def in_processes(fn, jobs: list, workers: int):
+    """``fn(*job)`` for each job in up to ``workers`` processes; yields ``(job index, result)`` as they finish.
+
+    The workers are forked from a fork server (spawned where there is none), never from this process,
+    which may hold threads. Ctrl-C (or the caller giving up) stops them at once.
+    """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context(method),
+                               initializer=_ignore_interrupts)
+    done = False
+    try:
+        futures = {pool.submit(fn, *job): i for i, job in enumerate(jobs)}
+        for f in as_completed(futures):
+            yield futures[f], f.result()
+        done = True
+    finally:
+        if not done:
+            for proc in list(getattr(pool, "_processes", {}).values()):  # they ignore SIGINT: end them here
+                proc.terminate()
+        pool.shutdown(wait=done, cancel_futures=True)
