@@ -269,3 +269,35 @@ def test_auto_lays_the_even_net_about_the_bisector_whose_scissor_map_closes_bett
     assert o == 100.0 and "other bisector" in why
     residual[100.0] = 0.95 * residual[10.0]  # within the margin: no switch
     assert even_bisector(cap, InverseOptions(orientation=10.0))[0] == 10.0
+
+
+def test_a_free_end_that_crowds_a_neighbouring_beam_is_left_off(tmp_path, monkeypatch):
+    import dataclasses
+
+    import xshells.inverse.guide as guide
+    import xshells.linkage.clearance as clearance
+    from xshells.inverse.free_ends import continuations
+    from xshells.inverse.run import InverseOptions, _automatic_net, check_options
+    from xshells.inverse.scissor import scissor_map
+    from xshells.inverse.surface import load_target
+
+    real = guide.guided_optimization
+    monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
+        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2), **kw))
+    calls = []
+
+    def crowded(L, width):  # the first layout's last segment (a free end's) comes too close; nothing after
+        calls.append(L.num_segments)
+        return np.array([L.num_segments - 1]) if len(calls) == 1 else np.zeros(0, np.int64)
+
+    monkeypatch.setattr(clearance, "crowded_segments", crowded)
+    spacing = f"{DIAG / 6:.3f}"
+    main(["inverse", str(CAP), "--spacing", spacing, "--beams", "even", "--out", str(tmp_path), "--no-progress"])
+    r = json.loads((tmp_path / "result.json").read_text())
+    # every free end the net has, less the one
+    S = load_target(CAP)
+    opts = InverseOptions(spacing=float(spacing), beams="even")
+    smap = scissor_map(S, np.radians(opts.angle), np.radians(opts.flat_angle), 0.0)
+    net = _automatic_net(S, smap, opts, check_options(opts, S), False)[0]
+    n = len(continuations(net, S, smap, float(spacing)))
+    assert n > 1 and r["free_ends"] == n - 1 and calls[1] == calls[0] - 1

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from xshells.linkage.clearance import beam_overlaps, family_clearance
+from xshells.linkage.clearance import beam_overlaps, crowded_segments, family_clearance
 from xshells.linkage.grids import rhombic_grid
 from xshells.linkage.linkage import Linkage
 from xshells.section import Material
@@ -35,3 +35,11 @@ def test_the_other_family_and_segments_meeting_at_a_joint_do_not_count():
     L = Linkage(rhombic_grid(4, 4, spacing=100.0, angle=np.radians(20.0)), RECT, subdivision=6)
     gap, _, _ = family_clearance(L, 100.0)
     assert gap >= 100.0 * np.sin(np.radians(20.0)) - 1e-9
+
+
+def test_crowded_segments_are_those_of_the_overlap():
+    """At 60° every beam of either family has a neighbour 86.6 away along its whole length: at a width of 87
+    every segment is crowded, at 86 none is."""
+    L = Linkage(rhombic_grid(3, 3, spacing=100.0, angle=np.radians(60.0)), RECT, subdivision=3)
+    assert crowded_segments(L, 86.0).size == 0
+    assert crowded_segments(L, 87.0).tolist() == list(range(L.num_segments))

@@ -89,6 +89,12 @@ class FreeEnds:
     def __len__(self) -> int:
         return len(self.joint)
 
+    def subset(self, keep: np.ndarray) -> "FreeEnds":
+        """These free ends where ``keep`` (e,) is True."""
+        keep = np.asarray(keep, bool)
+        return FreeEnds(self.joint[keep], self.previous[keep], self.family[keep], self.length[keep],
+                        self.point[keep], self.outward[keep])
+
 
 def continuations(net: Net, surface: TargetSurface, smap: ScissorMap, spacing: float,
                   max_length: float = MAX_LENGTH, min_length: float = MIN_LENGTH) -> FreeEnds:

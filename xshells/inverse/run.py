@@ -542,19 +542,46 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
             bar.update(1)
         return False
 
-    # After each stage, deploy the design as it stands from its flat state, without any hold: the
-    # design whose own deployment fits best is kept (a held state can end on a branch that a
-    # deployment from flat never reaches).
+    # After each stage, deploy the design as it stands from its flat state, without any hold, as the
+    # verification will (with its free ends, less those that come closer to a neighbouring beam than a
+    # beam's width: on the two bumps they did): the design whose own deployment fits best is kept (a held
+    # state can end on a branch that a deployment from flat never reaches).
     best = {"fit": np.inf}
     Tinv = np.linalg.inv(T0)
+    from ..io.design import design_from_arrays
+
+    def settled_flat(Pf, edges, p):
+        from ..solve import NewtonOptions, minimize
+
+        fwd = Linkage(design_from_arrays(Pf, edges), material, subdivision=options.subdivision, rest_lengths=p)
+        # as `xshells deploy` treats a case with rest lengths: the flat state settles with its angles free
+        minimize(fwd, fixed=fwd.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+        return fwd
+
+    def with_free_ends(flat_L):
+        """The stage's design with those free ends that keep clear of the other beams of their family, settled."""
+        from ..linkage.clearance import crowded_segments
+
+        use, n = ends, len(design.edges)
+        for _ in range(4):
+            Pf, edges, p = _stage_design(flat_L, design.edges, use)
+            fwd = settled_flat(Pf, edges, p)
+            crowded = crowded_segments(fwd, width) if width > 0 else np.zeros(0, np.int64)
+            bad = crowded[crowded >= n] - n  # free ends too close to a neighbouring beam: left off
+            if not len(bad) or not len(use):
+                return (Pf, edges, p), fwd, use
+            use = use.subset(~np.isin(np.arange(len(use)), bad))
+        Pf, edges, p = _stage_design(flat_L, design.edges, use)
+        return (Pf, edges, p), settled_flat(Pf, edges, p), use
 
     def after_stage(mu):
         from ..linkage.clearance import beam_overlaps
-        from ..solve import NewtonOptions, minimize
 
-        fwd = copy.deepcopy(problem.flat.L)
-        # as `xshells deploy` treats a case with rest lengths: the flat state settles with its angles free
-        minimize(fwd, fixed=fwd.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+        if ends is not None and len(ends):
+            made, fwd, used = with_free_ends(problem.flat.L)
+        else:
+            made = _stage_design(problem.flat.L, design.edges)
+            fwd, used = settled_flat(*made), None
         overlap = beam_overlaps(fwd, width) if width > 0 else ""
         if overlap:  # not buildable: the verification would refuse it
             best["why"] = f"the flat layout is not buildable: {overlap}"
@@ -568,7 +595,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         placed = apply(place(surface, Y, guess), Y)
         fit = float(np.mean(surface_distances(surface, placed)))
         if fit < best["fit"]:
-            best.update(fit=fit, mu=mu, flat=copy.deepcopy(problem.flat.L), tracked=placed)
+            best.update(fit=fit, mu=mu, design=made, free_ends=0 if used is None else len(used), tracked=placed)
 
     interrupted = False
     stages = []
@@ -579,23 +606,17 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     finally:
         if bar is not None:
             bar.close()
-    released = bool(stages) and stages[-1].load_factor == 0.0 and not interrupted and "flat" in best
+    released = bool(stages) and stages[-1].load_factor == 0.0 and not interrupted and "design" in best
     times["optimize_s"] = time.perf_counter() - t
 
     # outputs of the design ------------------------------------------------------------------------
-    from ..io.design import design_from_arrays
     from ..io.fabrication import write_drawings
 
-    flat_L = best.get("flat", problem.flat.L)
-    Pf = flat_L.vertex_positions()
-    Pf = Pf - Pf.mean(axis=0)
-    Pf[:, 2] = 0.0  # planar to round-off (checked below on the verification's flat state)
-    p = np.asarray(flat_L.rest_lengths, float)
-    edges = design.edges
-    if ends is not None and len(ends):
-        from .free_ends import attach
-
-        Pf, edges, p = attach(Pf, edges, ends, p)
+    if "design" in best:
+        (Pf, edges, p), attached = best["design"], best["free_ends"]
+    else:  # no stage kept: the design as it stands, with every free end
+        Pf, edges, p = _stage_design(problem.flat.L, design.edges, ends)
+        attached = 0 if ends is None else len(ends)
     final_design = design_from_arrays(Pf, edges)
     _write_design(out_dir, final_design, p)
     case = {"name": os.path.splitext(os.path.basename(str(surface_path)))[0] + "_xshell",
@@ -610,8 +631,8 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
               "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "grading_deg": options.grading, "beams": beams, "beams_reason": beams_reason,
               "direction": options.direction,
               "mirrored_layout": mirror, "scissor_residual": smap.residual, "held_rms": held_rms, "steadying_springs": steady if hold.steady is not None else 0.0,
-              "segments": int(final_design.num_segments), "joints": int(flat_L.num_joints),
-              "free_ends": 0 if ends is None else len(ends),
+              "segments": int(final_design.num_segments), "joints": int(problem.flat.L.num_joints),
+              "free_ends": attached,
               "stages": [asdict(s) for s in stages], "load_released": released,
               "chosen_stage_load": best.get("mu"), "chosen_stage_fit_mean": best["fit"] / surface.diagonal}
     if interrupted or not released:
@@ -635,6 +656,20 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     result["time_s"], result["stage_times_s"] = times["total_s"], times
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     return result
+
+
+def _stage_design(flat_L, edges, ends=None):
+    """The design a stage would write: its flat vertices (k, 3) centred in the plane z = 0, segments (s, 2)
+    and rest lengths (s,), with ``ends`` (:class:`.free_ends.FreeEnds`) attached when given."""
+    Pf = flat_L.vertex_positions()
+    Pf = Pf - Pf.mean(axis=0)
+    Pf[:, 2] = 0.0  # planar to round-off (checked on the verification's flat state)
+    p = np.asarray(flat_L.rest_lengths, float)
+    if ends is not None and len(ends):
+        from .free_ends import attach
+
+        return attach(Pf, edges, ends, p)
+    return Pf, np.asarray(edges, np.int64), p
 
 
 def _write_design(out_dir, design, p) -> None:

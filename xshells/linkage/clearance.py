@@ -18,6 +18,24 @@ def beam_family(graph, b: int) -> int:
     return int(np.bincount(labels, minlength=2).argmax()) if labels.size else 0
 
 
+def _same_family_pairs(linkage, within: float):
+    """Pairs (m, 2) of rod points on two different beams of one family within ``within`` in the plane, with
+    the points' positions (n, 2), segments (n,) and beams (n,)."""
+    from scipy.spatial import cKDTree
+
+    g = linkage.graph
+    rods = linkage.rods
+    pts = np.asarray(rods.points)[:, :2]
+    seg_of_point = np.repeat(np.arange(rods.num_rods), np.diff(rods.vertex_offsets))  # one rod per segment
+    owner = np.asarray(g.beam_of_segment)[seg_of_point]
+    family = np.array([beam_family(g, b) for b in range(g.num_beams)])[owner]
+    pairs = cKDTree(pts).query_pairs(within, output_type="ndarray").reshape(-1, 2)
+    if len(pairs):
+        i, j = pairs[:, 0], pairs[:, 1]
+        pairs = pairs[(owner[i] != owner[j]) & (family[i] == family[j])]
+    return pairs, pts, seg_of_point, owner
+
+
 def family_clearance(linkage, within: float) -> tuple[float, int, int]:
     """The smallest in-plane distance between rod points of two different beams of one family.
 
@@ -28,23 +46,20 @@ def family_clearance(linkage, within: float) -> tuple[float, int, int]:
     (gap, beam_a, beam_b) : (float, int, int)
         ``(inf, -1, -1)`` when no two such points are within ``within``.
     """
-    from scipy.spatial import cKDTree
-
-    g = linkage.graph
-    rods = linkage.rods
-    pts = np.asarray(rods.points)[:, :2]
-    seg_of_point = np.repeat(np.arange(rods.num_rods), np.diff(rods.vertex_offsets))  # one rod per segment
-    owner = np.asarray(g.beam_of_segment)[seg_of_point]
-    family = np.array([beam_family(g, b) for b in range(g.num_beams)])[owner]
-    pairs = cKDTree(pts).query_pairs(within, output_type="ndarray")
-    if len(pairs):
-        i, j = pairs[:, 0], pairs[:, 1]
-        pairs = pairs[(owner[i] != owner[j]) & (family[i] == family[j])]
+    pairs, pts, _, owner = _same_family_pairs(linkage, within)
     if not len(pairs):
         return float("inf"), -1, -1
     d = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
     k = int(np.argmin(d))
     return float(d[k]), int(owner[pairs[k, 0]]), int(owner[pairs[k, 1]])
+
+
+def crowded_segments(linkage, width: float) -> np.ndarray:
+    """The segments (sorted) with a rod point closer than ``width`` to a point of another beam of their family."""
+    pairs, pts, seg, _ = _same_family_pairs(linkage, width)
+    if len(pairs):
+        pairs = pairs[np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1) < width]
+    return np.unique(seg[pairs.ravel()])
 
 
 def beam_overlaps(linkage, width: float) -> str:
