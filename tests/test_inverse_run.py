@@ -177,7 +177,8 @@ def test_ctrl_c_in_auto_keeps_the_candidate_that_finished(tmp_path, monkeypatch)
     monkeypatch.setattr(run, "geodesic_closure", lambda *a, **k: (True, "it closes"))
     monkeypatch.setattr(run, "_screen", lambda *a, **k: ([], None, "no fan"))
     with pytest.raises(KeyboardInterrupt):
-        run.run_inverse(str(_write_hypar(tmp_path / "h.obj", n=9)), str(tmp_path / "out"), {}, progress=False)
+        run.run_inverse(str(_write_hypar(tmp_path / "h.obj", n=9)), str(tmp_path / "out"), {}, run.InverseOptions(workers=1),
+                        progress=False)
     assert (tmp_path / "out" / "case.json").read_text() == "geodesic case"
     r = json.loads((tmp_path / "out" / "result.json").read_text())
     assert r["beams"] == "geodesic" and set(r["candidates"]) == {"geodesic"}

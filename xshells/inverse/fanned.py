@@ -397,6 +397,8 @@ def screen_fans(surface: TargetSurface, material, angle_deg: float, flat_angle_d
             for o in (orientation, orientation + 90.0)]
     found = {}
     if workers > 1:
+        from .processes import in_processes
+
         for i, cands in in_processes(_screen_bisector, jobs, workers):
             found[i] = cands
             for c in cands if on_candidate is not None else ():
@@ -427,34 +429,3 @@ def _screen_bisector(surface, material, angle_deg, flat_angle_deg, spacing, o, k
         if on_candidate is not None:
             on_candidate(c)
     return out
-
-
-def _ignore_interrupts():
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the workers
-
-
-def in_processes(fn, jobs: list, workers: int):
-    """``fn(*job)`` for each job in up to ``workers`` processes; yields ``(job index, result)`` as they finish.
-
-    The workers are forked from a fork server (spawned where there is none), never from this process,
-    which may hold threads. Ctrl-C (or the caller giving up) stops them at once.
-    """
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context(method),
-                               initializer=_ignore_interrupts)
-    done = False
-    try:
-        futures = {pool.submit(fn, *job): i for i, job in enumerate(jobs)}
-        for f in as_completed(futures):
-            yield futures[f], f.result()
-        done = True
-    finally:
-        if not done:
-            for proc in list(getattr(pool, "_processes", {}).values()):  # they ignore SIGINT: end them here
-                proc.terminate()
-        pool.shutdown(wait=done, cancel_futures=True)

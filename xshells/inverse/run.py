@@ -73,7 +73,8 @@ class InverseOptions:
         κ of the fanned net (:mod:`.fanned`, ``beams="fanned"``): its flat lines open by ``α₀ (1 + κ)`` on
         the middle lines and ``α₀ (1 − κ)`` at the ends. None: screened (:func:`.fanned.screen_fans`).
     workers : int or None
-        Processes for the fan screen (its two bisectors side by side); default: the machine's cores, at most 2.
+        Processes for the fan screen (its two bisectors side by side) and for ``auto``'s candidates (side by
+        side, :mod:`.processes`); default: the machine's cores, at most 2. 1 runs everything in this process.
     free_ends : bool
         Continue each beam of the automatic net from its last joint to the
         surface's boundary by a free end (:mod:`.free_ends`; default True).
@@ -147,8 +148,11 @@ def check_options(options: InverseOptions, surface) -> float:
 
 
 def _stage_bar(progress, total, desc, unit="it"):
+    """A tqdm bar, or a worker's bar drawn by its parent (``progress`` a :class:`.processes.RemoteProgress`)."""
     if not progress:
         return None
+    if hasattr(progress, "bar"):
+        return progress.bar(total, desc, unit)
     from tqdm import tqdm
 
     return tqdm(total=total, desc=desc, unit=unit)
@@ -307,25 +311,65 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         import sys
 
         print(f"xshells inverse: trying the {', '.join(plan)} nets, keeping the best ({why})", file=sys.stderr)
+    workers = options.workers if options.workers is not None else min(2, os.cpu_count() or 1)
     results, errors = {}, {}
     try:
-        for beams, opts in plan.items():
-            current = os.path.join(out_dir, "candidates", beams, "result.json")
-            try:
-                results[beams] = _run_once(surface_path, os.path.join(out_dir, "candidates", beams), material_spec,
-                                           opts, None, progress, beams_reason=f"auto: {why}")
-            except InputError as exc:  # this net does not get through (a first layout that inverts, say)
-                errors[beams] = str(exc)
+        if workers > 1 and len(plan) > 1:
+            _candidates_in_processes(surface_path, out_dir, material_spec, plan, progress, why, workers, results, errors)
+        else:
+            for beams, opts in plan.items():
+                try:
+                    results[beams] = _run_once(surface_path, os.path.join(out_dir, "candidates", beams), material_spec,
+                                               opts, None, progress, beams_reason=f"auto: {why}")
+                except InputError as exc:  # this net does not get through (a first layout that inverts, say)
+                    errors[beams] = str(exc)
     except KeyboardInterrupt:
-        if os.path.exists(current) and beams not in results:  # the interrupted candidate's design so far
-            with open(current) as fh:
-                results[beams] = json.load(fh)
+        for beams in plan:  # the interrupted candidates' designs so far
+            current = os.path.join(out_dir, "candidates", beams, "result.json")
+            if beams not in results and beams not in errors and os.path.exists(current):
+                with open(current) as fh:
+                    results[beams] = json.load(fh)
         if results:
             _adopt(out_dir, results, errors, why, t0, screened)
         raise
     if not results:
-        raise InputError(errors["even"])
+        raise InputError(errors.get("even", next(iter(errors.values()))))
     return _adopt(out_dir, results, errors, why, t0, screened)
+
+
+#: seconds the candidates get to write their designs so far after Ctrl-C, when they run in worker processes
+STOP_WAIT = 60.0
+
+
+def _candidates_in_processes(surface_path, out_dir, material_spec, plan, progress, why, workers, results, errors):
+    """The candidates side by side in ``workers`` processes (:mod:`.processes`), into ``results`` / ``errors``."""
+    from .processes import in_processes
+
+    for existing in plan:  # a result left by an earlier run must not pass for this one's on Ctrl-C
+        stale = os.path.join(out_dir, "candidates", existing, "result.json")
+        if os.path.exists(stale):
+            os.remove(stale)
+    jobs = [(surface_path, os.path.join(out_dir, "candidates", beams), material_spec, opts, beams, progress,
+             f"auto: {why}") for beams, opts in plan.items()]
+    for _, (beams, ok, value) in in_processes(_candidate, jobs, workers, progress=progress, stop_wait=STOP_WAIT):
+        if ok:
+            results[beams] = value
+        else:
+            errors[beams] = value
+
+
+def _candidate(surface_path, out_dir, material_spec, options, beams, progress, beams_reason):
+    """One ``auto`` candidate in a worker process: (beams, True, result) or (beams, False, why it failed)."""
+    from .processes import RemoteProgress
+
+    try:
+        r = _run_once(surface_path, out_dir, material_spec, options, None, RemoteProgress(beams) if progress else False,
+                      beams_reason=beams_reason, stop=RemoteProgress(beams).stopped)
+        return beams, True, r
+    except InputError as exc:
+        return beams, False, str(exc)
+    except KeyboardInterrupt:  # asked to stop: the design so far is written
+        return beams, False, "interrupted"
 
 
 def _screen(surface, material_spec, options, spacing, progress):
@@ -419,8 +463,8 @@ def _bulge_sign(flat_joints: np.ndarray, heights: np.ndarray) -> float:
     return float(np.sign(np.dot(r2.mean() - r2, heights - heights.mean())) or 1.0)
 
 
-def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress: bool,
-              beams_reason: str | None = None) -> dict:
+def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress,
+              beams_reason: str | None = None, stop=None) -> dict:
     """One inverse design with one net (``options.beams`` "even" or "geodesic", or a grading or ``net_path``)."""
     from ..deploy.case import material_from_spec
     from .surface import load_target
@@ -537,6 +581,8 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     bar = _stage_bar(progress, total, "optimizing while letting go")
 
     def on_iter(mu, rec):
+        if stop is not None and stop():  # a worker asked to stop: as Ctrl-C, the design so far is kept
+            raise KeyboardInterrupt
         if bar is not None and rec.iteration:
             bar.set_postfix(load=f"{mu:g}", J=f"{rec.J:.4g}")
             bar.update(1)
@@ -688,10 +734,15 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
     from .metrics import apply, coverage, place, surface_distances
 
     states = {}
+    # in a worker the deployment's own bar cannot draw beside the others: one step for it, drawn by the parent
+    relayed = _stage_bar(progress, 1, "verifying: deploying the case", "case") if hasattr(progress, "bar") else None
     dep = run_deployment(os.path.join(out_dir, "flat_design.obj"), material, out_dir=os.path.join(out_dir, "deploy"),
                          subdivision=options.subdivision, target_angle=np.radians(options.angle), steps=options.steps,
                          rest_lengths_path=os.path.join(out_dir, "design_parameters.txt"), direction=options.direction,
-                         progress=progress, name="inverse design", states=states)
+                         progress=progress is True, name="inverse design", states=states)
+    if relayed is not None:
+        relayed.update(1)
+        relayed.close()
     flat, deployed = states["flat"], states["deployed"]
     from ..fabrication.run import write_outputs_of
 

@@ -1,0 +1,43 @@
+"""Worker processes for the fan screen and the auto candidates (xshells.inverse.processes)."""
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from xshells.inverse.processes import RemoteProgress, in_processes
+
+
+def _square(x):
+    return x * x
+
+
+def _wait_for_stop(path):
+    progress = RemoteProgress("job")
+    bar = progress.bar(1000, "waiting")
+    for _ in range(1000):
+        if progress.stopped():
+            Path(path).write_text("stopped")  # as a candidate writes its design so far
+            bar.close()
+            return "stopped"
+        bar.update(1)
+        time.sleep(0.05)
+    return "never asked"
+
+
+def test_every_result_comes_back_with_its_jobs_index():
+    assert dict(in_processes(_square, [(k,) for k in range(5)], 2)) == {k: k * k for k in range(5)}
+
+
+def test_ctrl_c_asks_the_workers_to_stop_and_waits_for_them(tmp_path):
+    paths = [tmp_path / "a", tmp_path / "b"]
+    timer = threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGINT))  # Ctrl-C while they work
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            list(in_processes(_wait_for_stop, [(str(p),) for p in paths], 2, progress=True, stop_wait=30.0))
+    finally:
+        timer.cancel()
+    assert [p.read_text() for p in paths] == ["stopped", "stopped"]
