@@ -33,6 +33,8 @@ def test_every_result_comes_back_with_its_jobs_index():
 
 def test_ctrl_c_asks_the_workers_to_stop_and_waits_for_them(tmp_path):
     paths = [tmp_path / "a", tmp_path / "b"]
+    # a shell starts a background job with SIGINT ignored (CI may run so): Ctrl-C's own handler for this test
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGINT))  # Ctrl-C while they work
     timer.start()
     try:
@@ -40,4 +42,5 @@ def test_ctrl_c_asks_the_workers_to_stop_and_waits_for_them(tmp_path):
             list(in_processes(_wait_for_stop, [(str(p),) for p in paths], 2, progress=True, stop_wait=30.0))
     finally:
         timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     assert [p.read_text() for p in paths] == ["stopped", "stopped"]
