@@ -15,8 +15,9 @@ In the lattice of the net's beams, a continuation shorter than a spacing
 never reaches the next beam of the other family (that one is a spacing
 along), so free ends cross no beam where no joint is.
 
-The free ends are attached to the optimized flat layout (:func:`attach`), not
-optimized with it. They carry no load, so they barely change the deployment
+The free ends are attached to each stage's flat layout (:func:`attach`), not
+optimized with it; one that comes closer to a neighbouring beam of its family
+than a beam's width is left off (:mod:`.run`). They carry no load, so they barely change the deployment
 (28 added to the wings' design moved its joints by 3.5e-5 of the span); but
 optimized with them, the wings reached 0.66 % / 2.80 % instead of 0.50 % /
 1.46 %: the joints where both beams end (weighted 10× in the fit) are no

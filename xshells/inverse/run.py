@@ -490,7 +490,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         smap = scissor_map(surface, theta, alpha0, np.radians(options.orientation))
         net, beams, reason = _automatic_net(surface, smap, options, spacing, progress)
         beams_reason = beams_reason or reason
-        if options.free_ends:  # attached to the optimized layout (see .free_ends)
+        if options.free_ends:  # attached to each stage's layout, not optimized (see .free_ends)
             from .free_ends import continuations
 
             ends = continuations(net, surface, smap, spacing)
