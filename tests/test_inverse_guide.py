@@ -52,3 +52,54 @@ def test_a_release_that_works_at_once_touches_nothing_else():
     problem, hold = _Problem(), _Hold()
     assert _release(problem, hold, 1.0, 0.6) == 0.6
     assert hold.calls == [0.6] and problem.deployed.factorized == 0
+
+
+def _fake_optimize(monkeypatch, seen):
+    """``optimize`` that runs ``max_iterations`` iterations, noting in ``seen`` the iterations it reports."""
+    import types
+
+    import xshells.design.optimize as opt
+
+    def optimize(problem, options, callback=None):
+        history = []
+        for it in range(options.max_iterations + 1):
+            rec = types.SimpleNamespace(iteration=it, J=1.0 / (it + 1))
+            history.append(rec)
+            seen.append(it)
+            if callback is not None and callback(rec):
+                return types.SimpleNamespace(iterations=it, history=history, message="stopped by request")
+        return types.SimpleNamespace(iterations=options.max_iterations, history=history, message="reached the iteration limit")
+
+    monkeypatch.setattr(opt, "optimize", optimize)
+
+
+class _NoHold:
+    def apply(self, problem, mu):
+        pass
+
+
+@pytest.mark.parametrize("every, expected", [(10, [1.0, (0.0, 10), (0.0, 20), (0.0, 25)]), (0, [1.0, (0.0, 25)])])
+def test_the_last_stage_design_is_checked_every_few_iterations(monkeypatch, every, expected):
+    from xshells.inverse.guide import GuideOptions, guided_optimization
+
+    seen, checked = [], []
+    _fake_optimize(monkeypatch, seen)
+
+    def after_stage(mu):
+        checked.append(mu if mu else (mu, seen[-1]))
+
+    opts = GuideOptions(schedule=(1.0, 0.0), iterations=3, final_iterations=25, checkpoint_every=every)
+    stages = guided_optimization(_Problem(), _NoHold(), opts, after_stage=after_stage)
+    assert [s.load_factor for s in stages] == [1.0, 0.0]
+    assert checked == expected  # in the last stage at 10 and 20 (not again at the limit), and once it ends
+
+
+def test_a_stop_request_skips_the_checkpoint(monkeypatch):
+    from xshells.inverse.guide import GuideOptions, guided_optimization
+
+    seen, checked = [], []
+    _fake_optimize(monkeypatch, seen)
+    opts = GuideOptions(schedule=(0.0,), final_iterations=25, checkpoint_every=10)
+    stages = guided_optimization(_Problem(), _NoHold(), opts, callback=lambda mu, rec: rec.iteration == 10,
+                                 after_stage=lambda mu: checked.append(seen[-1]))
+    assert stages[0].message == "stopped by request" and checked == [10]  # once, after the stage, not twice

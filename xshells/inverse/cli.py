@@ -42,8 +42,8 @@ def register(subparsers) -> None:
     p.add_argument("--poisson", type=float, help="Poisson's ratio (default 0.3)")
     p.add_argument("--subdivision", type=int, default=8, help="edges per segment (default 8)")
     p.add_argument("--steps", type=int, default=30, help="deployment increments (default 30)")
-    p.add_argument("--max-iters", type=int, default=20,
-                   help="design-optimization iterations once the holding load is gone (default 20)")
+    p.add_argument("--max-iters", type=int, default=40,
+                   help="design-optimization iterations once the holding load is gone (default 40; the design is checked every 10)")
     p.add_argument("--workers", type=int, help="processes for the fan screen and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
     p.add_argument("--out", default="inverse_out", help="output folder")

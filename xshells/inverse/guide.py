@@ -53,6 +53,13 @@ class GuideOptions:
         Design-optimization iterations per load factor (the last one gets
         ``final_iterations``).
     final_iterations : int
+    checkpoint_every : int
+        In the last stage, ``after_stage`` also sees the design every this
+        many iterations (0: only at the end). The optimizer's J is that of
+        the tracked equilibrium; a design's own deployment from flat can
+        end elsewhere, and further iterations do not always improve it: on
+        the spherical cap, 20 final iterations deployed to 0.62 % of the
+        diagonal, 40 (J 0.080 → 0.074) to 0.96 %.
     """
 
     stiffnesses: tuple = (1e-2, 1e-1, 1.0, 2.0)
@@ -60,6 +67,7 @@ class GuideOptions:
     schedule: tuple = (1.0, 0.7, 0.5, 0.35, 0.25, 0.15, 0.1, 0.05, 0.02, 0.0)
     iterations: int = 10
     final_iterations: int = 20
+    checkpoint_every: int = 10
 
 
 def segment_stiffness(linkage, spacing: float) -> float:
@@ -204,7 +212,15 @@ def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOption
             mu_now = mu
         last = i == len(options.schedule) - 1
         opts = OptimizeOptions(max_iterations=options.final_iterations if last else options.iterations, min_angle=min_angle)
-        res = optimize(problem, opts, callback=(lambda rec, mu=mu: callback(mu, rec)) if callback else None)
+        every = options.checkpoint_every if last and after_stage is not None else 0
+
+        def on_iteration(rec, mu=mu, every=every, limit=opts.max_iterations):
+            stop = bool(callback(mu, rec)) if callback is not None else False
+            if every and rec.iteration and rec.iteration % every == 0 and rec.iteration < limit and not stop:
+                after_stage(mu)  # the design as it stands (the optimizer's current iterate)
+            return stop
+
+        res = optimize(problem, opts, callback=on_iteration)
         stages.append(StageRecord(mu, res.iterations, res.history[-1].J if res.history else float("nan"), res.message,
                                   time.perf_counter() - t0))
         if after_stage is not None:

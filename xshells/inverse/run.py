@@ -53,7 +53,8 @@ class InverseOptions:
     steps : int
         Deployment increments (written into the case).
     max_iters : int
-        Design-optimization iterations after the load is gone.
+        Design-optimization iterations after the load is gone (its design is deployed from flat every
+        10 of them, and the best deployment kept: :class:`.guide.GuideOptions`).
     force : bool
         Allow more than 5,000 segments.
     grading : float
@@ -90,7 +91,7 @@ class InverseOptions:
     direction: str = "up"
     subdivision: int = 8
     steps: int = 30
-    max_iters: int = 20
+    max_iters: int = 40
     force: bool = False
     grading: float = 0.0
     beams: str = "auto"
