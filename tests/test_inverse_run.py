@@ -302,3 +302,28 @@ def test_a_free_end_that_crowds_a_neighbouring_beam_is_left_off(tmp_path, monkey
     net = _automatic_net(S, smap, opts, check_options(opts, S), False)[0]
     n = len(continuations(net, S, smap, float(spacing)))
     assert n > 1 and r["free_ends"] == n - 1 and calls[1] == calls[0] - 1
+
+
+def test_a_curved_developable_surface_is_named_in_a_warning_and_in_the_miss(tmp_path, monkeypatch, capsys):
+    """A barrel vault: the tool says up front, and in the result, that an X-shell deploys off it."""
+    import dataclasses
+
+    import xshells.inverse.guide as guide
+
+    real = guide.guided_optimization
+    monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
+        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2), **kw))  # one short stage
+    n, R = 13, 1500.0
+    x, y = np.meshgrid(np.linspace(-1200, 1200, n), np.linspace(-1200, 1200, n), indexing="ij")
+    V = np.c_[x.ravel(), y.ravel(), (np.sqrt(R**2 - x**2) - R).ravel()]
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    path = tmp_path / "barrel.obj"
+    path.write_text("".join(f"v {p[0]} {p[1]} {p[2]}\n" for p in V) + "".join(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in F))
+    code = main(["inverse", str(path), "--beams", "even", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert "warning" in err and "the surface is developable" in err
+    r = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert r["developable"] and r["total_curvature_rad"] < 1e-9
+    assert code == 1 and r["status"] == "missed" and "the surface is developable" in r["message"]

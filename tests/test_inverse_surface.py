@@ -56,3 +56,46 @@ def test_unreadable_and_triangle_free_files(tmp_path):
         load_target(p)
     with pytest.raises(InputError, match="cannot read"):
         load_target(tmp_path / "missing.obj")
+
+
+def test_the_angle_defect_of_a_pyramid_apex_is_two_pi_less_its_four_face_angles():
+    from xshells.inverse.surface import angle_defects
+
+    V = np.array([[-1.0, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0], [0, 0, 1]])
+    F = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    k = angle_defects(check_target(V, F))
+    apex = 2.0 * np.arctan(1.0 / np.sqrt(2.0))  # each side face: base 2, slant height √2
+    assert k[-1] == pytest.approx(2 * np.pi - 4 * apex, rel=1e-12)  # 1.3594 rad
+    assert np.all(k[:-1] == 0.0)  # boundary vertices carry none
+
+
+def _cap(n, R=2000.0, half_angle=np.radians(30.0)):
+    r = R * np.sin(half_angle)
+    V, F = grid(n, 2 * r, height=lambda x, y: np.sqrt(np.maximum(R**2 - x**2 - y**2, 0.0)))
+    keep = np.hypot(V[:, 0], V[:, 1]) <= r
+    F = F[keep[F].all(axis=1)]
+    return check_target(V, F)
+
+
+def test_total_curvature_of_a_spherical_cap_tends_to_gauss_bonnet():
+    from xshells.inverse.surface import total_curvature
+
+    exact = 2 * np.pi * (1 - np.cos(np.radians(30.0)))  # ∫K dA = area / R²
+    errors = np.array([abs(total_curvature(_cap(n)) - exact) / exact for n in (21, 41, 81, 161)])
+    assert errors[-1] < 0.04
+    # first order: what is missed is the boundary ring's share, whose width is the mesh size
+    assert np.all((errors[1:] / errors[:-1] > 0.4) & (errors[1:] / errors[:-1] < 0.6))
+
+
+def test_a_curved_developable_surface_is_named_and_a_nearly_flat_or_doubly_curved_one_is_not():
+    from xshells.inverse.surface import developable_warning, total_curvature
+
+    def cylinder(radius):
+        V, F = grid(21, 2000.0, height=lambda x, y: np.sqrt(radius**2 - x**2) - radius)
+        return check_target(V, F)
+
+    barrel = cylinder(1500.0)
+    assert total_curvature(barrel) < 1e-9  # each strip of triangles is planar
+    assert "developable" in developable_warning(barrel, 0.01)
+    assert developable_warning(cylinder(1e5), 0.01) == ""  # within the bar of its plane
+    assert developable_warning(_cap(21), 0.01) == ""

@@ -282,15 +282,19 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     Its ``result.json`` lists them under ``candidates`` and the screen under
     ``fan_screen``. ``"fanned"`` without ``options.fan`` runs the best fan alone.
     """
+    from .surface import developable_warning, load_target
+
+    t0 = time.perf_counter()
+    surface = load_target(surface_path)
+    warning = developable_warning(surface, REACH["fit_mean"])
+    if warning and progress:
+        import sys
+
+        print(f"xshells inverse: warning: {surface.path}: {warning}", file=sys.stderr)
     if net_path is not None or options.grading != 0.0 or options.beams in ("even", "geodesic") or \
             (options.beams == "fanned" and options.fan is not None):
         return _run_once(surface_path, out_dir, material_spec, options, net_path, progress)
     from dataclasses import replace
-
-    from .surface import load_target
-
-    t0 = time.perf_counter()
-    surface = load_target(surface_path)
     spacing = check_options(options, surface)
     screened, fan_options, fan_why = _screen(surface, material_spec, options, spacing, progress)
     if options.beams == "fanned":
@@ -699,6 +703,12 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     t = time.perf_counter()
     result.update(_verify(out_dir, surface, net, material, options, spacing, width, best["tracked"], progress))
     times["verify_s"] = time.perf_counter() - t
+    from .surface import developable_warning, total_curvature
+
+    result["total_curvature_rad"] = total_curvature(surface)
+    result["developable"] = bool(developable_warning(surface, REACH["fit_mean"]))
+    if result["developable"] and result["status"] == "missed":  # why it missed, as far as is known
+        result["message"] += "; " + developable_warning(surface, REACH["fit_mean"])
     times["total_s"] = time.perf_counter() - t_start
     result["time_s"], result["stage_times_s"] = times["total_s"], times
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))

@@ -131,3 +131,54 @@ def check_target(V, F, where: str = "the target surface") -> TargetSurface:
     F.setflags(write=False)
     V.setflags(write=False)
     return TargetSurface(V, F, where, diag, float(areas.sum()), int(loops))
+
+
+#: ∫|K| dA (radians) below which a surface counts as developable: the shared barrel vault has 0 to
+#: round-off, the flattest curved target measured (the spherical cap, half-angle 30°) 0.75
+DEVELOPABLE_CURVATURE = 0.05
+
+
+def angle_defects(surface: TargetSurface) -> np.ndarray:
+    """Discrete Gaussian curvature ``2π − Σ angles`` (radians) per vertex, shape (n,); 0 on the boundary.
+
+    Summed over a region it is ∫K dA there (Gauss–Bonnet), so on a spherical cap of
+    half-angle θ it tends to 2π(1 − cos θ) as the mesh refines (the boundary ring's share aside).
+    """
+    V, F = surface.V, surface.F
+    angles = np.zeros(F.shape)
+    for c in range(3):
+        a = V[F[:, (c + 1) % 3]] - V[F[:, c]]
+        b = V[F[:, (c + 2) % 3]] - V[F[:, c]]
+        angles[:, c] = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+    defect = 2.0 * np.pi - np.bincount(F.ravel(), angles.ravel(), minlength=len(V))
+    E, count = _edges(F)
+    defect[np.unique(E[count == 1])] = 0.0
+    return defect
+
+
+def total_curvature(surface: TargetSurface) -> float:
+    """∫|K| dA (radians) over the interior vertices: the total Gaussian curvature an X-shell must make."""
+    return float(np.abs(angle_defects(surface)).sum())
+
+
+def plane_deviation(surface: TargetSurface) -> float:
+    """Mean distance of the vertices to their least-squares plane, as a share of the diagonal."""
+    C = surface.V - surface.V.mean(axis=0)
+    normal = np.linalg.svd(C, full_matrices=False)[2][2]
+    return float(np.abs(C @ normal).mean() / surface.diagonal)
+
+
+def developable_warning(surface: TargetSurface, fit_bar: float) -> str:
+    """'' or one line (without the file's name): the surface is developable but curved beyond the mean-fit bar ``fit_bar``.
+
+    A net on a developable surface unrolls into the plane with the same lengths, angles and
+    in-plane bending and without the out-of-plane bending, so a planar state of lower energy
+    always exists at the same opening angle: an X-shell deploys off such a surface (docs/inverse.md,
+    Limits). A nearly flat one is still within the bar of a plane.
+    """
+    k, dev = total_curvature(surface), plane_deviation(surface)
+    if k >= DEVELOPABLE_CURVATURE or dev <= fit_bar:
+        return ""
+    return (f"the surface is developable (total Gaussian curvature {k:.2g} rad) and curved "
+            f"({100 * dev:.1f}% of its diagonal off its plane, on average): an X-shell deploys off such a surface "
+            f"(it has a flat state of lower energy); expect a miss, and see docs/inverse.md, Limits")
