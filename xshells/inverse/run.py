@@ -705,10 +705,10 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     times["verify_s"] = time.perf_counter() - t
     from .surface import developable_warning, total_curvature
 
-    result["total_curvature_rad"] = total_curvature(surface)
-    result["developable"] = bool(developable_warning(surface, REACH["fit_mean"]))
-    if result["developable"] and result["status"] == "missed":  # why it missed, as far as is known
-        result["message"] += "; " + developable_warning(surface, REACH["fit_mean"])
+    developable = developable_warning(surface, REACH["fit_mean"])
+    result["total_curvature_rad"], result["developable"] = total_curvature(surface), bool(developable)
+    if developable and result["status"] == "missed":  # why it missed, as far as is known
+        result["message"] += "; " + developable
     times["total_s"] = time.perf_counter() - t_start
     result["time_s"], result["stage_times_s"] = times["total_s"], times
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
