@@ -40,3 +40,11 @@ def test_deploy_writes_a_layered_3dm_in_millimetres(tmp_path):
     assert np.median(dist) < 0.05 * np.ptp(P, axis=0).max()  # a rod starts at (half a joint edge from) a joint or free end
     mesh = next(o.Geometry for o in f.Objects if names[o.Attributes.LayerIndex] == "deployed::beams")
     assert mesh.VertexColors.Count == len(mesh.Vertices) > 0
+    # its vertices are the swept beams of deployed.obj, stored in single precision (a picture of the state;
+    # the centerlines carry it in double)
+    V = np.array([[float(t) for t in line.split()[1:4]] for line in (tmp_path / "deployed.obj").read_text().splitlines()
+                  if line.startswith("v ")])
+    M = np.array([[p.X, p.Y, p.Z] for p in (mesh.Vertices[i] for i in range(len(mesh.Vertices)))])
+    assert M.shape == V.shape
+    assert np.abs(M - V).max() <= 1e-6 * np.ptp(V, axis=0).max()
+    assert not mesh.Vertices.UseDoublePrecisionVertices

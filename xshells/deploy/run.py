@@ -69,8 +69,8 @@ def _write_flat_outputs(out_dir: str, linkage: Linkage, design) -> None:
         write_drawings(out_dir, "flat_layout", design, linkage.rest_lengths)
 
 
-# What the forked writers import once the flat state's files are written: lane 0 writes the pictures and
-# the fabrication files, lane 1 (forked from lane 0 then) the Rhino file
+# What the forked writers import once the flat state's files are written: lane 0 writes the deployed picture
+# and the fabrication files, lane 1 (forked from lane 0 then) the Rhino file, then the deployment plot
 _WRITER_IMPORTS = ("matplotlib.pyplot", "mpl_toolkits.mplot3d.art3d", "xshells.viz.render", "xshells.fabrication.run",
                    "xshells.fabrication.drawings", "rhino3dm", "xshells.rhino.write", "xshells.app.exports")
 _FORKED: dict = {}  # in a forked writer: the linkage it was forked with
@@ -89,8 +89,8 @@ def _start_writer(out_dir: str, linkage: Linkage, design, background: bool):
 
 def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles, writer=None) -> None:
     """The deployed state's files. ``writer``: from :func:`_start_writer` (None: all here); forked, its lane 0
-    writes the picture and the fabrication files, its lane 1 the Rhino file, and this process the meshes, at
-    the same time; :func:`_finish` joins it."""
+    writes the picture and the fabrication files, its lane 1 the Rhino file (then :func:`_finish`'s deployment
+    plot), and this process the meshes, at the same time; :func:`_finish` joins it."""
     from ..fabrication.run import plan_of, write_fabrication
     from ..viz.render import render_linkage
 
@@ -327,9 +327,13 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
     from ..viz.render import plot_deployment
 
     if steps_out:
-        (writer.submit if writer is not None else _now)(plot_deployment, os.path.join(out_dir, "deployment.png"), [s["average_angle_deg"] for s in steps_out],
-                      [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], head["name"] or "",
-                      [s["utilization_max"] for s in steps_out] if strength is not None else None)
+        args = (plot_deployment, os.path.join(out_dir, "deployment.png"), [s["average_angle_deg"] for s in steps_out],
+                [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], head["name"] or "",
+                [s["utilization_max"] for s in steps_out] if strength is not None else None)
+        if writer is not None:  # lane 1, after the Rhino file: lane 0 has the picture and the fabrication files
+            writer.submit(*args, lane=1)
+        else:
+            _now(*args)
     if writer is not None:  # every file is in place before result.json, which describes them
         writer.join()
     result["timings_s"]["total"] = time.perf_counter() - t0

@@ -47,16 +47,23 @@ def _attrs(rhino3dm, layer: int):
     return a
 
 
-def _mesh(rhino3dm, vertices, triangles):
+def _mesh(rhino3dm, vertices, triangles, single: bool = False):
     """A rhino3dm mesh of ``vertices`` (n, 3) and ``triangles`` (t, 3).
 
     The bound methods are looked up once: each ``m.Vertices`` builds a new
     wrapper object, which took 3-4x the time of the ``Add`` itself.
+
+    ``single``: store the vertices in single precision (Rhino's usual mesh
+    vertices), for meshes that only show something. rhino3dm writes a mesh
+    with double-precision vertices at 2.5x the cost: the manta ray's swept
+    beams (13k vertices) took 0.29 s of ``Write`` in double, 0.05 s in single.
     """
     m = rhino3dm.Mesh()
     add, face = m.Vertices.Add, m.Faces.AddFace
     for x, y, z in np.asarray(vertices, float).tolist():
         add(x, y, z)
+    if single:  # after the vertices: ``Add`` of a double switches the mesh (back) to double precision
+        m.Vertices.UseDoublePrecisionVertices = False
     for a, b, c in np.asarray(triangles, int).tolist():
         face(a, b, c)
     return m
@@ -105,7 +112,9 @@ def write_3dm(path, *, flat_design=None, deployed=None, actuators=None, target=N
         fields = scalar_fields(deployed)
         mesh = swept_mesh(deployed, fields)
         colours = field_colors(np.sqrt(np.maximum(mesh.fields["bending_energy_density"], 0.0)))
-        m = _mesh(rhino3dm, mesh.vertices, mesh.triangles)
+        # single precision (7 digits: 0.4 µm on a 4 m span): the swept beams show the state; the
+        # centerlines above carry it in double
+        m = _mesh(rhino3dm, mesh.vertices, mesh.triangles, single=True)
         add = m.VertexColors.Add
         for r, g, b in np.asarray(colours, dtype=np.int64).tolist():
             add(r, g, b)

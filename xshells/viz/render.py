@@ -90,7 +90,8 @@ def plot_deployment(path, angles_deg, energies, torques, title: str = "", utiliz
     if utilization is not None:
         ax1.set_xlabel("")
     ax1.set_title(title)
-    fig.tight_layout()
+    # no tight_layout: the saved picture is cropped to its artists anyway (bbox_inches="tight"), and
+    # tight_layout was 0.09 of the 0.14 s this plot took, on the critical path of ``xshells deploy``
     _save(fig, path)
     plt.close(fig)
 
