@@ -24,6 +24,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError
+from . import store
 from .profiles import Profile, make_profile
 from .properties import (SectionProperties, analyse, fibre_extents,
                          frame_rotation, outline_in_frame)
@@ -188,15 +189,21 @@ class Material:
         """``k_τ`` (a length): the largest Saint-Venant torsion shear stress is ``G θ′ k_τ`` at twist rate θ′.
 
         ``max |∇ψ + (−y, x)|`` over the section (on its boundary), from its
-        own P2 warping solves refined to 0.1 % (cached per profile). At
+        own P2 warping solves refined to 0.1 % (cached per profile, and on disk: :mod:`.store`). At
         re-entrant corners the exact value is infinite; there the finest
         mesh's value is returned (see :func:`.torsion.shear_stress_factor`).
         """
-        from .torsion import shear_stress_factor
-
         key = self.profile.cache_key()
         if key not in _SHEAR_FACTORS:
-            _SHEAR_FACTORS[key] = shear_stress_factor(self.profile, self.section.centroid)[0]
+            parts = (*key, np.asarray(self.section.centroid, float).tobytes())
+            hit = store.load("shear_stress_factor", parts)
+            if hit is not None and isinstance(hit.get("value"), float):
+                _SHEAR_FACTORS[key] = hit["value"]
+            else:
+                from .torsion import shear_stress_factor
+
+                _SHEAR_FACTORS[key] = float(shear_stress_factor(self.profile, self.section.centroid)[0])
+                store.save("shear_stress_factor", parts, {"value": _SHEAR_FACTORS[key]})
         return _SHEAR_FACTORS[key]
 
     @property

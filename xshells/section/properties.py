@@ -17,12 +17,19 @@ Both have the same eigenvectors; the eigenvalues swap.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import store
 from .profiles import Profile
-from .torsion import DEFAULT_RTOL, TorsionResult, torsion_constant
+
+if TYPE_CHECKING:  # .torsion imports scikit-fem (0.07 s): only a solve loads it
+    from .torsion import TorsionResult
+
+#: relative change of J between refinement levels at which the torsion solve stops
+DEFAULT_RTOL = 1e-5
 
 # relative size of an off-diagonal term that still counts as "axes are principal"
 PRINCIPAL_TOL = 1e-9
@@ -143,15 +150,16 @@ class SectionProperties:
         In the profile's coordinates.
     second_moments : ndarray, shape (2, 2)
         Centroidal ``∫ r rᵀ dA`` in the profile's axes.
-    torsion : TorsionResult
-        The converged warping solve (centroid-centred coordinates).
+    torsion : TorsionResult or StoredTorsion
+        The converged warping solve (centroid-centred coordinates), or its
+        results read from the disk cache (:mod:`.store`).
     """
 
     profile: Profile
     area: float
     centroid: np.ndarray
     second_moments: np.ndarray
-    torsion: TorsionResult
+    torsion: "TorsionResult | StoredTorsion"
 
     @property
     def inertia(self) -> np.ndarray:
@@ -197,11 +205,57 @@ def analyse(profile: Profile, rtol: float = DEFAULT_RTOL) -> SectionProperties:
     key = (profile.cache_key(), rtol)
     if key not in _CACHE:
         area, centroid, M = centroidal_moments(profile_moments(profile))
-        torsion = torsion_constant(profile, centroid, rtol=rtol)
+        torsion = _torsion(profile, centroid, rtol)
         if len(_CACHE) >= _CACHE_SIZE:
             _CACHE.pop(next(iter(_CACHE)))
         _CACHE[key] = SectionProperties(profile, area, centroid, M, torsion)
     return _CACHE[key]
+
+
+@dataclass(frozen=True)
+class StoredTorsion:
+    """A torsion solve's results read from the disk cache (:mod:`.store`): J, its refinement history and
+    whether it converged, as :class:`.torsion.TorsionResult` has them; the warping solution itself is
+    solved again on first use (the section command's plots, the mesh sizes of its summary)."""
+
+    torsion_constant: float
+    history: list
+    converged: bool
+    profile: Profile = field(repr=False)
+    centroid: np.ndarray = field(repr=False)
+    rtol: float
+    _solved: list = field(default_factory=list, repr=False, compare=False)
+
+    @property
+    def relative_change(self) -> float:
+        return store.relative_change(self.history)
+
+    @property
+    def solution(self):
+        if not self._solved:
+            from .torsion import torsion_constant
+
+            self._solved.append(torsion_constant(self.profile, self.centroid, rtol=self.rtol).solution)
+        return self._solved[0]
+
+
+def _torsion(profile: Profile, centroid: np.ndarray, rtol: float):
+    """The torsion solve of ``profile`` about ``centroid``, from the disk cache where it holds it."""
+    parts = (*profile.cache_key(), np.asarray(centroid, float).tobytes(), float(rtol))
+    hit = store.load("torsion", parts)
+    try:
+        if hit is not None:
+            return StoredTorsion(float(hit["torsion_constant"]), [(int(n), float(j)) for n, j in hit["history"]],
+                                 bool(hit["converged"]), profile, np.asarray(centroid, float).copy(), float(rtol))
+    except (KeyError, TypeError, ValueError):
+        pass  # an entry of another shape: solve again, and overwrite it
+    from .torsion import torsion_constant
+
+    result = torsion_constant(profile, centroid, rtol=rtol)
+    store.save("torsion", parts, {"torsion_constant": result.torsion_constant,
+                                  "history": [[int(n), float(j)] for n, j in result.history],
+                                  "converged": bool(result.converged)})
+    return result
 
 
 def outline_in_frame(profile: Profile, centroid: np.ndarray, R: np.ndarray) -> list[np.ndarray]:

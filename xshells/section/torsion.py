@@ -32,10 +32,10 @@ from skfem import (Basis, BilinearForm, ElementTriP2, FacetBasis, Functional,
                    InteriorFacetBasis, LinearForm, MeshTri, MeshTri2, condense)
 from skfem.helpers import dot, grad
 
+from . import store
 from .mesh import TriMesh, refine, triangulate_loops
 from .profiles import Profile, signed_area
-
-DEFAULT_RTOL = 1e-5
+from .properties import DEFAULT_RTOL
 MAX_LEVELS = 14
 # the first mesh has about this many triangles per unit of (area / thinnest-part estimate)
 INITIAL_TRIANGLES = 60
@@ -129,9 +129,7 @@ class TorsionResult:
     @property
     def relative_change(self) -> float:
         """|J_k - J_{k-1}| / J_k for the last two levels (inf with one level)."""
-        if len(self.history) < 2:
-            return float("inf")
-        return abs(self.history[-1][1] - self.history[-2][1]) / self.history[-1][1]
+        return store.relative_change(self.history)
 
 
 def skfem_mesh(mesh: TriMesh, origin: np.ndarray, projector=None) -> MeshTri | MeshTri2:
