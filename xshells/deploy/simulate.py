@@ -404,7 +404,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         free = np.setdiff1d(np.arange(linkage.num_vars), np.concatenate([pins, edge_vars[active]]))
         H = linkage.hessian()[free][:, free]
         M = linkage.mass_matrix()[free][:, free]
-        lam = smallest_eigenvalues(H, M, k=2)
+        lam, s_free = smallest_eigenvalues(H, M, k=2, return_shift=True)
         result.min_hessian_eigenvalue = float(lam[0])
         result.stiffness_gap = float(lam[1] / lam[0]) if lam[0] != 0 else float("inf")
         # Stability with the average angle held (the deployment's own control): H + ρ a aᵀ.
@@ -416,7 +416,9 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         rho_a = 100.0 * float(np.abs(H.diagonal()).max()) / float(af @ af)
         A = sp.csr_matrix((np.full(len(nz) ** 2, rho_a * af[nz[0]] ** 2), (np.repeat(nz, len(nz)), np.tile(nz, len(nz)))),
                           shape=H.shape)
-        result.min_eigenvalue_at_fixed_angle = float(smallest_eigenvalues((H + A).tocsr(), M, k=1)[0])
+        # the free Hessian's shift serves (H + A ≥ H): no second search for λmax(H + A), λmax(M) and a shift
+        result.min_eigenvalue_at_fixed_angle = float(smallest_eigenvalues((H + A).tocsr(), M, k=1,
+                                                                          shift=s_free or None)[0])
     except Exception as exc:  # eigen-solver trouble must not lose the deployment
         result.message += f"; stability check failed: {exc}"
     result.time_s = time.perf_counter() - start

@@ -556,8 +556,13 @@ exact, and immune to the clusters of near-zero modes that make ARPACK iterate
 thousands of times (a 224-DoF mechanism with a 4-fold zero eigenvalue: 0.35 s)."""
 
 
-def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None, dense_size: int = DENSE_EIGEN_SIZE) -> np.ndarray:
+def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None, dense_size: int = DENSE_EIGEN_SIZE,
+                         return_shift: bool = False):
     """The ``k`` smallest eigenvalues of ``H d = λ M d`` (sorted), by shift-invert.
+
+    With ``return_shift``, also the ``s`` used (``H + sM`` positive definite; 0.0 for a dense solve):
+    it serves a pencil ``H + A`` with ``A`` positive semidefinite as a given ``shift``, since that
+    pencil's eigenvalues are no lower.
 
     Pencils of at most ``dense_size`` rows are solved densely instead.
 
@@ -575,7 +580,8 @@ def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None, dense_siz
 
         A = H.toarray() if sp.issparse(H) else np.asarray(H)
         B = M.toarray() if sp.issparse(M) else np.asarray(M)
-        return sla.eigh(A, B, subset_by_index=[0, min(k, n) - 1], eigvals_only=True)
+        lam = sla.eigh(A, B, subset_by_index=[0, min(k, n) - 1], eigvals_only=True)
+        return (lam, 0.0) if return_shift else lam
     chol = SparseCholesky()
     s = shift if shift is not None else 1e-6 * _largest_eigenvalue(H) / _largest_eigenvalue(M)
     while True:
@@ -588,7 +594,7 @@ def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None, dense_siz
         chol, s = _lowered_shift(chol, SparseCholesky(), lambda t: H + t * M, s, 4)
     op = spla.LinearOperator((n, n), matvec=chol.solve, dtype=float)
     lam = spla.eigsh(H, k=k, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-8, maxiter=2000, return_eigenvectors=False, v0=np.ones(n))
-    return np.sort(lam)
+    return (np.sort(lam), s) if return_shift else np.sort(lam)
 
 
 def _lowered_shift(solver: SparseCholesky, other: SparseCholesky, shifted, s: float, tries: int):
