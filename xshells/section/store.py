@@ -9,8 +9,9 @@ bit for bit (JSON writes floats by ``repr``, which round-trips exactly).
 The folder is ``$XSHELLS_CACHE`` if set (``off``, ``0`` or empty: no cache),
 else ``$XDG_CACHE_HOME/xshells``, else ``~/.cache/xshells``. An entry's name
 hashes everything its result depends on: the profile's geometry, the solver
-settings, the versions of xshells, scikit-fem, triangle, NumPy and SciPy,
-and the solver's own source files, so an upgrade or a change solves afresh. A folder that cannot be written, or an
+settings, the solver's own source files, and the installed scikit-fem,
+triangle, NumPy and SciPy (each by the size and time of its ``__init__``), so
+an upgrade or a change solves afresh. A folder that cannot be written, or an
 entry that cannot be read, costs only the solve: the cache never fails a
 command. Entries are written under a temporary name and renamed.
 """
@@ -40,22 +41,25 @@ def cache_dir() -> Path | None:
 
 @functools.lru_cache(maxsize=1)
 def _versions() -> tuple:
-    from importlib.metadata import PackageNotFoundError, version
+    """What the stored results depend on besides their inputs: the solver's source files, and the
+    installed scikit-fem, triangle, NumPy and SciPy, each by its ``__init__``'s size and modification
+    time (found without importing it; ``importlib.metadata`` took 80 ms here, a third of what the cache saves)."""
+    from importlib.util import find_spec
 
-    out = []
-    for name in ("xshells", "scikit-fem", "triangle", "numpy", "scipy"):
-        try:
-            out.append((name, version(name)))
-        except PackageNotFoundError:
-            out.append((name, None))
-    # the solver's own source too: xshells' version number does not move with every change to it
     h = hashlib.sha256()
     for name in _SOURCES:
         try:
             h.update((Path(__file__).parent / name).read_bytes())
         except OSError:
             h.update(name.encode())
-    out.append(("source", h.hexdigest()))
+    out = [("source", h.hexdigest())]
+    for name in ("skfem", "triangle", "numpy", "scipy"):
+        try:
+            spec = find_spec(name)
+            st = os.stat(spec.origin)
+            out.append((name, spec.origin, st.st_size, st.st_mtime_ns))
+        except (ImportError, ValueError, AttributeError, TypeError, OSError):
+            out.append((name, None))
     return tuple(out)
 
 
