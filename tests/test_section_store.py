@@ -60,7 +60,10 @@ def test_another_profile_or_tolerance_is_another_entry(tmp_path, monkeypatch):
     assert c.torsion_constant >= a.torsion_constant  # coarser: J converges from above
 
 
-@pytest.mark.parametrize("content", ["{not json", "[1, 2]", '{"torsion_constant": "x"}', '{"value": null}'])
+@pytest.mark.parametrize("content", ["{not json", "[1, 2]", '{"torsion_constant": "x"}', '{"value": null}',
+                                     '{"torsion_constant": NaN, "history": [[10, NaN]], "converged": true, "value": NaN}',
+                                     '{"torsion_constant": -1.0, "history": [[10, -1.0]], "converged": true, "value": -1.0}',
+                                     '{"torsion_constant": 2.0, "history": [], "converged": true}'])
 def test_a_damaged_entry_is_solved_again_and_rewritten(tmp_path, monkeypatch, content):
     _fresh(monkeypatch, tmp_path)
     m = Material.uniform("rectangle", [10, 7], E=1.0, nu=0.3)

@@ -197,7 +197,7 @@ class Material:
         if key not in _SHEAR_FACTORS:
             parts = (*key, np.asarray(self.section.centroid, float).tobytes())
             hit = store.load("shear_stress_factor", parts)
-            if hit is not None and isinstance(hit.get("value"), float):
+            if hit is not None and isinstance(hit.get("value"), float) and np.isfinite(hit["value"]) and hit["value"] > 0:
                 _SHEAR_FACTORS[key] = hit["value"]
             else:
                 from .torsion import shear_stress_factor

@@ -245,10 +245,13 @@ def _torsion(profile: Profile, centroid: np.ndarray, rtol: float):
     hit = store.load("torsion", parts)
     try:
         if hit is not None:
-            return StoredTorsion(float(hit["torsion_constant"]), [(int(n), float(j)) for n, j in hit["history"]],
-                                 bool(hit["converged"]), profile, np.asarray(centroid, float).copy(), float(rtol))
+            J = float(hit["torsion_constant"])
+            history = [(int(n), float(j)) for n, j in hit["history"]]
+            if np.isfinite(J) and J > 0 and history and history[-1][1] == J:
+                return StoredTorsion(J, history, bool(hit["converged"]), profile, np.asarray(centroid, float).copy(),
+                                     float(rtol))
     except (KeyError, TypeError, ValueError):
-        pass  # an entry of another shape: solve again, and overwrite it
+        pass  # an entry of another shape or a damaged one: solve again, and overwrite it
     from .torsion import torsion_constant
 
     result = torsion_constant(profile, centroid, rtol=rtol)
