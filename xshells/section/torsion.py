@@ -36,6 +36,7 @@ from . import store
 from .mesh import TriMesh, refine, triangulate_loops
 from .profiles import Profile, signed_area
 from .properties import DEFAULT_RTOL
+
 MAX_LEVELS = 14
 # the first mesh has about this many triangles per unit of (area / thinnest-part estimate)
 INITIAL_TRIANGLES = 60
