@@ -705,8 +705,9 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     times["verify_s"] = time.perf_counter() - t
     from .surface import developable_warning, total_curvature
 
-    developable = developable_warning(surface, REACH["fit_mean"])
-    result["total_curvature_rad"], result["developable"] = total_curvature(surface), bool(developable)
+    result["total_curvature_rad"] = total_curvature(surface)
+    developable = developable_warning(surface, REACH["fit_mean"], result["total_curvature_rad"])
+    result["developable"] = bool(developable)
     if developable and result["status"] == "missed":  # why it missed, as far as is known
         result["message"] += "; " + developable
     times["total_s"] = time.perf_counter() - t_start

@@ -168,15 +168,18 @@ def plane_deviation(surface: TargetSurface) -> float:
     return float(np.abs(C @ normal).mean() / surface.diagonal)
 
 
-def developable_warning(surface: TargetSurface, fit_bar: float) -> str:
+def developable_warning(surface: TargetSurface, fit_bar: float, curvature: float | None = None) -> str:
     """'' or one line (without the file's name): the surface is developable but curved beyond the mean-fit bar ``fit_bar``.
+
+    ``curvature``: the surface's :func:`total_curvature`, where the caller has it already.
 
     A net on a developable surface unrolls into the plane with the same lengths, angles and
     in-plane bending and without the out-of-plane bending, so a planar state of lower energy
     always exists at the same opening angle: an X-shell deploys off such a surface (docs/inverse.md,
     Limits). A nearly flat one is still within the bar of a plane.
     """
-    k, dev = total_curvature(surface), plane_deviation(surface)
+    k = total_curvature(surface) if curvature is None else curvature
+    dev = plane_deviation(surface)
     if k >= DEVELOPABLE_CURVATURE or dev <= fit_bar:
         return ""
     return (f"the surface is developable (total Gaussian curvature {k:.2g} rad) and curved "
