@@ -114,8 +114,11 @@ def test_held_parameters_do_not_move(monkeypatch):
 @pytest.mark.skipif(not (EXAMPLES_DIR / "wiggly_banana_preopt" / "case.json").exists(), reason="bundled example missing")
 def test_an_active_minimum_angle_bound_is_followed_not_stalled_on():
     """k = 10, ε only 0.2° below the initial KS minimum: the bound is active from iteration 3 on. With
-    the angle barrier's curvature in the model the steps follow it (J 0.53 -> 0.143 in 30 iterations,
-    measured); with only its Gauss-Newton term they left it at second order and were rejected (0.198)."""
+    the angle barrier's curvature in the model the steps follow it: J still falls by 0.056-0.062 over
+    iterations 20-30 (J 0.53 -> 0.137-0.163 in 30 iterations, measured; the trajectory parts at iteration
+    14 for changes of 1e-9 of the span in the deployed state it starts from). With only its Gauss-Newton
+    term they left it at second order and were rejected: J stalled at 0.196-0.198, falling by 0.003 over
+    the same ten iterations."""
     from xshells.design.run import build_problem
 
     # the weights it was measured with (J₀ 0.53); the defaults changed since
@@ -125,7 +128,8 @@ def test_an_active_minimum_angle_bound_is_followed_not_stalled_on():
     angles = [r.min_angle_deg for r in res.history]
     assert min(angles) >= np.degrees(eps) - 1e-9
     assert min(angles) < np.degrees(eps) + 0.01  # the bound was reached
-    assert res.history[-1].J < 0.16, [round(r.J, 4) for r in res.history]
+    J = [r.J for r in res.history]
+    assert J[-11] - J[-1] > 0.02 and J[-1] < 0.18, [round(j, 4) for j in J]  # still falling: not stalled
 
 
 @pytest.mark.skipif(not (EXAMPLES_DIR / "wiggly_banana_preopt" / "case.json").exists(), reason="bundled example missing")

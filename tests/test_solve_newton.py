@@ -222,3 +222,44 @@ def test_the_lower_triangle_is_used_only_where_the_class_of_hessian_defines_it()
     assert not uses_lower_triangle(Overriding())
     assert "hessian_lower" in vars(Linkage) and "hessian" in vars(Linkage)
     assert "hessian" in vars(_Tethered) and "hessian_lower" not in vars(_Tethered)
+
+
+class CountingQuadratic(Quadratic):
+    """:class:`Quadratic` that counts its Hessians."""
+
+    hessians = 0
+
+    def hessian(self):
+        self.hessians += 1
+        return super().hessian()
+
+
+def test_a_minimum_reached_by_quadratic_convergence_keeps_the_last_steps_factor():
+    # positive definite everywhere (A ≻ 0, c > 0): Newton converges quadratically, and with the option the
+    # last step's factor stands for the minimum's check: the same steps, one Hessian fewer
+    rng = np.random.default_rng(5)
+    Q = rng.standard_normal((6, 6))
+    A, b = Q @ Q.T + 6 * np.eye(6), rng.standard_normal(6)
+    runs = []
+    for ratio in (0.0, 0.01):
+        P = CountingQuadratic(A, b, c=0.5, x0=np.full(6, 1.5))
+        report = minimize(P, options=NewtonOptions(gradient_tolerance=1e-10, minimum_from_last_step=ratio))
+        assert report.converged
+        runs.append((P.x.copy(), P.hessians, report))
+    (x0, h0, r0), (x1, h1, r1) = runs
+    assert np.array_equal(x0, x1) and r0.iterations == r1.iterations
+    assert h1 == h0 - 1
+    assert "the last Newton step's Hessian" in r1.message and "the last" not in r0.message
+
+
+def test_the_option_still_escapes_a_saddle_and_checks_points_after_shifted_steps():
+    opts = NewtonOptions(gradient_tolerance=1e-10, saddle_step=1e-2, minimum_from_last_step=0.01)
+    Q = Quartic(np.eye(2), np.zeros(2), x0=np.zeros(2))  # at the saddle: no step taken yet, so it is checked
+    report = minimize(Q, options=opts)
+    assert report.converged and report.saddle_escapes >= 1
+    assert np.isclose(abs(Q.x[0]), 1 / np.sqrt(2), atol=1e-8)
+    # a start just off the saddle's line, inside the indefinite band: shifted steps, then a minimum
+    Q = Quartic(np.eye(2), np.zeros(2), x0=np.array([0.1, 1.0]))
+    report = minimize(Q, options=opts)
+    assert report.converged and np.isclose(abs(Q.x[0]), 1 / np.sqrt(2), atol=1e-8)
+    assert max(report.sigma) > 0

@@ -74,8 +74,10 @@ class DeployOptions:
     # only near stationary points: deployments start from exactly symmetric
     # flat states whose out-of-plane gradient is zero.
     # The shift decays by 10 after an indefinite spell, not by halves (NewtonOptions.shift_decay).
+    # A point that Newton's quadratic convergence reached keeps its last step's positive-definite factor as its
+    # minimum check and for the next step's tangent (NewtonOptions.minimum_from_last_step).
     newton: NewtonOptions = NewtonOptions(gradient_tolerance=1e-6, max_iterations=200, saddle_gradient_factor=float("inf"),
-                                          shift_decay=10.0)
+                                          shift_decay=10.0, minimum_from_last_step=0.01)
     final_tolerance_factor: float = 1e-1
     step_tolerance_factor: float = 1.0
     min_joint_edge_length: float | None = None
@@ -474,7 +476,7 @@ def _predict(linkage: Linkage, a, angle, previous, pins, held):
     """
     x = linkage.get_vars()
     current = (x, linkage.joint_b0.copy(), linkage.joint_n0.copy())
-    t = _constrained_tangent(linkage, np.concatenate([pins, held]), a)
+    t = _constrained_tangent(linkage, np.concatenate([pins, held]), a, reuse=True)
     if t is None:
         return current, False, False
     h = angle - float(a @ x)

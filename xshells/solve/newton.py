@@ -63,6 +63,16 @@ class NewtonOptions:
         equilibria to 4e-9 of the span). The default stays 2 for free
         equilibria (torque control, loads, design optimization's inner
         solves): 10 has not been measured there (docs/design-notes.md).
+    minimum_from_last_step : float
+        With ``require_minimum``: a point below the tolerance that a full,
+        unshifted Newton step reached, on a positive-definite factor, cutting
+        ``|g|`` at least by this factor, counts as a minimum without a new
+        Hessian and factorization: that is Newton's quadratic convergence, so
+        the point lies well inside the last Hessian's region of validity (its
+        step was about ``|g|``/stiffness long). That factor is then left for
+        the caller (:func:`_constrained_tangent` with ``reuse``). Default 0:
+        every minimum is checked at its own point. Deployments use 0.01
+        (:class:`~xshells.deploy.DeployOptions`).
     """
 
     max_iterations: int = 200
@@ -74,6 +84,7 @@ class NewtonOptions:
     max_backtracks: int = 40
     require_minimum: bool = True
     shift_decay: float = 2.0
+    minimum_from_last_step: float = 0.0
 
 
 @dataclass
@@ -100,6 +111,7 @@ class _ReusableCholesky:
     def __init__(self):
         self.chol = SparseCholesky()
         self._last = None
+        self.tag = None  # the free indices, where the factor is of an unshifted (plain or augmented) free Hessian
 
     def factorize(self, A: sp.csr_matrix) -> None:
         last = self._last
@@ -108,6 +120,7 @@ class _ReusableCholesky:
                 and (A.indices is last[1] or np.array_equal(A.indices, last[1])) and np.array_equal(A.data, last[2])):
             return
         self._last = None
+        self.tag = None
         self.chol.factorize(A)
         self._last = (A.indptr, A.indices, A.data.copy(), A.shape)
 
@@ -117,6 +130,7 @@ class _ReusableCholesky:
     def forget(self) -> None:
         """Before ``self.chol`` is used directly: its factor no longer matches the cached matrix."""
         self._last = None
+        self.tag = None
 
 
 class _Workspace:
@@ -322,11 +336,13 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         if constraint is not None and ws.skip_plain <= 0:
             try:
                 chol.factorize(H)
+                chol.tag = free_idx
                 return 0.0
             except NotPositiveDefinite:
                 ws.skip_plain = 4  # go straight to the augmented form for the next few factorizations
         ws.skip_plain -= 1
         chol.factorize(augmented(H))
+        chol.tag = free_idx
         return aug if constraint is not None else 0.0
 
     def shifted(H, sigma):
@@ -349,6 +365,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         return g, float(np.linalg.norm(g + lam * a)), lam
 
     stalled = False  # the last step was below round-off: accept a gradient up to 4× the tolerance
+    quadratic_step = False  # see options.minimum_from_last_step
     for it in range(options.max_iterations + 1):
         tolerance = options.gradient_tolerance * (4.0 if stalled else 1.0)
         g, gnorm, lam = free_gradient()
@@ -367,6 +384,9 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 f"gradient at its rounding floor (|g| = {gnorm:.3e}, under 4x the tolerance)"
             if not options.require_minimum:
                 report.converged, report.message = True, below
+                break
+            if quadratic_step:  # the last step's factor stands for this point's (and stays for the caller)
+                report.converged, report.message = True, below + " at a minimum (the last Newton step's Hessian)"
                 break
             H = hessian()
             try:
@@ -496,6 +516,10 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         if hasattr(problem, "update_source_frame"):
             problem.update_source_frame()
         report.iterations = it + 1
+        # a full, unshifted step on a positive-definite factor that cut |g| as Newton's quadratic convergence
+        # does: the new point lies well inside that Hessian's region of validity
+        quadratic_step = (options.minimum_from_last_step > 0 and sigma == 0 and not indefinite and alpha == 1.0
+                          and chol.tag is free_idx and free_gradient()[1] < options.minimum_from_last_step * gnorm)
         if alpha * np.abs(full_d).max() <= 1e-15 * (1.0 + np.abs(x).max()):
             # The gradient's own round-off can exceed the tolerance's estimate of it
             # (a rounding floor): where nothing moves any more and |g| is within 4× of
@@ -512,21 +536,30 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     return report
 
 
-def _constrained_tangent(problem, fixed, a_full: np.ndarray):
+def _constrained_tangent(problem, fixed, a_full: np.ndarray, reuse: bool = False):
     """Equilibrium path tangent ``dx/dτ`` under the constraint ``a·x = τ`` (so ``a·t = 1``).
 
     ``t = H⁻¹a / (aᵀH⁻¹a)`` on the free variables, with the same augmented
     Hessian as :func:`minimize` (so at the end of a deployment step its
     factorization is reused, not redone). Returns None if it does not factor.
+    With ``reuse``, the factor that :func:`minimize` last left on these free
+    variables serves as it is, if it was of an unshifted Hessian (it may be
+    the previous iterate's, see ``NewtonOptions.minimum_from_last_step``):
+    good enough for a predictor, not for a stability check.
     """
     ws = _workspace(problem)
     n = len(a_full)
     free_idx = free_indices(n, fixed)
     a = np.asarray(a_full, float)[free_idx]
     lower = uses_lower_triangle(problem)  # as minimize holds it
-    H = ws.free_part(problem.hessian_lower() if lower else problem.hessian(), free_idx, n, "lower" if lower else "full")
     if ws.aug is None or ws.aug[0].shape != a.shape or not np.array_equal(ws.aug[0], a):
         return None
+    if reuse and ws.chol.tag is not None and np.array_equal(ws.chol.tag, free_idx):
+        v = ws.chol.solve(a)
+        t = np.zeros(n)
+        t[free_idx] = v / (a @ v)
+        return t
+    H = ws.free_part(problem.hessian_lower() if lower else problem.hessian(), free_idx, n, "lower" if lower else "full")
     nz = np.flatnonzero(a)
     a_outer = sp.csr_matrix((np.outer(a[nz], a[nz]).ravel(), np.tile(nz, len(nz)), len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))),
                             shape=(len(a), len(a)))
