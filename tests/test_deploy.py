@@ -204,7 +204,6 @@ def test_deployment_is_reproducible():
     assert np.array_equal(runs[0], runs[1])
 
 
-
 def test_minima_reached_by_quadratic_convergence_save_hessians_not_accuracy(monkeypatch):
     """The default deployment takes a minimum reached by Newton's quadratic convergence on its last step's
     factor (NewtonOptions.minimum_from_last_step), which also gives the next step's tangent: the same
