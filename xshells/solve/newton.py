@@ -554,29 +554,25 @@ def _constrained_tangent(problem, fixed, a_full: np.ndarray, reuse: bool = False
     lower = uses_lower_triangle(problem)  # as minimize holds it
     if ws.aug is None or ws.aug[0].shape != a.shape or not np.array_equal(ws.aug[0], a):
         return None
-    if reuse and ws.chol.tag is not None and np.array_equal(ws.chol.tag, free_idx):
-        v = ws.chol.solve(a)
-        t = np.zeros(n)
-        t[free_idx] = v / (a @ v)
-        return t
-    H = ws.free_part(problem.hessian_lower() if lower else problem.hessian(), free_idx, n, "lower" if lower else "full")
-    nz = np.flatnonzero(a)
-    a_outer = sp.csr_matrix((np.outer(a[nz], a[nz]).ravel(), np.tile(nz, len(nz)), len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))),
-                            shape=(len(a), len(a)))
-    if lower:
-        a_outer = sp.tril(a_outer, format="csr")
-    try:
-        # as minimize: the plain Hessian if it factors (then the augmented one would too), else the augmented
-        if ws.skip_plain <= 0:
-            try:
-                ws.chol.factorize(H)
-            except NotPositiveDefinite:
-                ws.skip_plain = 4
+    if not (reuse and ws.chol.tag is not None and np.array_equal(ws.chol.tag, free_idx)):
+        H = ws.free_part(problem.hessian_lower() if lower else problem.hessian(), free_idx, n, "lower" if lower else "full")
+        nz = np.flatnonzero(a)
+        a_outer = sp.csr_matrix((np.outer(a[nz], a[nz]).ravel(), np.tile(nz, len(nz)),
+                                 len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))), shape=(len(a), len(a)))
+        if lower:
+            a_outer = sp.tril(a_outer, format="csr")
+        try:
+            # as minimize: the plain Hessian if it factors (then the augmented one would too), else the augmented
+            if ws.skip_plain <= 0:
+                try:
+                    ws.chol.factorize(H)
+                except NotPositiveDefinite:
+                    ws.skip_plain = 4
+                    ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
+            else:
                 ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
-        else:
-            ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
-    except NotPositiveDefinite:
-        return None
+        except NotPositiveDefinite:
+            return None
     v = ws.chol.solve(a)
     t = np.zeros(n)
     t[free_idx] = v / (a @ v)
