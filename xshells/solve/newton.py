@@ -579,6 +579,18 @@ def _constrained_tangent(problem, fixed, a_full: np.ndarray, reuse: bool = False
     return t
 
 
+LANCZOS_VECTORS = 12
+"""Lanczos basis size (ARPACK's ``ncv``) of the shift-invert eigen-solves below, against its default
+of 20. Every restart cycle costs that many solves with the factor, and after the shift search the
+wanted eigenvalues are well separated: one cycle of 12 converges where 20 did. Measured on the manta
+ray at 10 steps: 310 → 276 solves, its eigen-solves about 40 % faster, the same joints to 2e-13 of the
+span and the same smallest eigenvalues to 1e-9 relative."""
+
+
+def _lanczos_vectors(n: int, k: int) -> int:
+    return min(n, max(LANCZOS_VECTORS, 2 * k + 1))
+
+
 DENSE_EIGEN_SIZE = 800
 """Up to this size :func:`smallest_eigenvalues` solves densely (LAPACK, under 0.15 s):
 exact, and immune to the clusters of near-zero modes that make ARPACK iterate
@@ -622,7 +634,8 @@ def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None, dense_siz
     if shift is None:
         chol, s = _lowered_shift(chol, SparseCholesky(), lambda t: H + t * M, s, 4)
     op = spla.LinearOperator((n, n), matvec=chol.solve, dtype=float)
-    lam = spla.eigsh(H, k=k, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-8, maxiter=2000, return_eigenvectors=False, v0=np.ones(n))
+    lam = spla.eigsh(H, k=k, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-8, maxiter=2000, return_eigenvectors=False, v0=np.ones(n),
+                     ncv=_lanczos_vectors(n, k))
     return (np.sort(lam), s) if return_shift else np.sort(lam)
 
 
@@ -663,7 +676,8 @@ def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: Sp
         solver, s = _lowered_shift(chol, spare, shifted, sigma, 8)
     op = spla.LinearOperator((n, n), matvec=solver.solve, dtype=float)
     try:
-        lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n))
+        lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n),
+                               ncv=_lanczos_vectors(n, 1))
     except (spla.ArpackNoConvergence, ValueError):
         return None, s
     if lam[0] >= 0:
