@@ -561,18 +561,18 @@ def _constrained_tangent(problem, fixed, a_full: np.ndarray, reuse: bool = False
                                  len(nz) * np.searchsorted(nz, np.arange(len(a) + 1))), shape=(len(a), len(a)))
         if lower:
             a_outer = sp.tril(a_outer, format="csr")
-        try:
-            # as minimize: the plain Hessian if it factors (then the augmented one would too), else the augmented
-            if ws.skip_plain <= 0:
-                try:
-                    ws.chol.factorize(H)
-                except NotPositiveDefinite:
-                    ws.skip_plain = 4
-                    ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
-            else:
+        # as minimize: the plain Hessian if it factors (then the augmented one would too), else the augmented
+        plain = ws.skip_plain <= 0
+        if plain:
+            try:
+                ws.chol.factorize(H)
+            except NotPositiveDefinite:
+                ws.skip_plain, plain = 4, False
+        if not plain:
+            try:
                 ws.chol.factorize(ws.combine("aug", [H, a_outer], [1.0, ws.aug[1]]))
-        except NotPositiveDefinite:
-            return None
+            except NotPositiveDefinite:
+                return None
     v = ws.chol.solve(a)
     t = np.zeros(n)
     t[free_idx] = v / (a @ v)
