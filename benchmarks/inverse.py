@@ -17,7 +17,7 @@ OpenBLAS runs one thread unless ``OPENBLAS_NUM_THREADS`` is set, as in
 ``xshells inverse`` (before 2026-12-04 this script let it run two, unlike the
 command: Darth Vader's figures then differed, 0.41 % against 0.53 % mean fit).
 
-    python benchmarks/inverse.py [--targets cap,hypar,barrel,wings,arch,breather,darth_vader] [--grading DEG]
+    python benchmarks/inverse.py [--targets cap,hypar,barrel,wings,arch,breather,darth_vader] [--grading DEG] [--max-iters N]
 
 Three more analytic targets are generated here rather than shared (``ellpar``, ``bump``, ``hyparxy``; see
 GENERATED): surfaces the method was not shaped on.
@@ -34,6 +34,7 @@ import resource
 import subprocess
 import sys
 import tempfile
+from dataclasses import replace
 
 import numpy as np
 
@@ -128,7 +129,7 @@ def realizable_surface(case_path: str, out_obj: str) -> dict:
     return {"spacing": seg, "angle": float(np.degrees(angle)), "material": case.material}
 
 
-def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto") -> dict:
+def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto", max_iters: int | None = None) -> dict:
     """Runs in a child process."""
     from xshells.deploy.case import DEFAULT_MATERIAL
     from xshells.inverse.run import InverseOptions, run_inverse
@@ -144,6 +145,8 @@ def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto") -> dict:
         info = realizable_surface(REALIZABLE[name], surface)
         kind, material = "realizable", info["material"]
         opts = InverseOptions(spacing=info["spacing"], angle=info["angle"], grading=grading, beams=beams)
+    if max_iters is not None:
+        opts = replace(opts, max_iters=max_iters)
     r = run_inverse(surface, os.path.join(tmp, name), material, opts, progress=False)
     bar = BARS[kind]
     ok = r.get("status") in ("complete", "missed") and r.get("fit_mean", 1) <= bar[0] and r.get("fit_max", 1) <= bar[1] \
@@ -162,11 +165,12 @@ def main() -> int:
     ap.add_argument("--grading", type=float, default=0.0, help="the automatic net's grading, degrees (default 0)")
     ap.add_argument("--beams", default="auto", choices=("auto", "even", "geodesic", "fanned"),
                     help="the automatic net's beams (default auto)")
+    ap.add_argument("--max-iters", type=int, default=None, help="the last design stage's iterations (default: the command's)")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         with tempfile.TemporaryDirectory() as tmp:
-            print(json.dumps(one(args.child, tmp, args.grading, args.beams)))
+            print(json.dumps(one(args.child, tmp, args.grading, args.beams, args.max_iters)))
         return 0
     rows = []
     for name in args.targets.split(","):
@@ -175,7 +179,8 @@ def main() -> int:
             continue
         env = dict(os.environ)
         env.setdefault("OPENBLAS_NUM_THREADS", "1")  # as `xshells inverse` runs (xshells/cli.py)
-        p = subprocess.run([sys.executable, __file__, "--child", name, "--grading", str(args.grading), "--beams", args.beams], capture_output=True,
+        p = subprocess.run([sys.executable, __file__, "--child", name, "--grading", str(args.grading), "--beams", args.beams]
+                           + ([] if args.max_iters is None else ["--max-iters", str(args.max_iters)]), capture_output=True,
                            text=True, env=env)
         if p.returncode:
             print(f"{name}: failed: {p.stderr.strip().splitlines()[-1] if p.stderr.strip() else p.returncode}", file=sys.stderr)

@@ -207,6 +207,18 @@ def test_max_iters_is_the_budget_of_the_last_stage(tmp_path, monkeypatch):
     assert len(stages) == 1 and stages[0]["iterations"] <= 3
 
 
+def test_the_help_states_the_default_budget_of_the_last_stage(capsys):
+    """The parser does not import the options (it is built for every command), so its help repeats the default."""
+    import re
+
+    from xshells.inverse.run import InverseOptions
+
+    with pytest.raises(SystemExit):
+        main(["inverse", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert re.search(r"holding load is gone \(default (\d+);", text).group(1) == str(InverseOptions.max_iters)
+
+
 def test_no_stage_whose_flat_state_overlaps_is_kept(tmp_path, monkeypatch):
     """A stage whose flat layout brings two beams of a family closer than they are wide is not kept (the
     verification would refuse it): with every flat state overlapping, none is, and the result says why."""

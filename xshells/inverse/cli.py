@@ -42,8 +42,10 @@ def register(subparsers) -> None:
     p.add_argument("--poisson", type=float, help="Poisson's ratio (default 0.3)")
     p.add_argument("--subdivision", type=int, default=8, help="edges per segment (default 8)")
     p.add_argument("--steps", type=int, default=30, help="deployment increments (default 30)")
-    p.add_argument("--max-iters", type=int, default=40,
-                   help="design-optimization iterations once the holding load is gone (default 40; the design is checked every 10)")
+    # default: InverseOptions.max_iters (not imported here: the parser is built for every command)
+    p.add_argument("--max-iters", type=int,
+                   help="design-optimization iterations once the holding load is gone (default 80; "
+                        "the design is checked every 10, and the best kept)")
     p.add_argument("--workers", type=int, help="processes for the fan screen and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
     p.add_argument("--out", default="inverse_out", help="output folder")
@@ -56,13 +58,14 @@ def _inverse(args) -> int:
     from .run import InverseOptions, run_inverse
 
     check_counts(args.subdivision, args.steps)
-    if args.max_iters < 1:
+    if args.max_iters is not None and args.max_iters < 1:
         raise InputError(f"--max-iters must be at least 1, got {args.max_iters}")
     spec = material_spec_from_option(args.material, args.young, args.poisson)
     opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
-                          max_iters=args.max_iters, force=args.force, grading=args.grading,
-                          beams=args.beams, fan=args.fan, free_ends=not args.no_free_ends, workers=args.workers)
+                          force=args.force, grading=args.grading, beams=args.beams, fan=args.fan,
+                          free_ends=not args.no_free_ends, workers=args.workers,
+                          **({} if args.max_iters is None else {"max_iters": args.max_iters}))
     r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
     if r["status"] in ("complete", "missed", "invalid"):
         print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "

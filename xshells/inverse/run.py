@@ -91,7 +91,7 @@ class InverseOptions:
     direction: str = "up"
     subdivision: int = 8
     steps: int = 30
-    max_iters: int = 40
+    max_iters: int = 80
     force: bool = False
     grading: float = 0.0
     beams: str = "auto"
