@@ -42,6 +42,7 @@ def test_it_rises_and_fits_the_cap_roughly_even_at_coarse_spacing(cap_run):
     P = np.array(r["deployed_joints"])
     assert np.ptp(P[:, 2]) > 100  # the joints span 140 of the cap's 266 in height: a flat shell placed on it spans ~0
     assert r["fit_mean"] < 0.02 and r["fit_max"] < 0.04
+    assert r["deployed_rise"] > 0.05 and "does not buckle" not in r["message"]  # it left its plane
 
 
 def test_xshells_deploy_of_the_case_reproduces_the_reported_joints(cap_run, tmp_path):
@@ -339,3 +340,5 @@ def test_a_curved_developable_surface_is_named_in_a_warning_and_in_the_miss(tmp_
     r = json.loads((tmp_path / "out" / "result.json").read_text())
     assert r["developable"] and r["total_curvature_rad"] < 1e-9
     assert code == 1 and r["status"] == "missed" and "the surface is developable" in r["message"]
+    # this one never left its plane (3e-24 of its span), and the miss says so before the fit
+    assert r["deployed_rise"] <= 1e-6 and "does not buckle on its way to 90°" in r["message"]
