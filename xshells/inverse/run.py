@@ -28,9 +28,9 @@ from ..io.export import atomic_write_text
 from .guide import GuideOptions
 
 MAX_SEGMENTS = 5000
-# A deployed state within this share of its span of the layout's plane has not buckled (the flat
-# state's planarity bar, as the verification checks the flat state)
-STAYS_FLAT = 1e-6
+# Within this share of its span of the layout's plane a state is planar: the issue's bar for the flat
+# state, and the mark of a deployment that never buckled
+PLANAR = 1e-6
 # What "deployed onto the surface" means (issue 18's bar for analytic targets): mean and largest joint
 # distance to the surface, relative to its bounding-box diagonal, and the area share within 0.75 spacing.
 REACH = {"fit_mean": 0.01, "fit_max": 0.03, "coverage": 0.90}
@@ -797,15 +797,15 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
                 title=f"flat layout: {flat.num_segments} segments, closed to {np.degrees(flat.average_angle()):.1f}° "
                       f"on average")
     eig = dep["deployed"].get("min_eigenvalue_at_fixed_angle", float("nan"))
-    valid = dep["reached"] and not folded and not overlap and flat_z <= 1e-6 and eig >= 0
+    valid = dep["reached"] and not folded and not overlap and flat_z <= PLANAR and eig >= 0
     reached = d.mean() <= REACH["fit_mean"] and d.max() <= REACH["fit_max"] and cov >= REACH["coverage"]
     ok = valid and reached
     why = [] if ok else [m for m in (
         "" if dep["reached"] else f"the deployment stopped: {dep['message']}", folded, overlap,
-        f"the flat state leaves the plane by {flat_z:.2g} of its span" if flat_z > 1e-6 else "",
+        f"the flat state leaves the plane by {flat_z:.2g} of its span" if flat_z > PLANAR else "",
         f"the deployed state is not stable (smallest eigenvalue {eig:.3g})" if not eig >= 0 else "",
         f"the deployment stays in the plane: this design does not buckle on its way to {options.angle:g}° "
-        f"(its flat state stays stable there)" if not reached and rise <= STAYS_FLAT else "",
+        f"(its flat state stays stable there)" if not reached and rise <= PLANAR else "",
         "" if reached else (f"the deployment does not reach the surface (fit mean {100 * d.mean():.2f}%, max "
                             f"{100 * d.max():.2f}% of the diagonal, coverage {100 * cov:.1f}%; the bar is "
                             f"{100 * REACH['fit_mean']:g}%, {100 * REACH['fit_max']:g}%, {100 * REACH['coverage']:g}%)")) if m]
