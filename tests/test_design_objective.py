@@ -146,8 +146,13 @@ def test_flat_stability_gradient_matches_finite_differences(banana):
     assert sigma > 0  # the planar flat state is stable
     lam, grads = prob.flat_stability_modes(q)
     assert np.all(np.diff(lam) >= 0) and np.allclose(grads.shape, (4, len(q)))
-    errs = [abs((prob.flat_stability(q + h * v)[0] - prob.flat_stability(q - h * v)[0]) / (2 * h) - g @ v) / abs(g @ v)
-            for h in (1e-4, 5e-5, 2.5e-5)]
+    assert_gradient_converges(lambda x: prob.flat_stability(x)[0], g, q, v)
+
+
+def assert_gradient_converges(f, g, q, v, steps=(1e-4, 5e-5, 2.5e-5)):
+    """Central differences of the scalar ``f`` along ``v`` approach ``g @ v``: within 2e-3 at the last step,
+    and at second order (the error falls more than 3-fold as the step halves)."""
+    errs = [abs((f(q + h * v) - f(q - h * v)) / (2 * h) - g @ v) / abs(g @ v) for h in steps]
     assert errs[-1] < 2e-3, errs
     assert errs[0] / errs[1] > 3, errs
 

@@ -71,6 +71,8 @@ def test_the_case_loads_where_cases_load(cap_run):
     (["--spacing", "5000"], "larger than the surface allows"),
     (["--spacing", "5"], "more than 5000"),
     (["--spacing", "-3"], "positive length"),
+    (["--buckling", "-1"], "--buckling must be a non-negative number"),
+    (["--buckling", "nan"], "--buckling must be a non-negative number"),
 ])
 def test_bad_options_get_one_line(tmp_path, capsys, args, words):
     assert main(["inverse", str(CAP), "--out", str(tmp_path / "o"), "--no-progress", *args]) == 2

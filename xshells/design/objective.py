@@ -41,11 +41,23 @@ class DesignWeights:
         with γ = 0.5, β = 5000, the same deployed energy and fit).
     ks_sharpness : float
         ``s`` of the KS minimum (radians).
+    buckling : float
+        Weight of the planar-buckling penalty (≥ 0; 0, the default: off).
+        The penalty asks the layout's *planar* opening to the deployed angle
+        to be unstable out of its plane, so that a deployment from flat
+        buckles (:meth:`DesignProblem.planar_buckling`); it is scaled so that
+        at the starting design it is ``buckling`` times ``J``.
+    buckling_target : float
+        The smooth minimum ``σ`` of the planar state's lowest out-of-plane
+        eigenvalues, relative to their starting size, that the penalty asks
+        for (< 0: unstable): it acts while ``σ > buckling_target``.
     """
 
     gamma: float = 0.9
     beta: float = 1000.0
     ks_sharpness: float = 0.01
+    buckling: float = 0.0
+    buckling_target: float = -0.5
 
     def __post_init__(self):
         if not (0.0 <= self.gamma <= 1.0):
@@ -54,6 +66,10 @@ class DesignWeights:
             raise InputError(f"beta must be a non-negative number, got {self.beta}")
         if not self.ks_sharpness > 0:
             raise InputError(f"the KS sharpness must be positive, got {self.ks_sharpness}")
+        if not (self.buckling >= 0.0 and np.isfinite(self.buckling)):
+            raise InputError(f"the buckling weight must be a non-negative number, got {self.buckling}")
+        if not (np.isfinite(self.buckling_target) and self.buckling_target < 1.0):
+            raise InputError(f"the buckling target must be below 1 (the starting size), got {self.buckling_target}")
 
 
 def ks_min(alpha: np.ndarray, s: float) -> tuple[float, np.ndarray, np.ndarray]:
@@ -174,6 +190,32 @@ class DesignProblem:
         self.E0 = float(self.deployed.L.energy())
         self._q = np.ones(len(self.p0))
         self._cache: dict = {}
+        self.planar = None  # the planar branch at the deployed angle, with weights.buckling > 0
+        if weights.buckling > 0:
+            self._init_planar(target_angle)
+
+    @property
+    def equilibria(self) -> tuple:
+        """The equilibria that follow the design: flat, deployed, and the planar one if the penalty is on."""
+        return (self.flat, self.deployed) if self.planar is None else (self.flat, self.deployed, self.planar)
+
+    def _init_planar(self, target_angle: float, modes: int = 4) -> None:
+        from .planar import buckling_block, planar_equilibrium
+
+        self.planar = planar_equilibrium(self.flat.L, target_angle)
+        self._planar_block = buckling_block(self.planar)
+        B = self._planar_block
+        self._planar_M = self.planar.L.mass_matrix()[B][:, B].tocsc()
+        self._planar_modes = modes
+        self._planar_ref = 1.0
+        from .planar import out_of_plane_modes
+
+        lam, _ = out_of_plane_modes(self.planar, B, self._planar_M, modes)
+        # relative to the starting size of the lowest eigenvalue: σ starts at about 1 (stable) or −1 (buckles)
+        self._planar_ref = float(abs(lam[0])) or float(np.abs(lam).max()) or 1.0
+        t = self.w.buckling_target
+        base = self._base_terms()["J"]
+        self._planar_eta = 2.0 * self.w.buckling * abs(base) / (1.0 - t) ** 2
 
     # ------------------------------------------------------------ state terms
     def _fit_term(self) -> _StateTerm:
@@ -251,12 +293,12 @@ class DesignProblem:
             raise ArithmeticError("a rest length would become non-positive")
         from ..linkage.state import restore, snapshot
 
-        saved = [snapshot(eq.L) for eq in (self.flat, self.deployed)]
+        saved = [snapshot(eq.L) for eq in self.equilibria]
         try:
-            for eq in (self.flat, self.deployed):
+            for eq in self.equilibria:
                 _move_equilibrium(eq, dp, p)
         except ArithmeticError:
-            for eq, st in zip((self.flat, self.deployed), saved):  # stay at the last good design
+            for eq, st in zip(self.equilibria, saved):  # stay at the last good design
                 restore(eq.L, st)
                 eq.factorize()
             self._cache = {}
@@ -295,13 +337,22 @@ class DesignProblem:
         return eq.Hpx @ dx + eq.Hpp @ dp
 
     # ----------------------------------------------------------- objective
-    def terms(self, q) -> dict:
-        """``J`` and its three terms (dimensionless) at ``q``."""
-        self.set_q(q)
+    def _base_terms(self) -> dict:
         e2, e3 = self.flat.L.energy() / self.E0, self.deployed.L.energy() / self.E0
         t = self._fit_term().value() / self.l0**2
         w = self.w
         return {"J": w.gamma * e2 + (1 - w.gamma) * e3 + 0.5 * w.beta * t, "flat_energy": e2, "deployed_energy": e3, "fit": t}
+
+    def terms(self, q) -> dict:
+        """``J`` and its terms (dimensionless) at ``q``: with the planar-buckling penalty on, also
+        ``planar_buckling`` (the penalty, included in ``J``) and ``planar_sigma`` (σ)."""
+        self.set_q(q)
+        out = self._base_terms()
+        if self.planar is not None:
+            sigma, _ = self.planar_buckling(q)
+            pen = 0.5 * self._planar_eta * max(0.0, sigma - self.w.buckling_target) ** 2
+            out.update(J=out["J"] + pen, planar_buckling=pen, planar_sigma=sigma)
+        return out
 
     def objective(self, q) -> float:
         return self.terms(q)["J"]
@@ -312,7 +363,13 @@ class DesignProblem:
         g = (w.gamma * self.flat.energy_gradient_p() + (1 - w.gamma) * self.deployed.energy_gradient_p()) / self.E0
         if w.beta:
             g = g + 0.5 * w.beta / self.l0**2 * self._state_gradient_p(self.deployed, self._fit_term(), "fit")
-        return g * self.p0
+        g = g * self.p0
+        if self.planar is not None:
+            g = g + self._planar_eta * self._planar_excess(q) * self.planar_buckling(q)[1]
+        return g
+
+    def _planar_excess(self, q) -> float:
+        return max(0.0, self.planar_buckling(q)[0] - self.w.buckling_target)
 
     def hessp(self, q, v) -> np.ndarray:
         self.set_q(q)
@@ -326,7 +383,11 @@ class DesignProblem:
         out += (1 - w.gamma) / self.E0 * self._energy_hessp_p(self.deployed, dx3, dp)
         if w.beta:
             out += 0.5 * w.beta / self.l0**2 * self._state_hessp_p(self.deployed, self._fit_term(), "fit", dp, "3d")
-        return out * self.p0
+        out = out * self.p0
+        if self.planar is not None and self._planar_excess(q) > 0:  # the penalty's Gauss–Newton part
+            ds = self.planar_buckling(q)[1]
+            out = out + self._planar_eta * ds * float(ds @ np.asarray(v, float))
+        return out
 
     def dense_hessian(self, q) -> np.ndarray:
         """A dense model of ``∇²J`` in ``q`` (S, S), from multi-column solves with the equilibria's factors.
@@ -356,6 +417,9 @@ class DesignProblem:
                 HX = np.stack([fit.hessian_vector(P, Xp[:, j].reshape(-1, 3)).ravel() for j in range(Xp.shape[1])], axis=1)
             H += 0.5 * w.beta / self.l0**2 * (Xp.T @ HX)
         H = self.p0[:, None] * H * self.p0[None, :]
+        if self.planar is not None and self._planar_excess(q) > 0:
+            ds = self.planar_buckling(q)[1]
+            H = H + self._planar_eta * np.outer(ds, ds)
         self._cache[k] = H
         return H
 
@@ -424,8 +488,6 @@ class DesignProblem:
             return self._cache[key]
         import scipy.sparse.linalg as spla
 
-        from ..linkage.derivatives import _step
-
         eq = self.flat
         if getattr(self, "_M0", None) is None:
             self._M0 = self.flat.L.mass_matrix()[eq.free][:, eq.free].tocsc()
@@ -441,29 +503,38 @@ class DesignProblem:
         if getattr(self, "_lambda_ref", None) is None:
             self._lambda_ref = float(lam[0])
         value, weights, _ = ks_min(lam / self._lambda_ref, 0.05)
-        L = eq.L
-        nx = eq.nx
-        saved = L.move_checkpoint()
-        x0 = L.get_vars()
-        grads = np.zeros((modes, len(self.p0)))
-        try:
-            G0 = L.gradient(with_rest_lengths=True)
-            for i in range(modes):
-                v = np.zeros(nx)
-                v[eq.free] = vecs[:, i] / np.sqrt(float(vecs[:, i] @ (M @ vecs[:, i])))
-                h = _step(L, v, None, "central") * 100.0
-                L.set_vars(x0 + h * v)
-                Gp = L.gradient(with_rest_lengths=True)
-                L.set_vars(x0 - h * v)
-                Gm = L.gradient(with_rest_lengths=True)
-                L.move_rollback(saved)
-                T = (Gp + Gm - 2.0 * G0) / (h * h)
-                w = eq.kkt_solve(T[:nx])
-                grads[i] = (T[nx:] - eq.Hpx @ w) * self.p0 / self._lambda_ref
-        finally:
-            L.move_rollback(saved)
+        from .planar import eigenvalue_gradients
+
+        unit = np.stack([vecs[:, i] / np.sqrt(float(vecs[:, i] @ (M @ vecs[:, i]))) for i in range(modes)], axis=1)
+        grads = eigenvalue_gradients(eq, eq.free, unit) * self.p0 / self._lambda_ref
         self._cache[key] = (float(value), weights @ grads)
         self._cache[("stability_modes", modes)] = (lam / self._lambda_ref, grads)
+        return self._cache[key]
+
+    def planar_buckling(self, q) -> tuple[float, np.ndarray]:
+        """How far the planar opening to the deployed angle is from buckling out of its plane, and the gradient in ``q``.
+
+        ``σ = KS(λ/λ_ref, 0.05)`` over the lowest out-of-plane eigenvalues of
+        the planar state (:mod:`.planar`), ``λ_ref`` the size of the starting
+        design's lowest one: σ > 0 while the planar opening is stable (a
+        deployment from flat then stays flat), σ < 0 where it buckles.
+        Requires ``weights.buckling > 0`` (the planar equilibrium is built then).
+        """
+        if self.planar is None:
+            raise InputError("planar_buckling needs the planar branch: build the problem with weights.buckling > 0")
+        self.set_q(q)
+        key = ("planar",)
+        if key not in self._cache:
+            from .planar import eigenvalue_gradients, out_of_plane_modes
+
+            B = self._planar_block
+            lam, vecs = out_of_plane_modes(self.planar, B, self._planar_M, self._planar_modes,
+                                           v0=getattr(self, "_planar_v0", None))
+            self._planar_v0 = vecs[:, 0].copy()
+            value, weights, _ = ks_min(lam / self._planar_ref, 0.05)
+            grads = eigenvalue_gradients(self.planar, B, vecs) * self.p0 / self._planar_ref
+            self._cache[key] = (float(value), weights @ grads)
+            self._cache[("planar_modes",)] = (lam / self._planar_ref, grads)
         return self._cache[key]
 
     def flat_stability_modes(self, q, modes: int = 4) -> tuple[np.ndarray, np.ndarray]:

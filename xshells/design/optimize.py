@@ -199,7 +199,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
         rec = OptimizeRecord(it, t["J"], t["flat_energy"], t["deployed_energy"], t["fit"], problem.planarity(q),
                              float(np.degrees(problem.min_angle(q))), time.perf_counter() - start)
         if feasible(rec.planarity, problem.min_angle(q)) and rec.J < best["J"]:
-            best.update(J=rec.J, q=np.array(q, float), states=(snapshot(problem.flat.L), snapshot(problem.deployed.L)))
+            best.update(J=rec.J, q=np.array(q, float), states=tuple(snapshot(eq.L) for eq in _equilibria(problem)))
         history.append(rec)
         if callback is not None and callback(rec):
             raise _Stop
@@ -276,7 +276,7 @@ def _trust_region(problem, q0, options, eps, record, failures):
         raise InputError("the starting design violates the minimum-angle or flat-stability bound")
     gJ = problem.gradient(q)
     g = merit_gradient(gJ, parts)
-    states = (snapshot(problem.flat.L), snapshot(problem.deployed.L))
+    states = tuple(snapshot(eq.L) for eq in _equilibria(problem))
     B = None  # BFGS matrix of J, scaled after the first step
     radius = None  # set on the first iteration, relative to the preconditioned gradient
     small = 0  # consecutive accepted steps that lowered J by less than the tolerance
@@ -387,7 +387,7 @@ def _trust_region(problem, q0, options, eps, record, failures):
         interior = np.linalg.norm(y) < 0.8 * radius  # the model's own minimizer, not cut by the trust region
         q, f, J, parts, gJ = q_trial, f_trial, J_trial, parts_trial, gJ_new
         g = merit_gradient(gJ, parts)
-        states = (snapshot(problem.flat.L), snapshot(problem.deployed.L))
+        states = tuple(snapshot(eq.L) for eq in _equilibria(problem))
         if rho > 0.75 and np.linalg.norm(y) > 0.8 * radius:
             radius *= 2.0
         elif rho < 0.25:
@@ -399,6 +399,11 @@ def _trust_region(problem, q0, options, eps, record, failures):
     return "reached the iteration limit", False
 
 
+def _equilibria(problem) -> tuple:
+    """The equilibria that follow the design (a DesignProblem's ``equilibria``: flat, deployed, planar)."""
+    return getattr(problem, "equilibria", (problem.flat, problem.deployed))
+
+
 def free_end_parameters(problem) -> np.ndarray:
     """Which design parameters (S,) the optimization holds: the rest lengths of segments to a free end."""
     return (np.asarray(problem.flat.L.graph.segment_joints) < 0).any(axis=1)
@@ -407,7 +412,7 @@ def free_end_parameters(problem) -> np.ndarray:
 @contextmanager
 def _trial_mode(problem, options):
     """Equilibrium solves of a trial design give up early (see :class:`ConstrainedEquilibrium`)."""
-    eqs = (problem.flat, problem.deployed)
+    eqs = _equilibria(problem)
     try:
         problem.flat.stop_on_indefinite = True
         for eq in eqs:
@@ -454,7 +459,7 @@ def _scipy_trust_constr(problem, q0, options, eps, record, failures):
 def _move_to(problem, q, states) -> None:
     """Put the problem back at design ``q`` with the equilibria stored for it."""
     p = q * problem.p0
-    for eq, st in zip((problem.flat, problem.deployed), states):
+    for eq, st in zip(_equilibria(problem), states):
         restore(eq.L, st)
         eq.L.set_rest_lengths(p)
         eq.factorize()

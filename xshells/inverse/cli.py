@@ -46,6 +46,9 @@ def register(subparsers) -> None:
     p.add_argument("--max-iters", type=int,
                    help="design-optimization iterations once the holding load is gone (default 80; "
                         "the design is checked every 10, and the best kept)")
+    p.add_argument("--buckling", type=float,
+                   help="weight of the planar-buckling penalty: asks the layout's planar opening to the angle to be "
+                        "unstable, so that the deployment from flat buckles (0: off)")
     p.add_argument("--workers", type=int, help="processes for the fan screen and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
     p.add_argument("--out", default="inverse_out", help="output folder")
@@ -60,12 +63,15 @@ def _inverse(args) -> int:
     check_counts(args.subdivision, args.steps)
     if args.max_iters is not None and args.max_iters < 1:
         raise InputError(f"--max-iters must be at least 1, got {args.max_iters}")
+    if args.buckling is not None and not (args.buckling >= 0 and args.buckling < float("inf")):
+        raise InputError(f"--buckling must be a non-negative number, got {args.buckling}")
     spec = material_spec_from_option(args.material, args.young, args.poisson)
     opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
                           force=args.force, grading=args.grading, beams=args.beams, fan=args.fan,
                           free_ends=not args.no_free_ends, workers=args.workers,
-                          **({} if args.max_iters is None else {"max_iters": args.max_iters}))
+                          **({} if args.max_iters is None else {"max_iters": args.max_iters}),
+                          **({} if args.buckling is None else {"buckling": args.buckling}))
     r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
     if r["status"] in ("complete", "missed", "invalid"):
         print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "

@@ -84,6 +84,9 @@ class InverseOptions:
         surface's boundary by a free end (:mod:`.free_ends`; default True).
     gamma, beta : float
         The weights of eq. 5 (:class:`~xshells.design.objective.DesignWeights`).
+    buckling : float
+        Weight of the planar-buckling penalty (``DesignWeights.buckling``; 0: off): asks the layout's
+        planar opening to the deployed angle to be unstable, so that a deployment from flat buckles.
     guide : GuideOptions
     """
 
@@ -103,6 +106,7 @@ class InverseOptions:
     workers: int | None = None
     gamma: float = 0.9
     beta: float = 1000.0
+    buckling: float = 0.0
     guide: GuideOptions = field(default_factory=GuideOptions)
 
 
@@ -571,7 +575,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         hold = Hold(holding_load(held, tether),
                     Tether(steady * tether.k, tether.rows, held.get_vars()[tether.rows]) if steady else None)
         try:
-            problem = DesignProblem(L, theta, DesignWeights(gamma=options.gamma, beta=options.beta), fitting=fitting,
+            problem = DesignProblem(L, theta, DesignWeights(gamma=options.gamma, beta=options.beta, buckling=options.buckling), fitting=fitting,
                                     deployed=copy.deepcopy(held), deployed_load=hold.load, deployed_tether=hold.steady)
             break
         except ArithmeticError:
