@@ -344,3 +344,57 @@ def test_a_curved_developable_surface_is_named_in_a_warning_and_in_the_miss(tmp_
     assert code == 1 and r["status"] == "missed" and "the surface is developable" in r["message"]
     # this one never left its plane (3e-24 of its span), and the miss says so before the fit
     assert r["deployed_rise"] <= 1e-6 and "does not buckle on its way to 90°" in r["message"]
+
+
+def _fake_design(results):
+    """A stand-in for one design with one net: writes a marker file and result.json, returns the next result."""
+    calls = []
+
+    def fake(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason=None, stop=None):
+        os.makedirs(out_dir, exist_ok=True)
+        r = dict(results[len(calls)])
+        calls.append(options.buckling)
+        with open(os.path.join(out_dir, "flat_design.obj"), "w") as fh:
+            fh.write(f"design {len(calls)}\n")
+        with open(os.path.join(out_dir, "result.json"), "w") as fh:
+            json.dump(r, fh)
+        return r
+
+    return fake, calls
+
+
+@pytest.mark.parametrize("first, second, retried, kept", [
+    ({"status": "missed", "fit_mean": 0.05, "deployed_rise": 0.0}, {"status": "missed", "fit_mean": 0.02,
+                                                                      "deployed_rise": 0.1}, True, 2),
+    ({"status": "missed", "fit_mean": 0.05, "deployed_rise": 0.0}, {"status": "missed", "fit_mean": 0.07,
+                                                                      "deployed_rise": 0.1}, True, 1),
+    ({"status": "stopped", "segments": 10}, {"status": "missed", "fit_mean": 0.07, "deployed_rise": 0.1}, True, 2),
+    ({"status": "missed", "fit_mean": 0.05, "deployed_rise": 0.2}, None, False, 1),  # it buckled: no retry
+    ({"status": "complete", "fit_mean": 0.005, "deployed_rise": 0.2}, None, False, 1),
+])
+def test_a_design_that_stays_flat_is_designed_again_with_the_planar_buckling_penalty(tmp_path, monkeypatch, first, second,
+                                                                                       retried, kept):
+    import xshells.inverse.run as run
+
+    fake, calls = _fake_design([first, second])
+    monkeypatch.setattr(run, "_design_with_net", fake)
+    r = run._run_once("s.obj", str(tmp_path), {}, run.InverseOptions(), None, False)
+    assert calls == ([None, run.RETRY_BUCKLING] if retried else [None])
+    assert open(tmp_path / "flat_design.obj").read() == f"design {kept}\n"
+    with open(tmp_path / "result.json") as fh:
+        written = json.load(fh)
+    assert written == r and r["status"] == (second if kept == 2 else first)["status"]
+    assert ("buckling_retry" in r) == retried
+    if retried:
+        assert r["buckling_retry"]["other"]["status"] == (first if kept == 2 else second)["status"]
+
+
+def test_with_a_buckling_weight_given_there_is_no_retry(tmp_path, monkeypatch):
+    import xshells.inverse.run as run
+
+    fake, calls = _fake_design([{"status": "missed", "fit_mean": 0.05, "deployed_rise": 0.0}])
+    monkeypatch.setattr(run, "_design_with_net", fake)
+    for weight in (0.0, 2.0):
+        calls.clear()
+        r = run._run_once("s.obj", str(tmp_path), {}, run.InverseOptions(buckling=weight), None, False)
+        assert calls == [weight] and "buckling_retry" not in r

@@ -48,7 +48,8 @@ def register(subparsers) -> None:
                         "the design is checked every 10, and the best kept)")
     p.add_argument("--buckling", type=float,
                    help="weight of the planar-buckling penalty: asks the layout's planar opening to the angle to be "
-                        "unstable, so that the deployment from flat buckles (0: off)")
+                        "unstable, so that the deployment from flat buckles (default: off, and a design whose deployment "
+                        "stays in the plane is designed again with weight 1, the better kept; 0: never)")
     p.add_argument("--workers", type=int, help="processes for the fan screen and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
     p.add_argument("--out", default="inverse_out", help="output folder")

@@ -19,7 +19,7 @@ import copy
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -84,9 +84,12 @@ class InverseOptions:
         surface's boundary by a free end (:mod:`.free_ends`; default True).
     gamma, beta : float
         The weights of eq. 5 (:class:`~xshells.design.objective.DesignWeights`).
-    buckling : float
-        Weight of the planar-buckling penalty (``DesignWeights.buckling``; 0: off): asks the layout's
-        planar opening to the deployed angle to be unstable, so that a deployment from flat buckles.
+    buckling : float or None
+        Weight of the planar-buckling penalty (``DesignWeights.buckling``): asks the layout's planar
+        opening to the deployed angle to be unstable, so that a deployment from flat buckles. 0: off.
+        None (the default): off, and a design whose deployment stays in the plane, or whose stages
+        none could be kept, is designed again with :data:`RETRY_BUCKLING`, and the better of the
+        two kept (:func:`_run_once`).
     guide : GuideOptions
     """
 
@@ -106,7 +109,7 @@ class InverseOptions:
     workers: int | None = None
     gamma: float = 0.9
     beta: float = 1000.0
-    buckling: float = 0.0
+    buckling: float | None = None
     guide: GuideOptions = field(default_factory=GuideOptions)
 
 
@@ -416,18 +419,8 @@ def _screen(surface, material_spec, options, spacing, progress):
 
 def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float, screened=None) -> dict:
     """Copy the best candidate's files into ``out_dir``; its result, with every candidate's figures."""
-    import shutil
-
-    best = min(results, key=lambda b: (_STATUS_RANK.get(results[b].get("status"), 9), results[b].get("fit_mean", np.inf)))
-    src = os.path.join(out_dir, "candidates", best)
-    for name in os.listdir(src):
-        a, b = os.path.join(src, name), os.path.join(out_dir, name)
-        if os.path.isdir(a):
-            if os.path.isdir(b):
-                shutil.rmtree(b)
-            shutil.copytree(a, b)
-        elif name != "result.json":
-            shutil.copy2(a, b)
+    best = min(results, key=lambda b: _rank(results[b]))
+    _copy_outputs(os.path.join(out_dir, "candidates", best), out_dir)
     r = dict(results[best])
     r["candidates"] = {b: {k: v.get(k) for k in ("status", "fit_mean", "fit_max", "coverage", "segments", "time_s")}
                        for b, v in results.items()}
@@ -475,9 +468,71 @@ def _bulge_sign(flat_joints: np.ndarray, heights: np.ndarray) -> float:
     return float(np.sign(np.dot(r2.mean() - r2, heights - heights.mean())) or 1.0)
 
 
+#: the planar-buckling weight of the second design of a net whose first stays in the plane (docs/inverse.md)
+RETRY_BUCKLING = 1.0
+
+
 def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress,
               beams_reason: str | None = None, stop=None) -> dict:
-    """One inverse design with one net (``options.beams`` "even" or "geodesic", or a grading or ``net_path``)."""
+    """One inverse design with one net (``options.beams`` "even" or "geodesic", or a grading or ``net_path``).
+
+    With ``options.buckling`` None, a design whose verified deployment stays in the plane (``deployed_rise``
+    ≤ :data:`PLANAR`), or of which no stage could be kept, is designed again from the same net with the
+    planar-buckling penalty (:data:`RETRY_BUCKLING`, into ``out_dir/buckling``); the better of the two (by
+    status, then mean fit) ends in ``out_dir``, and its ``result.json`` names the other under ``buckling_retry``.
+    """
+    first = _design_with_net(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, stop)
+    flat = first.get("status") == "missed" and first.get("deployed_rise", 1.0) <= PLANAR
+    if options.buckling is not None or not (flat or first.get("status") == "stopped"):
+        return first
+    why = "its deployment stays in the plane" if flat else "no stage's design could be kept"
+    try:
+        second = _design_with_net(surface_path, os.path.join(out_dir, "buckling"), material_spec,
+                                  replace(options, buckling=RETRY_BUCKLING), net_path, progress, beams_reason, stop)
+    except InputError as exc:  # this net does not get through with the penalty: the first design stands
+        r = dict(first)
+        r["buckling_retry"] = {"why": why, "kept": "the design without the penalty", "other": {"status": "failed",
+                                                                                            "message": str(exc)}}
+        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
+        return r
+    if _rank(second) < _rank(first):
+        _copy_outputs(os.path.join(out_dir, "buckling"), out_dir)
+        kept, other, note = second, first, f"the design with the planar-buckling penalty (weight {RETRY_BUCKLING:g})"
+    else:
+        kept, other, note = first, second, "the design without the penalty"
+    r = dict(kept)
+    r["buckling_retry"] = {"why": why, "kept": note, "other": {k: other.get(k) for k in _SUMMARY_KEYS}}
+    r["time_s"] = (first.get("time_s") or 0.0) + (second.get("time_s") or 0.0)  # both designs
+    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
+    return r
+
+
+_SUMMARY_KEYS = ("status", "fit_mean", "fit_max", "coverage", "segments", "deployed_rise", "time_s")
+
+
+def _rank(result: dict) -> tuple:
+    """How a design ranks among others for the same surface: by status, then mean fit (lower is better)."""
+    fit = result.get("fit_mean")
+    return _STATUS_RANK.get(result.get("status"), 9), np.inf if fit is None else fit
+
+
+def _copy_outputs(src: str, dst: str) -> None:
+    """Every output in ``src`` over its namesake in ``dst`` (folders replaced whole), less ``result.json``."""
+    import shutil
+
+    for name in os.listdir(src):
+        a, b = os.path.join(src, name), os.path.join(dst, name)
+        if os.path.isdir(a):
+            if os.path.isdir(b):
+                shutil.rmtree(b)
+            shutil.copytree(a, b)
+        elif name != "result.json":
+            shutil.copy2(a, b)
+
+
+def _design_with_net(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress,
+                     beams_reason: str | None = None, stop=None) -> dict:
+    """One design with one net and one set of weights: the pipeline of :func:`_run_once`."""
     from ..deploy.case import material_from_spec
     from .surface import load_target
 
@@ -575,7 +630,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         hold = Hold(holding_load(held, tether),
                     Tether(steady * tether.k, tether.rows, held.get_vars()[tether.rows]) if steady else None)
         try:
-            problem = DesignProblem(L, theta, DesignWeights(gamma=options.gamma, beta=options.beta, buckling=options.buckling), fitting=fitting,
+            problem = DesignProblem(L, theta, DesignWeights(gamma=options.gamma, beta=options.beta, buckling=options.buckling or 0.0), fitting=fitting,
                                     deployed=copy.deepcopy(held), deployed_load=hold.load, deployed_tether=hold.steady)
             break
         except ArithmeticError:
