@@ -1,8 +1,9 @@
 """The planar branch: the flat layout opened *in its plane* to an angle, and whether it buckles out of it.
 
 An X-shell reaches its shape because its planar opening becomes unstable on
-the way to the deployed angle (paper §4: the layout is incompatible with a
-planar opening, and the beams buckle out of plane). A design whose planar
+the way to the deployed angle (paper §1 and §4, "rest-length optimization":
+joints off a regular grid make the scissor mechanism incompatible, and the
+beams buckle out of plane when the joints are actuated). A design whose planar
 state at the deployed angle is still stable deploys flat, whatever curved
 equilibria it has besides (``xshells inverse`` found such designs: their
 optimization tracked a curved state that a deployment from flat never
