@@ -88,3 +88,17 @@ def test_without_the_weight_nothing_changes():
         prob.planar_buckling(prob._q)
     with pytest.raises(InputError, match="buckling weight"):
         DesignWeights(buckling=-1.0)
+
+
+def test_a_planar_opening_that_fails_gets_one_line(monkeypatch):
+    import xshells.design.planar as planar
+
+    def fail(*args, **kwargs):
+        raise ArithmeticError("equilibrium at 80.00° did not converge (stalled)")
+
+    monkeypatch.setattr(planar, "planar_equilibrium", fail)
+    L, D = banana_states()
+    fit = PointFit(D.joint_positions(), np.full(L.num_joints, 1.0 / L.num_joints))
+    with pytest.raises(InputError, match="cannot follow this layout: its planar opening to 80.00° fails") as exc:
+        DesignProblem(L, np.radians(80), DesignWeights(buckling=1.0), fitting=fit, deployed=D)
+    assert "\n" not in str(exc.value)

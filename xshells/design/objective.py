@@ -200,17 +200,17 @@ class DesignProblem:
         return (self.flat, self.deployed) if self.planar is None else (self.flat, self.deployed, self.planar)
 
     def _init_planar(self, target_angle: float, modes: int = 4) -> None:
-        from .planar import buckling_block, planar_equilibrium
+        from .planar import buckling_block, out_of_plane_modes, planar_equilibrium
 
-        self.planar = planar_equilibrium(self.flat.L, target_angle)
-        self._planar_block = buckling_block(self.planar)
-        B = self._planar_block
-        self._planar_M = self.planar.L.mass_matrix()[B][:, B].tocsc()
-        self._planar_modes = modes
-        self._planar_ref = 1.0
-        from .planar import out_of_plane_modes
-
-        lam, _ = out_of_plane_modes(self.planar, B, self._planar_M, modes)
+        try:
+            self.planar = planar_equilibrium(self.flat.L, target_angle)
+            self._planar_block = B = buckling_block(self.planar)
+            self._planar_M = self.planar.L.mass_matrix()[B][:, B].tocsc()
+            self._planar_modes = modes
+            lam, _ = out_of_plane_modes(self.planar, B, self._planar_M, modes)
+        except ArithmeticError as exc:
+            raise InputError(f"the planar-buckling penalty cannot follow this layout: its planar opening to "
+                             f"{np.degrees(target_angle):.2f}° fails ({exc}); design without it") from exc
         # relative to the starting size of the lowest eigenvalue: σ starts at about 1 (stable) or −1 (buckles)
         self._planar_ref = float(abs(lam[0])) or float(np.abs(lam).max()) or 1.0
         t = self.w.buckling_target

@@ -83,8 +83,11 @@ def out_of_plane_modes(eq: ConstrainedEquilibrium, block: np.ndarray, M, modes: 
     about 0: the lowest modes of a planar state lie close to it on either side.
     """
     H = eq.L.hessian()[block][:, block].tocsc()
-    lam, vecs = spla.eigsh(H, k=modes, M=M, sigma=0.0, which="LM", tol=1e-10,
-                           v0=np.ones(len(block)) if v0 is None else v0)
+    try:
+        lam, vecs = spla.eigsh(H, k=modes, M=M, sigma=0.0, which="LM", tol=1e-10,
+                               v0=np.ones(len(block)) if v0 is None else v0)
+    except (spla.ArpackError, RuntimeError) as exc:  # no convergence, or a factor exactly singular at the shift
+        raise ArithmeticError(f"the planar state's out-of-plane eigenvalues could not be computed ({exc})") from exc
     order = np.argsort(lam)
     lam, vecs = lam[order], vecs[:, order]
     vecs = vecs / np.sqrt(np.einsum("ij,ij->j", vecs, M @ vecs))[None, :]
