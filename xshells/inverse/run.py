@@ -486,6 +486,11 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     if options.buckling is not None or not (flat or first.get("status") == "stopped"):
         return first
     why = "its deployment stays in the plane" if flat else "no stage's design could be kept"
+    if progress is True:  # a second round of the stages' bars follows: say why (workers' bars are relayed)
+        import sys
+
+        print(f"xshells inverse: {why}: designing this net again with the planar-buckling penalty "
+              f"(weight {RETRY_BUCKLING:g}; see docs/inverse.md)", file=sys.stderr)
     try:
         second = _design_with_net(surface_path, os.path.join(out_dir, "buckling"), material_spec,
                                   replace(options, buckling=RETRY_BUCKLING), net_path, progress, beams_reason, stop)
