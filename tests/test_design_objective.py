@@ -137,11 +137,16 @@ def test_product_at_a_deployed_equilibrium(banana):
     assert err < 2e-6, err
 
 
+def perturbed_design(prob, seed):
+    """A design 0.1 % off the problem's start, and a direction (both (S,)), for finite-difference checks."""
+    rng = np.random.default_rng(seed)
+    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
+    return q, rng.standard_normal(len(q))
+
+
 def test_flat_stability_gradient_matches_finite_differences(banana):
     prob = banana
-    rng = np.random.default_rng(4)
-    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
-    v = rng.standard_normal(len(q))
+    q, v = perturbed_design(prob, 4)
     sigma, g = prob.flat_stability(q)
     assert sigma > 0  # the planar flat state is stable
     lam, grads = prob.flat_stability_modes(q)

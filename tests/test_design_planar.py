@@ -8,7 +8,7 @@ from xshells.design.objective import DesignProblem, DesignWeights
 from xshells.design.planar import buckling_block, out_of_plane_indices, out_of_plane_modes, planar_equilibrium
 from xshells.errors import InputError
 
-from test_design_objective import PointFit, assert_gradient_converges, banana_states
+from test_design_objective import PointFit, assert_gradient_converges, banana_states, perturbed_design
 
 
 @pytest.fixture(scope="module")
@@ -56,9 +56,7 @@ def test_the_wiggly_bananas_planar_opening_buckles_soon_after_it_starts():
 
 def test_planar_buckling_gradient_matches_finite_differences(problem):
     prob = problem
-    rng = np.random.default_rng(5)
-    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
-    v = rng.standard_normal(len(q))
+    q, v = perturbed_design(prob, 5)
     sigma, g = prob.planar_buckling(q)
     assert sigma < 0  # the banana's planar opening buckles: σ ≈ −1 relative to its start
     assert_gradient_converges(lambda x: prob.planar_buckling(x)[0], g, q, v)
@@ -67,9 +65,7 @@ def test_planar_buckling_gradient_matches_finite_differences(problem):
 def test_the_penalty_enters_J_and_its_gradient(problem):
     """Target −10, below σ (−1 to −5 here): the penalty is active, and J's gradient includes it (finite differences)."""
     prob = problem
-    rng = np.random.default_rng(6)
-    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
-    v = rng.standard_normal(len(q))
+    q, v = perturbed_design(prob, 6)
     t = prob.terms(q)
     assert t["planar_buckling"] > 0 and t["J"] > t["planar_buckling"]
     g = prob.gradient(q)

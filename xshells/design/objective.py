@@ -534,7 +534,6 @@ class DesignProblem:
             value, weights, _ = ks_min(lam / self._planar_ref, 0.05)
             grads = eigenvalue_gradients(self.planar, B, vecs) * self.p0 / self._planar_ref
             self._cache[key] = (float(value), weights @ grads)
-            self._cache[("planar_modes",)] = (lam / self._planar_ref, grads)
         return self._cache[key]
 
     def flat_stability_modes(self, q, modes: int = 4) -> tuple[np.ndarray, np.ndarray]:
