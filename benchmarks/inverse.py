@@ -130,7 +130,7 @@ def realizable_surface(case_path: str, out_obj: str) -> dict:
 
 
 def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto", max_iters: int | None = None,
-        buckling: float | None = None) -> dict:
+        buckling: float | None = None, tries: int = 1) -> dict:
     """Runs in a child process."""
     from xshells.deploy.case import DEFAULT_MATERIAL
     from xshells.inverse.run import InverseOptions, run_inverse
@@ -150,6 +150,7 @@ def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto", max_iter
         opts = replace(opts, max_iters=max_iters)
     if buckling is not None:
         opts = replace(opts, buckling=buckling)
+    opts = replace(opts, tries=tries)
     r = run_inverse(surface, os.path.join(tmp, name), material, opts, progress=False)
     bar = BARS[kind]
     ok = r.get("status") in ("complete", "missed") and r.get("fit_mean", 1) <= bar[0] and r.get("fit_max", 1) <= bar[1] \
@@ -171,11 +172,12 @@ def main() -> int:
     ap.add_argument("--max-iters", type=int, default=None, help="the last design stage's iterations (default: the command's)")
     ap.add_argument("--buckling", type=float, default=None,
                     help="weight of the planar-buckling penalty (default: the command's)")
+    ap.add_argument("--tries", type=int, default=1, help="designs of each net, the fit weight doubled each time (default 1)")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         with tempfile.TemporaryDirectory() as tmp:
-            print(json.dumps(one(args.child, tmp, args.grading, args.beams, args.max_iters, args.buckling)))
+            print(json.dumps(one(args.child, tmp, args.grading, args.beams, args.max_iters, args.buckling, args.tries)))
         return 0
     head = (f"{'target':10} {'kind':10} {'beams':12} {'segs':>5} {'fit mean':>9} {'fit max':>8} {'cover':>6} {'bar':>4} "
             f"{'valid':>5} {'net':>5} {'deploy':>6} {'hold':>5} {'optim':>6} {'verify':>6} {'design s':>8} {'all s':>6} "
@@ -189,7 +191,8 @@ def main() -> int:
         env.setdefault("OPENBLAS_NUM_THREADS", "1")  # as `xshells inverse` runs (xshells/cli.py)
         p = subprocess.run([sys.executable, __file__, "--child", name, "--grading", str(args.grading), "--beams", args.beams]
                            + ([] if args.max_iters is None else ["--max-iters", str(args.max_iters)])
-                           + ([] if args.buckling is None else ["--buckling", str(args.buckling)]), capture_output=True,
+                           + ([] if args.buckling is None else ["--buckling", str(args.buckling)])
+                           + ["--tries", str(args.tries)], capture_output=True,
                            text=True, env=env)
         if p.returncode:
             print(f"{name}: failed: {p.stderr.strip().splitlines()[-1] if p.stderr.strip() else p.returncode}", file=sys.stderr)

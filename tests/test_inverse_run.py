@@ -73,6 +73,8 @@ def test_the_case_loads_where_cases_load(cap_run):
     (["--spacing", "-3"], "positive length"),
     (["--buckling", "-1"], "--buckling must be a non-negative number"),
     (["--buckling", "nan"], "--buckling must be a non-negative number"),
+    (["--tries", "0"], "--tries must be a whole number from 1 to 4"),
+    (["--tries", "9"], "--tries must be a whole number from 1 to 4"),
 ])
 def test_bad_options_get_one_line(tmp_path, capsys, args, words):
     assert main(["inverse", str(CAP), "--out", str(tmp_path / "o"), "--no-progress", *args]) == 2
@@ -398,3 +400,72 @@ def test_with_a_buckling_weight_given_there_is_no_retry(tmp_path, monkeypatch):
         calls.clear()
         r = run._run_once("s.obj", str(tmp_path), {}, run.InverseOptions(buckling=weight), None, False)
         assert calls == [weight] and "buckling_retry" not in r
+
+
+def _fake_tries(results):
+    """A stand-in for :func:`_run_once`: writes a marker, a file of its own per try and result.json; returns the
+    next result (an exception instance is raised)."""
+    betas = []
+
+    def fake(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason=None, stop=None):
+        os.makedirs(out_dir, exist_ok=True)
+        r = results[len(betas)]
+        betas.append(options.beta)
+        if isinstance(r, Exception):
+            raise r
+        with open(os.path.join(out_dir, "flat_design.obj"), "w") as fh:
+            fh.write(f"design {len(betas)}\n")
+        with open(os.path.join(out_dir, f"only_{len(betas)}.txt"), "w") as fh:
+            fh.write("x")
+        with open(os.path.join(out_dir, "result.json"), "w") as fh:
+            json.dump(r, fh)
+        return dict(r)
+
+    return fake, betas
+
+
+@pytest.mark.parametrize("results, kept", [
+    ([{"status": "complete", "fit_mean": 0.005}, {"status": "complete", "fit_mean": 0.004}], 2),
+    ([{"status": "complete", "fit_mean": 0.005}, {"status": "missed", "fit_mean": 0.002}], 1),  # status first
+    ([{"status": "missed", "fit_mean": 0.02}, {"status": "missed", "fit_mean": 0.03},
+      {"status": "missed", "fit_mean": 0.01}], 3),
+])
+def test_tries_double_the_fit_weight_and_keep_the_best_design(tmp_path, monkeypatch, results, kept):
+    import xshells.inverse.run as run
+
+    fake, betas = _fake_tries([{**r, "time_s": 10.0} for r in results])
+    monkeypatch.setattr(run, "_run_once", fake)
+    n = len(results)
+    r = run._run_net("s.obj", str(tmp_path), {}, run.InverseOptions(tries=n, beta=1000.0), None, False)
+    assert betas == [1000.0 * run.TRY_FACTOR ** k for k in range(n)]
+    assert open(tmp_path / "flat_design.obj").read() == f"design {kept}\n"
+    # the kept try's own files, and none that only an earlier best wrote
+    assert sorted(p.name for p in tmp_path.glob("only_*")) == [f"only_{kept}.txt"]
+    with open(tmp_path / "result.json") as fh:
+        written = json.load(fh)
+    assert written == r and r["fit_mean"] == results[kept - 1]["fit_mean"]
+    assert r["tries"]["kept"] == kept and [d["beta"] for d in r["tries"]["designs"]] == betas
+    assert r["time_s"] == 10.0 * n
+    for k in range(n):  # every try stays in its own folder
+        assert open(tmp_path / "tries" / str(k + 1) / "flat_design.obj").read() == f"design {k + 1}\n"
+
+
+def test_one_try_is_the_design_itself_and_a_failed_try_leaves_the_others(tmp_path, monkeypatch):
+    import xshells.inverse.run as run
+    from xshells.errors import InputError
+
+    fake, betas = _fake_tries([{"status": "missed", "fit_mean": 0.02}])
+    monkeypatch.setattr(run, "_run_once", fake)
+    r = run._run_net("s.obj", str(tmp_path / "one"), {}, run.InverseOptions(), None, False)
+    assert betas == [1000.0] and "tries" not in r and not (tmp_path / "one" / "tries").exists()
+
+    fake, betas = _fake_tries([InputError("its first layout inverts a joint"), {"status": "missed", "fit_mean": 0.02}])
+    monkeypatch.setattr(run, "_run_once", fake)
+    r = run._run_net("s.obj", str(tmp_path / "two"), {}, run.InverseOptions(tries=2), None, False)
+    assert r["tries"]["kept"] == 2 and r["tries"]["designs"][0]["status"] == "failed"
+    assert "inverts a joint" in r["tries"]["designs"][0]["message"]
+
+    fake, betas = _fake_tries([InputError("first fails"), InputError("second fails")])
+    monkeypatch.setattr(run, "_run_once", fake)
+    with pytest.raises(InputError, match="second fails"):
+        run._run_net("s.obj", str(tmp_path / "three"), {}, run.InverseOptions(tries=2), None, False)

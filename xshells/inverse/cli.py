@@ -50,6 +50,9 @@ def register(subparsers) -> None:
                    help="weight of the planar-buckling penalty: asks the layout's planar opening to the angle to be "
                         "unstable, so that the deployment from flat buckles (default: off, and a design whose deployment "
                         "stays in the plane is designed again with weight 1, the better kept; 0: never)")
+    p.add_argument("--tries", type=int, default=1,
+                   help="designs of each net, the fit weight doubled from one to the next; the best is kept "
+                        "(default 1; each try costs a whole design's time)")
     p.add_argument("--workers", type=int, help="processes for the fan screen and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
     p.add_argument("--out", default="inverse_out", help="output folder")
@@ -70,7 +73,7 @@ def _inverse(args) -> int:
     opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
                           force=args.force, grading=args.grading, beams=args.beams, fan=args.fan,
-                          free_ends=not args.no_free_ends, workers=args.workers,
+                          free_ends=not args.no_free_ends, workers=args.workers, tries=args.tries,
                           **({} if args.max_iters is None else {"max_iters": args.max_iters}),
                           **({} if args.buckling is None else {"buckling": args.buckling}))
     r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)

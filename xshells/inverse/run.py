@@ -28,6 +28,8 @@ from ..io.export import atomic_write_text
 from .guide import GuideOptions
 
 MAX_SEGMENTS = 5000
+#: the most designs per net (``--tries``): each one costs a whole design's time
+MAX_TRIES = 4
 # Within this share of its span of the layout's plane a state is planar: the issue's bar for the flat
 # state, and the mark of a deployment that never buckled
 PLANAR = 1e-6
@@ -90,6 +92,11 @@ class InverseOptions:
         None (the default): off, and a design whose deployment stays in the plane, or whose stages
         none could be kept, is designed again with :data:`RETRY_BUCKLING`, and the better of the
         two kept (:func:`_run_once`).
+    tries : int
+        Designs of each net, the fit weight ``beta`` doubled from one to the next (:data:`TRY_FACTOR`):
+        the best verified design (by status, then mean fit) is kept (:func:`_run_net`). The optimization
+        is not convex and its result moves with any change of its path, so a second try with another
+        weight is a second start; default 1.
     guide : GuideOptions
     """
 
@@ -110,6 +117,7 @@ class InverseOptions:
     gamma: float = 0.9
     beta: float = 1000.0
     buckling: float | None = None
+    tries: int = 1
     guide: GuideOptions = field(default_factory=GuideOptions)
 
 
@@ -142,6 +150,8 @@ def check_options(options: InverseOptions, surface) -> float:
         raise InputError(f"--direction must be up or down, got {options.direction!r}")
     if options.workers is not None and options.workers < 1:
         raise InputError(f"--workers must be at least 1, got {options.workers}")
+    if not (isinstance(options.tries, (int, np.integer)) and 1 <= options.tries <= MAX_TRIES):
+        raise InputError(f"--tries must be a whole number from 1 to {MAX_TRIES}, got {options.tries}")
     spacing = options.spacing if options.spacing is not None else surface.diagonal / 12.0
     if not (np.isfinite(spacing) and spacing > 0):
         raise InputError(f"--spacing {spacing:g}: the spacing must be a positive length")
@@ -303,14 +313,14 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         print(f"xshells inverse: warning: {surface.path}: {warning}", file=sys.stderr)
     if net_path is not None or options.grading != 0.0 or options.beams in ("even", "geodesic") or \
             (options.beams == "fanned" and options.fan is not None):
-        return _run_once(surface_path, out_dir, material_spec, options, net_path, progress)
+        return _run_net(surface_path, out_dir, material_spec, options, net_path, progress)
     from dataclasses import replace
     spacing = check_options(options, surface)
     screened, fan_options, fan_why = _screen(surface, material_spec, options, spacing, progress)
     if options.beams == "fanned":
         if fan_options is None:
             raise InputError(f"{surface.path}: {fan_why}")
-        r = _run_once(surface_path, out_dir, material_spec, fan_options, None, progress, beams_reason=fan_why)
+        r = _run_net(surface_path, out_dir, material_spec, fan_options, None, progress, beams_reason=fan_why)
         r["fan_screen"] = screened
         atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
         return r
@@ -334,7 +344,7 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         else:
             for beams, opts in plan.items():
                 try:
-                    results[beams] = _run_once(surface_path, os.path.join(out_dir, "candidates", beams), material_spec,
+                    results[beams] = _run_net(surface_path, os.path.join(out_dir, "candidates", beams), material_spec,
                                                opts, None, progress, beams_reason=f"auto: {why}")
                 except InputError as exc:  # this net does not get through (a first layout that inverts, say)
                     errors[beams] = str(exc)
@@ -378,7 +388,7 @@ def _candidate(surface_path, out_dir, material_spec, options, beams, progress, b
     from .processes import RemoteProgress
 
     try:
-        r = _run_once(surface_path, out_dir, material_spec, options, None, RemoteProgress(beams) if progress else False,
+        r = _run_net(surface_path, out_dir, material_spec, options, None, RemoteProgress(beams) if progress else False,
                       beams_reason=beams_reason, stop=RemoteProgress(beams).stopped)
         return beams, True, r
     except InputError as exc:
@@ -468,6 +478,52 @@ def _bulge_sign(flat_joints: np.ndarray, heights: np.ndarray) -> float:
     return float(np.sign(np.dot(r2.mean() - r2, heights - heights.mean())) or 1.0)
 
 
+#: the fit weight grows by this factor from one try to the next (``InverseOptions.tries``, docs/inverse.md)
+TRY_FACTOR = 2.0
+
+
+def _run_net(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress,
+             beams_reason: str | None = None, stop=None) -> dict:
+    """:func:`_run_once` ``options.tries`` times with one net, try ``k`` with the fit weight ``β·TRY_FACTOR^k``.
+
+    With one try (the default) this is :func:`_run_once` into ``out_dir``. With more, try ``k`` designs into
+    ``out_dir/tries/<k>``, and after each one the best so far (by status, then mean fit) is copied into
+    ``out_dir``, so that Ctrl-C keeps it; its ``result.json`` lists every try under ``tries``.
+    """
+    extra = {k: v for k, v in (("beams_reason", beams_reason), ("stop", stop)) if v is not None}
+    if options.tries <= 1:
+        return _run_once(surface_path, out_dir, material_spec, options, net_path, progress, **extra)
+    done, best, total = [], None, 0.0
+    for k in range(options.tries):
+        beta = options.beta * TRY_FACTOR ** k
+        where = os.path.join(out_dir, "tries", str(k + 1))
+        if progress is True:
+            import sys
+
+            print(f"xshells inverse: try {k + 1} of {options.tries}: fit weight {beta:g}", file=sys.stderr)
+        try:
+            r = _run_once(surface_path, where, material_spec, replace(options, beta=beta), net_path, progress, **extra)
+        except InputError as exc:  # this try's first layout does not get through: the others stand
+            if k == options.tries - 1 and best is None:
+                raise
+            done.append({"try": k + 1, "beta": beta, "status": "failed", "message": str(exc)})
+            continue
+        total += r.get("time_s") or 0.0
+        done.append({"try": k + 1, "beta": beta, **{key: r.get(key) for key in _SUMMARY_KEYS}})
+        if best is None or _rank(r) < _rank(best[1]):
+            if best is not None:  # what only the previous best wrote (its buckling retry, say) goes
+                _remove_outputs(out_dir, set(os.listdir(best[2])) - set(os.listdir(where)))
+            best = (k, r, where)
+            _copy_outputs(where, out_dir)
+        kept = dict(best[1])
+        kept["tries"] = {"kept": best[0] + 1, "factor": TRY_FACTOR, "designs": done}
+        kept["time_s"] = total
+        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(kept, indent=1))
+        if r.get("status") == "interrupted":
+            break
+    return kept
+
+
 #: the planar-buckling weight of the second design of a net whose first stays in the plane (docs/inverse.md)
 RETRY_BUCKLING = 1.0
 
@@ -519,6 +575,18 @@ def _rank(result: dict) -> tuple:
     """How a design ranks among others for the same surface: by status, then mean fit (lower is better)."""
     fit = result.get("fit_mean")
     return _STATUS_RANK.get(result.get("status"), 9), np.inf if fit is None else fit
+
+
+def _remove_outputs(folder: str, names) -> None:
+    """Remove the files and folders ``names`` from ``folder``."""
+    import shutil
+
+    for name in names:
+        path = os.path.join(folder, name)
+        if os.path.isdir(path):
+            shutil.rmtree(path)
+        elif os.path.exists(path):
+            os.remove(path)
 
 
 def _copy_outputs(src: str, dst: str) -> None:
