@@ -202,7 +202,7 @@ def solve_inverse(values: dict, ctx: Context) -> dict:
         spacing = values.get("Spacing") or 0.0
         argv = ["inverse", surface, *_common(values), "--angle", repr(float(values["Angle"])),
                 "--grading", repr(float(values["Grading"])), "--max-iters", str(values["MaxIters"]),
-                "--direction", values["Direction"], "--out", os.path.join(tmp, "out")]
+                "--direction", values["Direction"], "--tries", str(values["Tries"]), "--out", os.path.join(tmp, "out")]
         if spacing > 0:  # in the document's units; the command works in mm
             argv += ["--spacing", repr(spacing * RHINO_UNITS_TO_MM[ctx.units])]
         code, out = _run(argv)
@@ -254,7 +254,9 @@ def components() -> list[Component]:
                    Param("Angle", "Number", "deployed average opening angle, degrees", default=90.0),
                    Param("Spacing", "Number", "joint spacing along the beams (0: 1/12 of the diagonal)", default=0.0),
                    Param("Grading", "Number", "the net's grading, degrees (0: even spacing)", default=0.0),
-                   Param("MaxIters", "Integer", "design-optimization iterations", default=20), direction),
+                   Param("MaxIters", "Integer", "design-optimization iterations", default=20), direction,
+                   Param("Tries", "Integer", "designs per net, the fit weight doubled each time; the best is kept "
+                         "(each costs a whole design's time)", default=1)),
                   (Param("Layout", "Curve", "the flat layout's segments", many=True), CENTERLINES, BEAMS,
                    Param("FitMean", "Number", "mean joint distance to the surface / its diagonal"),
                    Param("FitMax", "Number", "largest joint distance / the diagonal"),
