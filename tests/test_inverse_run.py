@@ -469,3 +469,27 @@ def test_one_try_is_the_design_itself_and_a_failed_try_leaves_the_others(tmp_pat
     monkeypatch.setattr(run, "_run_once", fake)
     with pytest.raises(InputError, match="second fails"):
         run._run_net("s.obj", str(tmp_path / "three"), {}, run.InverseOptions(tries=2), None, False)
+
+
+def test_tries_that_end_out_of_order_or_are_interrupted_keep_the_best(tmp_path):
+    """Side by side (``workers`` > 1) the tries end in any order; after Ctrl-C the ones not reported are read
+    from the designs so far that they wrote."""
+    import xshells.inverse.run as run
+
+    tries = run._Tries(str(tmp_path), run.InverseOptions(tries=3))
+
+    def write(k, r):
+        os.makedirs(tries.where(k), exist_ok=True)
+        (tmp_path / "tries" / str(k + 1) / "flat_design.obj").write_text(f"design {k + 1}\n")
+        (tmp_path / "tries" / str(k + 1) / "result.json").write_text(json.dumps(r))
+        return r
+
+    tries.settle(1, write(1, {"status": "missed", "fit_mean": 0.02, "time_s": 5.0}))
+    tries.settle(0, write(0, {"status": "complete", "fit_mean": 0.004, "time_s": 7.0}))
+    assert open(tmp_path / "flat_design.obj").read() == "design 1\n"
+    write(2, {"status": "interrupted", "fit_mean": 0.001, "time_s": 1.0})  # Ctrl-C: written, never reported
+    tries.settle_from_disk()
+    r = tries.result()
+    assert r["tries"]["kept"] == 1 and [d["try"] for d in r["tries"]["designs"]] == [1, 2, 3]
+    assert r["time_s"] == 13.0
+    assert json.loads((tmp_path / "result.json").read_text()) == r

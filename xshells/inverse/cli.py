@@ -53,7 +53,7 @@ def register(subparsers) -> None:
     p.add_argument("--tries", type=int, default=1,
                    help="designs of each net, the fit weight doubled from one to the next; the best is kept "
                         "(default 1; each try costs a whole design's time)")
-    p.add_argument("--workers", type=int, help="processes for the fan screen and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
+    p.add_argument("--workers", type=int, help="processes for the fan screen, the tries of one net and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
     p.add_argument("--out", default="inverse_out", help="output folder")
     p.add_argument("--no-progress", action="store_true")

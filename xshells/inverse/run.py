@@ -313,14 +313,15 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         print(f"xshells inverse: warning: {surface.path}: {warning}", file=sys.stderr)
     if net_path is not None or options.grading != 0.0 or options.beams in ("even", "geodesic") or \
             (options.beams == "fanned" and options.fan is not None):
-        return _run_net(surface_path, out_dir, material_spec, options, net_path, progress)
+        return _run_net(surface_path, out_dir, material_spec, options, net_path, progress, workers=_workers(options))
     from dataclasses import replace
     spacing = check_options(options, surface)
     screened, fan_options, fan_why = _screen(surface, material_spec, options, spacing, progress)
     if options.beams == "fanned":
         if fan_options is None:
             raise InputError(f"{surface.path}: {fan_why}")
-        r = _run_net(surface_path, out_dir, material_spec, fan_options, None, progress, beams_reason=fan_why)
+        r = _run_net(surface_path, out_dir, material_spec, fan_options, None, progress, beams_reason=fan_why,
+                     workers=_workers(options))
         r["fan_screen"] = screened
         atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
         return r
@@ -336,7 +337,7 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         import sys
 
         print(f"xshells inverse: trying the {', '.join(plan)} nets, keeping the best ({why})", file=sys.stderr)
-    workers = options.workers if options.workers is not None else min(2, os.cpu_count() or 1)
+    workers = _workers(options)
     results, errors = {}, {}
     try:
         if workers > 1 and len(plan) > 1:
@@ -360,6 +361,11 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
     if not results:
         raise InputError(errors.get("even", next(iter(errors.values()))))
     return _adopt(out_dir, results, errors, why, t0, screened)
+
+
+def _workers(options: InverseOptions) -> int:
+    """Processes for pieces that run side by side: ``--workers``, else the cores, at most 2."""
+    return options.workers if options.workers is not None else min(2, os.cpu_count() or 1)
 
 
 #: seconds the candidates get to write their designs so far after Ctrl-C, when they run in worker processes
@@ -414,7 +420,7 @@ def _screen(surface, material_spec, options, spacing, progress):
     try:
         cands = screen_fans(surface, material_from_spec(material_spec), options.angle, options.flat_angle, spacing,
                             options.orientation, FAN_KAPPAS, options.steps, options.subdivision, options.direction, tick,
-                            workers=options.workers if options.workers is not None else min(2, os.cpu_count() or 1))
+                            workers=_workers(options))
     finally:
         if bar is not None:
             bar.close()
@@ -483,45 +489,108 @@ TRY_FACTOR = 2.0
 
 
 def _run_net(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress,
-             beams_reason: str | None = None, stop=None) -> dict:
+             beams_reason: str | None = None, stop=None, workers: int = 1) -> dict:
     """:func:`_run_once` ``options.tries`` times with one net, try ``k`` with the fit weight ``β·TRY_FACTOR^k``.
 
     With one try (the default) this is :func:`_run_once` into ``out_dir``. With more, try ``k`` designs into
-    ``out_dir/tries/<k>``, and after each one the best so far (by status, then mean fit) is copied into
-    ``out_dir``, so that Ctrl-C keeps it; its ``result.json`` lists every try under ``tries``.
+    ``out_dir/tries/<k>``, and as each one ends the best so far (by status, then mean fit) is copied into
+    ``out_dir``, so that Ctrl-C keeps it; its ``result.json`` lists every try under ``tries``. With
+    ``workers`` > 1 the tries run side by side in worker processes (:mod:`.processes`), as ``auto``'s
+    candidates do; each candidate of ``auto`` runs its own tries one after the other.
     """
     extra = {k: v for k, v in (("beams_reason", beams_reason), ("stop", stop)) if v is not None}
     if options.tries <= 1:
         return _run_once(surface_path, out_dir, material_spec, options, net_path, progress, **extra)
-    done, best, total = [], None, 0.0
+    tries = _Tries(out_dir, options)
+    if workers > 1:
+        jobs = [(surface_path, tries.where(k), material_spec, replace(options, beta=tries.beta(k)), net_path, progress,
+                 beams_reason, k) for k in range(options.tries)]
+        from .processes import in_processes
+
+        try:
+            for _, (k, ok, value) in in_processes(_try_job, jobs, workers, progress=progress, stop_wait=STOP_WAIT):
+                tries.settle(k, value if ok else InputError(value))
+        except KeyboardInterrupt:
+            tries.settle_from_disk()  # the tries' designs so far
+            raise
+        return tries.result()
     for k in range(options.tries):
-        beta = options.beta * TRY_FACTOR ** k
-        where = os.path.join(out_dir, "tries", str(k + 1))
         if progress is True:
             import sys
 
-            print(f"xshells inverse: try {k + 1} of {options.tries}: fit weight {beta:g}", file=sys.stderr)
+            print(f"xshells inverse: try {k + 1} of {options.tries}: fit weight {tries.beta(k):g}", file=sys.stderr)
         try:
-            r = _run_once(surface_path, where, material_spec, replace(options, beta=beta), net_path, progress, **extra)
+            r = _run_once(surface_path, tries.where(k), material_spec, replace(options, beta=tries.beta(k)), net_path,
+                          progress, **extra)
         except InputError as exc:  # this try's first layout does not get through: the others stand
-            if k == options.tries - 1 and best is None:
-                raise
-            done.append({"try": k + 1, "beta": beta, "status": "failed", "message": str(exc)})
-            continue
-        total += r.get("time_s") or 0.0
-        done.append({"try": k + 1, "beta": beta, **{key: r.get(key) for key in _SUMMARY_KEYS}})
-        if best is None or _rank(r) < _rank(best[1]):
-            if best is not None:  # what only the previous best wrote (its buckling retry, say) goes
-                _remove_outputs(out_dir, set(os.listdir(best[2])) - set(os.listdir(where)))
-            best = (k, r, where)
-            _copy_outputs(where, out_dir)
-        kept = dict(best[1])
-        kept["tries"] = {"kept": best[0] + 1, "factor": TRY_FACTOR, "designs": done}
-        kept["time_s"] = total
-        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(kept, indent=1))
-        if r.get("status") == "interrupted":
+            r = exc
+        tries.settle(k, r)
+        if isinstance(r, dict) and r.get("status") == "interrupted":
             break
-    return kept
+    return tries.result()
+
+
+class _Tries:
+    """The tries of one net as they end: the best so far copied into ``out_dir`` with its ``result.json``."""
+
+    def __init__(self, out_dir: str, options: InverseOptions):
+        self.out_dir, self.options = out_dir, options
+        self.done: dict[int, dict] = {}
+        self.best = None  # (k, result)
+        self.error = None
+
+    def beta(self, k: int) -> float:
+        return self.options.beta * TRY_FACTOR ** k
+
+    def where(self, k: int) -> str:
+        return os.path.join(self.out_dir, "tries", str(k + 1))
+
+    def settle(self, k: int, r) -> None:
+        """Try ``k`` ended with the result ``r`` (an InputError where its net did not get through)."""
+        if isinstance(r, Exception):
+            self.error = r
+            self.done[k] = {"try": k + 1, "beta": self.beta(k), "status": "failed", "message": str(r)}
+            return
+        self.done[k] = {"try": k + 1, "beta": self.beta(k), **{key: r.get(key) for key in _SUMMARY_KEYS}}
+        if self.best is None or _rank(r) < _rank(self.best[1]):
+            if self.best is not None:  # what only the previous best wrote (its buckling retry, say) goes
+                _remove_outputs(self.out_dir, set(os.listdir(self.where(self.best[0]))) - set(os.listdir(self.where(k))))
+            self.best = (k, r)
+            _copy_outputs(self.where(k), self.out_dir)
+        atomic_write_text(os.path.join(self.out_dir, "result.json"), json.dumps(self.result(), indent=1))
+
+    def settle_from_disk(self) -> None:
+        """After Ctrl-C: the tries not settled yet, from the designs so far that they wrote."""
+        for k in range(self.options.tries):
+            path = os.path.join(self.where(k), "result.json")
+            if k not in self.done and os.path.exists(path):
+                with open(path) as fh:
+                    self.settle(k, json.load(fh))
+
+    def result(self) -> dict:
+        """The kept try's result with every try's figures; raises the last error where no try got through."""
+        if self.best is None:
+            raise self.error if self.error is not None else InputError("no try of this net got through")
+        kept = dict(self.best[1])
+        kept["tries"] = {"kept": self.best[0] + 1, "factor": TRY_FACTOR,
+                         "designs": [self.done[k] for k in sorted(self.done)]}
+        kept["time_s"] = sum(d.get("time_s") or 0.0 for d in self.done.values())
+        return kept
+
+
+def _try_job(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, k):
+    """One try in a worker process: (k, True, result) or (k, False, why it failed)."""
+    from .processes import RemoteProgress
+
+    label = f"try {k + 1}"
+    try:
+        r = _run_once(surface_path, out_dir, material_spec, options, net_path, RemoteProgress(label) if progress else False,
+                      beams_reason=beams_reason, stop=RemoteProgress(label).stopped)
+        return k, True, r
+    except InputError as exc:
+        return k, False, str(exc)
+    except KeyboardInterrupt:  # asked to stop: the design so far is written
+        return k, False, "interrupted"
 
 
 #: the planar-buckling weight of the second design of a net whose first stays in the plane (docs/inverse.md)
