@@ -391,16 +391,22 @@ def _candidates_in_processes(surface_path, out_dir, material_spec, plan, progres
 
 def _candidate(surface_path, out_dir, material_spec, options, beams, progress, beams_reason):
     """One ``auto`` candidate in a worker process: (beams, True, result) or (beams, False, why it failed)."""
+    return (beams, *_in_worker(_run_net, beams, surface_path, out_dir, material_spec, options, None, progress, beams_reason))
+
+
+def _in_worker(design, label, surface_path, out_dir, material_spec, options, net_path, progress, beams_reason):
+    """``design`` (:func:`_run_net` or :func:`_run_once`) in a worker process, its bars labelled ``label``:
+    (True, result) or (False, why it failed)."""
     from .processes import RemoteProgress
 
     try:
-        r = _run_net(surface_path, out_dir, material_spec, options, None, RemoteProgress(beams) if progress else False,
-                      beams_reason=beams_reason, stop=RemoteProgress(beams).stopped)
-        return beams, True, r
+        return True, design(surface_path, out_dir, material_spec, options, net_path,
+                            RemoteProgress(label) if progress else False, beams_reason=beams_reason,
+                            stop=RemoteProgress(label).stopped)
     except InputError as exc:
-        return beams, False, str(exc)
+        return False, str(exc)
     except KeyboardInterrupt:  # asked to stop: the design so far is written
-        return beams, False, "interrupted"
+        return False, "interrupted"
 
 
 def _screen(surface, material_spec, options, spacing, progress):
@@ -580,17 +586,8 @@ class _Tries:
 
 def _try_job(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, k):
     """One try in a worker process: (k, True, result) or (k, False, why it failed)."""
-    from .processes import RemoteProgress
-
-    label = f"try {k + 1}"
-    try:
-        r = _run_once(surface_path, out_dir, material_spec, options, net_path, RemoteProgress(label) if progress else False,
-                      beams_reason=beams_reason, stop=RemoteProgress(label).stopped)
-        return k, True, r
-    except InputError as exc:
-        return k, False, str(exc)
-    except KeyboardInterrupt:  # asked to stop: the design so far is written
-        return k, False, "interrupted"
+    return (k, *_in_worker(_run_once, f"try {k + 1}", surface_path, out_dir, material_spec, options, net_path, progress,
+                           beams_reason))
 
 
 #: the planar-buckling weight of the second design of a net whose first stays in the plane (docs/inverse.md)
