@@ -75,6 +75,7 @@ def test_the_case_loads_where_cases_load(cap_run):
     (["--buckling", "nan"], "--buckling must be a non-negative number"),
     (["--tries", "0"], "--tries must be a whole number from 1 to 4"),
     (["--tries", "9"], "--tries must be a whole number from 1 to 4"),
+    (["--tries", "9", "--beams", "even"], "--tries must be a whole number from 1 to 4"),
 ])
 def test_bad_options_get_one_line(tmp_path, capsys, args, words):
     assert main(["inverse", str(CAP), "--out", str(tmp_path / "o"), "--no-progress", *args]) == 2

@@ -121,6 +121,11 @@ class InverseOptions:
     guide: GuideOptions = field(default_factory=GuideOptions)
 
 
+def _check_tries(options: InverseOptions) -> None:
+    if not (isinstance(options.tries, (int, np.integer)) and 1 <= options.tries <= MAX_TRIES):
+        raise InputError(f"--tries must be a whole number from 1 to {MAX_TRIES}, got {options.tries}")
+
+
 def check_options(options: InverseOptions, surface) -> float:
     """One-line errors for options that cannot work on ``surface``; returns the spacing to use."""
     if not (np.isfinite(options.angle) and 20.0 < options.angle < 160.0):
@@ -150,8 +155,7 @@ def check_options(options: InverseOptions, surface) -> float:
         raise InputError(f"--direction must be up or down, got {options.direction!r}")
     if options.workers is not None and options.workers < 1:
         raise InputError(f"--workers must be at least 1, got {options.workers}")
-    if not (isinstance(options.tries, (int, np.integer)) and 1 <= options.tries <= MAX_TRIES):
-        raise InputError(f"--tries must be a whole number from 1 to {MAX_TRIES}, got {options.tries}")
+    _check_tries(options)
     spacing = options.spacing if options.spacing is not None else surface.diagonal / 12.0
     if not (np.isfinite(spacing) and spacing > 0):
         raise InputError(f"--spacing {spacing:g}: the spacing must be a positive length")
@@ -504,6 +508,7 @@ def _run_net(surface_path, out_dir, material_spec: dict, options: InverseOptions
     ``workers`` > 1 the tries run side by side in worker processes (:mod:`.processes`), as ``auto``'s
     candidates do; each candidate of ``auto`` runs its own tries one after the other.
     """
+    _check_tries(options)  # before any worker starts
     extra = {k: v for k, v in (("beams_reason", beams_reason), ("stop", stop)) if v is not None}
     if options.tries <= 1:
         return _run_once(surface_path, out_dir, material_spec, options, net_path, progress, **extra)
