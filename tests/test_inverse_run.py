@@ -494,3 +494,19 @@ def test_tries_that_end_out_of_order_or_are_interrupted_keep_the_best(tmp_path):
     assert r["tries"]["kept"] == 1 and [d["try"] for d in r["tries"]["designs"]] == [1, 2, 3]
     assert r["time_s"] == 13.0
     assert json.loads((tmp_path / "result.json").read_text()) == r
+
+
+def test_the_command_says_which_try_it_kept(tmp_path, monkeypatch, capsys):
+    import xshells.inverse.run as run
+
+    def fake(surface, out, spec, opts, net_path=None, progress=True):
+        assert opts.tries == 2
+        return {"status": "complete", "message": "deployed onto the surface", "segments": 10, "joints": 9,
+                "fit_mean": 0.004, "fit_max": 0.01, "coverage": 0.95, "time_s": 3.0,
+                "tries": {"kept": 2, "factor": 2.0, "designs": [
+                    {"try": 1, "beta": 1000.0, "status": "failed", "message": "inverts"},
+                    {"try": 2, "beta": 2000.0, "status": "complete", "fit_mean": 0.004}]}}
+
+    monkeypatch.setattr(run, "run_inverse", fake)
+    assert main(["inverse", str(CAP), "--tries", "2", "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    assert "tries: kept try 2 of 2 (fit weight 1000: failed, 2000: 0.40%)" in capsys.readouterr().out

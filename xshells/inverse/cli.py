@@ -84,5 +84,10 @@ def _inverse(args) -> int:
     print(f"  {r['status']}: {r['message']}")
     if r.get("beams"):
         print(f"  beams: {r['beams']} ({r.get('beams_reason', '')})")
+    if r.get("tries"):
+        t = r["tries"]
+        figures = ", ".join(f"{d['beta']:g}: " + (f"{100 * d['fit_mean']:.2f}%" if d.get("fit_mean") is not None else d["status"])
+                            for d in t["designs"])
+        print(f"  tries: kept try {t['kept']} of {len(t['designs'])} (fit weight {figures})")
     print(f"  outputs in {args.out}/ (xshells deploy {args.out}/case.json reproduces the deployment)")
     return 0 if r["status"] == "complete" else 1
