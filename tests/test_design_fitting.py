@@ -12,6 +12,7 @@ from xshells.design.fitting import (
     joint_faces,
     planar_faces,
     read_surface,
+    read_surface_faces,
     target_surface,
     triangulate_faces,
 )
@@ -176,6 +177,68 @@ def test_bad_surface_file_is_one_line_naming_it(tmp_path, content, reason):
         read_surface(path)
     msg = str(err.value)
     assert "\n" not in msg and str(path) in msg and reason in msg
+
+
+def _area(V, F):
+    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum()
+
+
+def _write_obj(path, V, faces):
+    path.write_text("".join(f"v {float(a)!r} {float(b)!r} {float(c)!r}\n" for a, b, c in V)
+                    + "".join("f " + " ".join(str(i + 1) for i in f) + "\n" for f in faces))
+
+
+def test_quads_and_mixed_faces_are_all_read_as_triangles(tmp_path):
+    # a 3×3 quad grid on a dome, all quads, and half of them as triangles before the other half (as one
+    # exporter wrote it): before, quads were dropped without a word, leaving half the surface
+    n = 3
+    x, y = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0), indexing="ij")
+    V = np.c_[x.ravel(), y.ravel(), 0.2 * (x * (n - x) + y * (n - y)).ravel()]
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    Q = np.c_[idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()]
+    _write_obj(tmp_path / "quads.obj", V, Q)
+    Vr, Fr, face = read_surface_faces(tmp_path / "quads.obj")
+    assert Fr.shape == (2 * len(Q), 3) and list(np.bincount(face)) == [2] * len(Q)
+    for q, (a, b) in zip(Q, Fr.reshape(-1, 2, 3)):
+        assert set(a) | set(b) == set(q)  # the two halves cover the quad's corners
+        d = sorted(set(a) & set(b))  # their shared diagonal is the shorter one
+        other = sorted(set(q) - set(d))
+        assert np.linalg.norm(Vr[d[0]] - Vr[d[1]]) <= np.linalg.norm(Vr[other[0]] - Vr[other[1]]) + 1e-12
+    tri = [(a, b, c) for a, b, c, d in Q[:4]] + [(a, c, d) for a, b, c, d in Q[:4]]
+    _write_obj(tmp_path / "mixed.obj", V, tri + [list(q) for q in Q[4:]])
+    Vm, Fm, face_m = read_surface_faces(tmp_path / "mixed.obj")
+    assert len(Fm) == 2 * len(Q) and face_m.max() == len(tri) + len(Q[4:]) - 1
+    assert _area(Vm, Fm) == pytest.approx(_area(Vr, Fr))
+    _write_obj(tmp_path / "tris.obj", V, tri)
+    assert read_surface_faces(tmp_path / "tris.obj")[2] is None  # all triangles: each is its own face
+
+
+def test_a_concave_quad_is_split_along_the_diagonal_inside_it():
+    from xshells.design.fitting import _split_polygons
+
+    V = np.array([[0, 0, 0], [4, 0, 0], [4, 4, 0], [3, 1, 0.0]])  # the corner (3, 1) points inward
+    F, face = _split_polygons(V, np.array([[0, 1, 2, 3]]))  # the diagonal 0–2 is shorter but runs outside
+    assert sorted(map(sorted, F.tolist())) == [[0, 1, 3], [1, 2, 3]]
+    assert _area(V, F) == pytest.approx(4.0)  # the shoelace area: ((0·0 − 4·0) + (16 − 0) + (4 − 12) + 0)/2
+
+
+def test_larger_convex_polygons_are_fanned_and_concave_ones_refused(tmp_path):
+    hexagon = np.array([[0, 0, 0], [2, 0, 0], [3, 1, 0], [2, 2, 0], [0, 2, 0], [-1, 1, 0.0]])
+    _write_obj(tmp_path / "hex.obj", hexagon, [range(6)])
+    V, F, face = read_surface_faces(tmp_path / "hex.obj")
+    assert len(F) == 4 and list(face) == [0, 0, 0, 0] and _area(V, F) == pytest.approx(6.0)
+    star = np.array([[0, 0, 0], [4, 0, 0], [4, 4, 0], [2, 1, 0], [0, 4, 0.0]])
+    _write_obj(tmp_path / "dart.obj", star, [[0, 1, 2], range(5)])
+    with pytest.raises(InputError) as err:
+        read_surface(tmp_path / "dart.obj")
+    msg = str(err.value)
+    assert "\n" not in msg and "dart.obj" in msg and "face 2" in msg and "not convex" in msg
+
+
+def test_a_face_index_out_of_range_is_named(tmp_path):
+    (tmp_path / "oob.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\nf 1 2 3 9\n")
+    with pytest.raises(InputError, match=r"oob.obj: face 2 .*out of range"):
+        read_surface(tmp_path / "oob.obj")
 
 
 # ------------------------------------------------------- closest points

@@ -49,6 +49,13 @@ def test_bad_meshes_get_one_line_naming_the_problem(make, words):
     assert msg.startswith("t.obj:") and words in msg and "\n" not in msg
 
 
+def test_a_quad_of_no_area_is_named_as_the_file_numbers_it(tmp_path):
+    p = tmp_path / "q.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nv 0 1 0\nf 1 2 5\nf 1 2 3 4\n")
+    with pytest.raises(InputError, match=r"q.obj: 2 triangles have zero area \(the first is face 2\)"):
+        load_target(p)
+
+
 def test_unreadable_and_triangle_free_files(tmp_path):
     p = tmp_path / "lines.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nl 1 2\n")

@@ -13,7 +13,7 @@ def register(subparsers) -> None:
     p.add_argument("case", help="a case file (.json), or a design (.obj, .msh) with --material etc.")
     p.add_argument("--gamma", type=float, help="share of the flat energy, in [0, 1] (default 0.9)")
     p.add_argument("--beta", type=float, help="weight of the fitting term (default 1000)")
-    p.add_argument("--target-surface", help="a triangle mesh (OBJ, PLY, STL) to fit (default: the deployed design's quads, Loop-subdivided twice)")
+    p.add_argument("--target-surface", help="a surface mesh (OBJ, PLY, STL, .msh or .3dm; triangles, quads or convex polygons) to fit (default: the deployed design's quads, Loop-subdivided twice)")
     p.add_argument("--angle", type=float, help="target average opening angle, degrees (default: the case's)")
     p.add_argument("--max-iters", type=int, default=20)
     p.add_argument("--method", choices=("newton-cg", "bfgs", "trust-constr"), default="newton-cg",

@@ -31,6 +31,7 @@ __all__ = [
     "triangulate_faces",
     "target_surface",
     "read_surface",
+    "read_surface_faces",
     "closest_points",
     "FittingTerm",
 ]
@@ -240,7 +241,10 @@ def target_surface(linkage, faces=None, subdivisions: int = 2) -> tuple[np.ndarr
 
 
 def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a user-supplied triangle mesh (OBJ, PLY, STL, ... via meshio).
+    """Read a user-supplied surface mesh (OBJ, PLY, STL, gmsh ``.msh``, ... via meshio; ``.3dm`` via rhino3dm).
+
+    Quads are split along their shorter diagonal and other polygons fanned
+    (:func:`read_surface_faces`); lines, points and volume cells are ignored.
 
     Parameters
     ----------
@@ -250,12 +254,32 @@ def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
     -------
     V : (m, 3) float
     F : (f, 3) int64
-        All triangle cells of the file.
+        The triangles of all the file's surface faces, in file order.
 
     Raises
     ------
     InputError
-        One line naming the file: unreadable, or without triangles.
+        One line naming the file: unreadable, without surface faces, an index
+        out of range, a non-finite coordinate or a polygon that is not convex.
+    """
+    V, F, _ = read_surface_faces(path)
+    return V, F
+
+
+#: meshio's surface cell types, by how many of their first nodes are the corners
+_SURFACE_CELLS = {"triangle": 3, "triangle6": 3, "triangle7": 3, "quad": 4, "quad8": 4, "quad9": 4, "polygon": None}
+
+
+def read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`read_surface`, with the file face each triangle comes from.
+
+    Returns
+    -------
+    V : (m, 3) float
+    F : (f, 3) int64
+    face : (f,) int64 or None
+        The 0-based index of each triangle's face among the file's surface
+        faces, or None where every face is a triangle (then ``face[i] = i``).
     """
     import meshio
 
@@ -263,7 +287,8 @@ def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
     if path.suffix.lower() == ".3dm":  # Rhino: its meshes, or its surfaces' render meshes, in mm
         from ..rhino.read import read_3dm_surface
 
-        return read_3dm_surface(path)
+        V, F = read_3dm_surface(path)
+        return V, F, None
     try:
         with warnings.catch_warnings():  # meshio warns while guessing at malformed files
             warnings.simplefilter("ignore")
@@ -271,21 +296,79 @@ def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
     except Exception as exc:  # meshio raises many kinds for bad files
         msg = " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(f"{path}: cannot read the target surface: {msg}") from None
-    tris = [np.asarray(c.data, np.int64) for c in mesh.cells if c.type == "triangle" and len(c.data)]
-    if not tris:
-        raise InputError(f"{path}: the target surface has no triangles")
+    blocks = [(c.type, np.asarray(c.data, np.int64)) for c in mesh.cells if c.type in _SURFACE_CELLS and len(c.data)]
+    if not blocks:
+        raise InputError(f"{path}: the target surface has no triangles, quads or polygons")
     V = np.asarray(mesh.points, float)
     if V.ndim != 2 or V.shape[1] not in (2, 3):
         raise InputError(f"{path}: the target surface's points are not 2D or 3D")
     if V.shape[1] == 2:
         V = np.c_[V, np.zeros(len(V))]
-    F = np.concatenate(tris)
-    if F.min() < 0 or F.max() >= len(V):
-        raise InputError(f"{path}: the target surface has a triangle with a vertex index out of range")
-    if not np.isfinite(V).all():
-        bad = int(np.flatnonzero(~np.isfinite(V).all(axis=1))[0])
-        raise InputError(f"{path}: the target surface's vertex {bad + 1} has a non-finite coordinate")
-    return V, F
+    tris, origin, first = [], [], 0
+    for kind, data in blocks:
+        corners = data[:, : _SURFACE_CELLS[kind] or data.shape[1]]
+        if corners.min() < 0 or corners.max() >= len(V):
+            row = int(np.flatnonzero((corners < 0).any(axis=1) | (corners >= len(V)).any(axis=1))[0])
+            raise InputError(f"{path}: face {first + row + 1} of the target surface has a vertex index out of range")
+        if not np.isfinite(V[corners]).all():
+            bad = int(corners.ravel()[np.flatnonzero(~np.isfinite(V[corners.ravel()]).all(axis=1))[0]])
+            raise InputError(f"{path}: the target surface's vertex {bad + 1} has a non-finite coordinate")
+        t, o = _split_polygons(V, corners)
+        if o is None:
+            raise InputError(f"{path}: face {first + t + 1} of the target surface is a polygon that is not convex: "
+                             "triangulate it before use")
+        tris.append(t)
+        origin.append(first + o)
+        first += len(corners)
+    F, origin = np.concatenate(tris), np.concatenate(origin)
+    return V, F, (None if len(F) == first else origin)
+
+
+def _split_polygons(V: np.ndarray, faces: np.ndarray):
+    """Triangles of polygons with the same number of corners: quads along the shorter diagonal where that
+    split keeps both halves facing the quad's way (else the other), larger polygons fanned from their first
+    corner.
+
+    Parameters
+    ----------
+    V : (n, 3) float
+    faces : (k, m) int64, m ≥ 3
+
+    Returns
+    -------
+    (triangles (t, 3), face (t,)), or (index of the first polygon no split keeps facing its way, None).
+    """
+    k, m = faces.shape
+    if m == 3:
+        return faces, np.arange(k)
+    P = V[faces]  # (k, m, 3)
+    newell = np.cross(P, np.roll(P, -1, axis=1)).sum(axis=1)  # the polygons' area-weighted normals
+    # a polygon of no area has no way to face: any split (its zero-area triangles are the checks' to report)
+    span = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    flat = np.linalg.norm(newell, axis=1) <= 1e-12 * span**2
+
+    def facing(tri):  # (k, 3) corner positions in faces' columns -> each triangle faces its polygon's way
+        a, b, c = (P[np.arange(k), tri[:, i]] for i in range(3))
+        return (np.einsum("ij,ij->i", np.cross(b - a, c - a), newell) > 0) | flat
+
+    if m == 4:
+        one = (np.array([0, 1, 2]), np.array([0, 2, 3]))  # along the diagonal 0–2
+        two = (np.array([0, 1, 3]), np.array([1, 2, 3]))  # along 1–3
+        ok1 = facing(np.tile(one[0], (k, 1))) & facing(np.tile(one[1], (k, 1)))
+        ok2 = facing(np.tile(two[0], (k, 1))) & facing(np.tile(two[1], (k, 1)))
+        shorter = np.linalg.norm(P[:, 0] - P[:, 2], axis=1) <= np.linalg.norm(P[:, 1] - P[:, 3], axis=1)
+        use_one = np.where(ok1 & ok2, shorter, ok1 | ~ok2)
+        if not (ok1 | ok2).all():
+            return int(np.flatnonzero(~(ok1 | ok2))[0]), None
+        pick = np.where(use_one[:, None, None], np.stack(one)[None], np.stack(two)[None])  # (k, 2, 3)
+        tri = np.take_along_axis(faces[:, None, :], pick.reshape(k, 1, 6), axis=2).reshape(k, 2, 3)
+        return tri.reshape(-1, 3), np.repeat(np.arange(k), 2)
+    fan = [np.array([0, i, i + 1]) for i in range(1, m - 1)]
+    ok = np.logical_and.reduce([facing(np.tile(f, (k, 1))) for f in fan])
+    if not ok.all():
+        return int(np.flatnonzero(~ok)[0]), None
+    tri = np.stack([faces[:, f] for f in fan], axis=1)  # (k, m − 2, 3)
+    return tri.reshape(-1, 3), np.repeat(np.arange(k), m - 2)
 
 
 # ------------------------------------------------------- closest points

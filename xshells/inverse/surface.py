@@ -55,11 +55,12 @@ class TargetSurface:
 
 
 def load_target(path) -> TargetSurface:
-    """Read and check a target surface (OBJ, PLY, STL or gmsh ``.msh``; see :func:`check_target`)."""
-    from ..design.fitting import read_surface
+    """Read and check a target surface (OBJ, PLY, STL or gmsh ``.msh``, quads and polygons split into
+    triangles; see :func:`check_target`)."""
+    from ..design.fitting import read_surface_faces
 
-    V, F = read_surface(path)
-    return check_target(V, F, str(path))
+    V, F, face = read_surface_faces(path)
+    return check_target(V, F, str(path), face=face)
 
 
 def _edges(F: np.ndarray):
@@ -69,8 +70,10 @@ def _edges(F: np.ndarray):
     return uniq, count
 
 
-def check_target(V, F, where: str = "the target surface") -> TargetSurface:
+def check_target(V, F, where: str = "the target surface", face=None) -> TargetSurface:
     """Check a triangle mesh for inverse design and orient it consistently.
+
+    ``face`` (f,), optional: the file face each triangle was split from (messages name that face).
 
     Raises
     ------
@@ -81,6 +84,10 @@ def check_target(V, F, where: str = "the target surface") -> TargetSurface:
 
     V = np.asarray(V, float)
     F = np.asarray(F, np.int64)
+
+    def triangle(i):  # how a message names triangle i: as the file has it
+        return f"triangle {i + 1}" if face is None else f"face {int(face[i]) + 1}"
+
     if len(F) == 0 or len(V) < 3:
         raise InputError(f"{where}: the mesh is empty (no triangles)")
     if not np.isfinite(V).all():
@@ -92,15 +99,15 @@ def check_target(V, F, where: str = "the target surface") -> TargetSurface:
     V, F = V[used], remap[F]
     dup = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
     if dup.any():
-        raise InputError(f"{where}: triangle {int(np.flatnonzero(dup)[0]) + 1} repeats a vertex")
+        raise InputError(f"{where}: {triangle(int(np.flatnonzero(dup)[0]))} repeats a vertex")
     diag = float(np.linalg.norm(np.ptp(V, axis=0)))
     if not diag > 0:
         raise InputError(f"{where}: all vertices coincide")
     areas = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
     flat = areas <= 1e-12 * diag**2
     if flat.any():
-        raise InputError(f"{where}: {int(flat.sum())} triangles have zero area (the first is triangle "
-                         f"{int(np.flatnonzero(flat)[0]) + 1})")
+        raise InputError(f"{where}: {int(flat.sum())} triangles have zero area (the first is "
+                         f"{triangle(int(np.flatnonzero(flat)[0]))})")
     E, count = _edges(F)
     if (count > 2).any():
         a, b = E[np.flatnonzero(count > 2)[0]]
