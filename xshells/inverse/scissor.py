@@ -51,6 +51,8 @@ class FaceFrames:
     grad : (2m, n) sparse
         Rows 2f, 2f+1: the gradient of a P1 function in triangle f's frame.
     faces : (m, 3) int
+    edges_inv : (m, 2, 2) float
+        The inverses of ``edges`` (every Jacobian needs them; 12 ms per call on 80k faces).
     """
 
     ex: np.ndarray = field(repr=False)
@@ -60,6 +62,7 @@ class FaceFrames:
     edges: np.ndarray = field(repr=False)
     grad: sp.csr_matrix = field(repr=False)
     faces: np.ndarray = field(repr=False)
+    edges_inv: np.ndarray = field(repr=False, default=None)
 
     def to_3d(self, d2: np.ndarray) -> np.ndarray:
         """Per-face 2D frame vectors (m, 2) as 3D vectors (m, 3)."""
@@ -69,7 +72,13 @@ class FaceFrames:
         """Per-face Jacobians (m, k, 2) of a P1 map with vertex values (n, k)."""
         F = self.faces
         d = np.stack([values[F[:, 1]] - values[F[:, 0]], values[F[:, 2]] - values[F[:, 0]]], axis=2)
-        return d @ np.linalg.inv(self.edges)
+        return d @ (np.linalg.inv(self.edges) if self.edges_inv is None else self.edges_inv)
+
+
+def _det2(A: np.ndarray) -> np.ndarray:
+    """Determinants of a stack of 2 × 2 matrices (m, 2, 2), in closed form (LAPACK's per-matrix call
+    took 6 ms on 80k faces)."""
+    return A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
 
 
 def face_frames(V: np.ndarray, F: np.ndarray) -> FaceFrames:
@@ -90,7 +99,7 @@ def face_frames(V: np.ndarray, F: np.ndarray) -> FaceFrames:
         cols += [F[:, 0], F[:, 1], F[:, 2]]
         vals += [-(C[:, 0, k] + C[:, 1, k]), C[:, 0, k], C[:, 1, k]]
     G = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(2 * m, len(V)))
-    return FaceFrames(ex, ey, n, 0.5 * twice, M, G, F)
+    return FaceFrames(ex, ey, n, 0.5 * twice, M, G, F, C)
 
 
 class PoissonSolver:
@@ -195,7 +204,7 @@ def scissor_map(surface: TargetSurface, deployed_angle: float, flat_angle: float
     for _ in range(iterations):
         J = frames.jacobians(psi)
         U, S, Vt = np.linalg.svd(J)
-        flip = np.linalg.det(U) * np.linalg.det(Vt) < 0
+        flip = _det2(U) * _det2(Vt) < 0  # ±1 each (orthogonal): the sign of the product is exact
         U[flip, :, 1] *= -1
         T = U @ D[None] @ Vt
         res = float(np.sqrt((((J - T) ** 2).sum((1, 2)) * frames.area).sum() / frames.area.sum())) / scale
