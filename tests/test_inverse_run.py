@@ -99,6 +99,57 @@ def test_bad_meshes_and_nets_get_one_line(tmp_path, capsys):
     assert "vertex 3 has a non-finite coordinate" in capsys.readouterr().err
 
 
+def _strip(path, length=6000.0, width=400.0, rise=800.0, n=40):
+    """An arch-shaped strip: its bounding box's second extent is its rise (860), not its width."""
+    x, y = np.meshgrid(np.linspace(-length / 2, length / 2, n + 1), np.linspace(-width / 2, width / 2, 5), indexing="ij")
+    z = rise * (1 - (2 * x / length) ** 2) - 0.3 * y**2 / 200.0
+    V = np.c_[x.ravel(), y.ravel(), z.ravel()]
+    idx = np.arange(V.shape[0]).reshape(x.shape)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    path.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F.tolist()))
+    return path
+
+
+def test_a_long_strip_gets_four_spacings_across_by_default_and_a_wider_spacing_is_refused(tmp_path, capsys):
+    # the default of 1/12 of the diagonal (506) was refused by the check itself on this strip, and the
+    # check measured the width by the bounding box, whose second extent is the arch's rise
+    from xshells.inverse.run import InverseOptions, check_options, default_spacing, surface_extent
+    from xshells.inverse.surface import load_target
+
+    surface = load_target(_strip(tmp_path / "strip.obj"))
+    length, width = surface_extent(surface)
+    arc = surface.area / 400.0  # the strip's length along the arch
+    assert length == pytest.approx(6000.0) and width == pytest.approx(400.0 * arc / 6000.0)
+    assert default_spacing(surface) == pytest.approx(width / 4) and width / 4 < surface.diagonal / 12
+    assert check_options(InverseOptions(), surface) == pytest.approx(width / 4)
+    assert main(["inverse", str(tmp_path / "strip.obj"), "--spacing", "250", "--out", str(tmp_path / "o"),
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "larger than the surface allows" in err and f"about {width:.4g} wide" in err and "\n" not in err
+
+
+def test_the_cap_keeps_its_default_spacing():
+    from xshells.inverse.run import default_spacing
+    from xshells.inverse.surface import load_target
+
+    surface = load_target(CAP)
+    assert default_spacing(surface) == surface.diagonal / 12
+
+
+def test_a_surface_in_metres_is_asked_about_its_units(tmp_path, capsys):
+    from xshells.design.fitting import read_surface
+
+    V, F = read_surface(CAP)
+    metres = tmp_path / "cap_m.obj"  # the bundled cap (mm) in metres: the 10 × 7 section is then 10 m wide
+    metres.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in (V / 1000.0).tolist())
+                      + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F.tolist()))
+    assert main(["inverse", str(metres), "--beams", "even", "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "would overlap" in err and "in the material's units" in err and "\n" not in err
+
+
 # --beams auto: the geodesic net where its flat layout closes, the better of the two kept ----------------------
 
 K = 350.0 / 1200.0**2  # the shared hypar's z = K (x² − y²), 2400 × 2400

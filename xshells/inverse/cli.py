@@ -12,7 +12,7 @@ def register(subparsers) -> None:
                     "Writes a case that `xshells deploy` reproduces. Units follow the surface (lengths) and the "
                     "material (Young's modulus): the bundled data use mm and MPa.")
     p.add_argument("surface", help="the target: a surface mesh (OBJ, PLY, STL, gmsh .msh or Rhino .3dm; triangles, quads or convex polygons) in design units")
-    p.add_argument("--spacing", type=float, help="joint spacing along the beams (default: 1/12 of the surface's diagonal)")
+    p.add_argument("--spacing", type=float, help="joint spacing along the beams (default: 1/12 of the surface's diagonal, or a quarter of its width where that is less)")
     p.add_argument("--angle", type=float, default=90.0, help="deployed average opening angle, degrees, in (20, 160) (default 90)")
     p.add_argument("--orientation", type=float, default=0.0,
                    help="turns the beam families on the surface, degrees (0: their bisector along the surface's longest axis)")

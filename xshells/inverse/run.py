@@ -45,7 +45,8 @@ class InverseOptions:
     Attributes
     ----------
     spacing : float or None
-        Joint spacing along the beams (default: 1/12 of the surface's diagonal).
+        Joint spacing along the beams (default: 1/12 of the surface's diagonal, or a quarter of its
+        width where that is less: :func:`default_spacing`).
     angle : float
         Deployed average opening angle, in (20, 160).
     orientation : float
@@ -126,6 +127,20 @@ def _check_tries(options: InverseOptions) -> None:
         raise InputError(f"--tries must be a whole number from 1 to {MAX_TRIES}, got {options.tries}")
 
 
+def surface_extent(surface) -> tuple[float, float]:
+    """(length, width): the surface's longest bounding-box extent, and how wide it is across it: its area
+    over its length (a bounding box measures a curved strip's rise, not its width), at most the box's
+    second extent."""
+    extent = np.sort(np.ptp(surface.V, axis=0))[::-1]
+    return float(extent[0]), min(float(extent[1]), surface.area / float(extent[0]))
+
+
+def default_spacing(surface) -> float:
+    """1/12 of the surface's bounding-box diagonal, or a quarter of its width where it is narrower than a
+    third of that (a long strip: four spacings across it)."""
+    return float(min(surface.diagonal / 12.0, 0.25 * surface_extent(surface)[1]))
+
+
 def check_options(options: InverseOptions, surface) -> float:
     """One-line errors for options that cannot work on ``surface``; returns the spacing to use."""
     if not (np.isfinite(options.angle) and 20.0 < options.angle < 160.0):
@@ -156,15 +171,15 @@ def check_options(options: InverseOptions, surface) -> float:
     if options.workers is not None and options.workers < 1:
         raise InputError(f"--workers must be at least 1, got {options.workers}")
     _check_tries(options)
-    spacing = options.spacing if options.spacing is not None else surface.diagonal / 12.0
+    length, width = surface_extent(surface)
+    spacing = options.spacing if options.spacing is not None else default_spacing(surface)
     if not (np.isfinite(spacing) and spacing > 0):
         raise InputError(f"--spacing {spacing:g}: the spacing must be a positive length")
     from .net import estimate_segments
 
-    extent = np.sort(np.ptp(surface.V, axis=0))[::-1]
-    if spacing >= 0.5 * extent[1] or estimate_segments(surface, spacing, np.radians(options.angle)) < 8:
-        raise InputError(f"--spacing {spacing:.4g} is larger than the surface allows (its extents are "
-                         f"{extent[0]:.4g} × {extent[1]:.4g}): use at most {0.25 * extent[1]:.4g}")
+    if spacing >= 0.5 * width or estimate_segments(surface, spacing, np.radians(options.angle)) < 8:
+        raise InputError(f"--spacing {spacing:.4g} is larger than the surface allows (it is {length:.4g} long and "
+                         f"about {width:.4g} wide): use at most {0.25 * width:.4g}")
     n = estimate_segments(surface, spacing, np.radians(options.angle))
     if n > MAX_SEGMENTS and not options.force:
         raise InputError(f"--spacing {spacing:.4g} gives about {n} segments, more than {MAX_SEGMENTS}: give a larger "
@@ -720,8 +735,10 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     width = float(np.ptp(material.outline[0], axis=0).max()) if material.outline else 0.0
     gap = _min_beam_gap(net, alpha0)
     if width > 0 and gap < width:
+        units = (f"; the beams are wider than half the joint spacing ({spacing:.3g}): is the surface in the "
+                 f"material's units (the section's, and E's: mm and MPa by default)?" if width > 0.5 * spacing else "")
         raise InputError(f"--flat-angle {options.flat_angle:g}°: closed that far, neighbouring beams "
-                         f"({width:.3g} wide) would overlap (gap {gap:.3g}): open it, or use a larger spacing")
+                         f"({width:.3g} wide) would overlap (gap {gap:.3g}): open it, or use a larger spacing{units}")
 
     # 3. rest lengths and a first deployment ----------------------------------------------------
     from ..deploy.simulate import DeployOptions, deploy, rest_length_solve

@@ -252,7 +252,7 @@ def components() -> list[Component]:
         Component("/inverse", "Inverse", "A flat X-shell that deploys onto a surface (as xshells inverse).",
                   (Param("Surface", "Mesh", "the target surface"), *MATERIAL,
                    Param("Angle", "Number", "deployed average opening angle, degrees", default=90.0),
-                   Param("Spacing", "Number", "joint spacing along the beams (0: 1/12 of the diagonal)", default=0.0),
+                   Param("Spacing", "Number", "joint spacing along the beams (0: 1/12 of the diagonal, or a quarter of the width where less)", default=0.0),
                    Param("Grading", "Number", "the net's grading, degrees (0: even spacing)", default=0.0),
                    Param("MaxIters", "Integer", "design-optimization iterations", default=20), direction,
                    Param("Tries", "Integer", "designs per net, the fit weight doubled each time; the best is kept "
