@@ -268,6 +268,28 @@ def bumpy_mesh(n=4):
     return V, np.array(F)
 
 
+def test_the_kept_tree_answers_as_igl_does_and_follows_the_mesh():
+    import igl
+
+    from xshells.design import fitting
+
+    V, F = bumpy_mesh(6)
+    P = np.random.default_rng(3).normal(0.5, 0.4, (50, 3))
+    want = igl.point_mesh_squared_distance(P, V, F)
+    for _ in range(2):  # built, then kept
+        got = fitting.point_mesh_squared_distance(P, V, F)
+        assert all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(got, want))
+    assert len(fitting._TREES) >= 1
+    kept = dict(fitting._TREES)
+    fitting.point_mesh_squared_distance(P[:3], V, F)
+    assert fitting._TREES.keys() == kept.keys()  # the same mesh: no new tree
+    V2 = V.copy()
+    V2[:, 2] += 0.25  # the same shapes, other values: a tree of its own, not the old one's answers
+    got = fitting.point_mesh_squared_distance(P, V2, F)
+    want = igl.point_mesh_squared_distance(P, V2, F)
+    assert all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(got, want))
+
+
 def test_closest_points_match_brute_force():
     V, F = bumpy_mesh()
     P = np.random.default_rng(0).uniform([-0.3, -0.3, -0.5], [1.3, 1.3, 0.8], size=(60, 3))

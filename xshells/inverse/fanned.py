@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..design.fitting import point_mesh_squared_distance
 from ..errors import InputError
 from .net import Net, _check_connected, _locate, _tidy, net_coordinates
 from .scissor import ScissorMap
@@ -89,9 +90,7 @@ class ChartLift:
 
     def faces(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The nearest chart triangle (k,) of each point and the distance (k,) outside the chart."""
-        import igl
-
-        sq, fi, _ = igl.point_mesh_squared_distance(np.c_[u, np.zeros(len(u))], self._U3, self.F)
+        sq, fi, _ = point_mesh_squared_distance(np.c_[u, np.zeros(len(u))], self._U3, self.F)
         return np.asarray(fi, np.int64), np.sqrt(np.maximum(np.asarray(sq, float), 0.0))
 
     def _lift(self, u: np.ndarray):
@@ -115,13 +114,11 @@ class ChartLift:
         """How far (k,) the lifted points lie from the surface, in its units: 0 inside the chart; outside,
         the chart triangle's plane continued beyond the boundary (the chart itself is closed, so its own
         distances across the beams are shorter than on the surface by the opening's stretch)."""
-        import igl
-
         X, d = self(u)
         out = np.zeros(len(u))
         far = d > 1e-9 * self._span
         if far.any():
-            sq, _, _ = igl.point_mesh_squared_distance(X[far], self.V, self.F)
+            sq, _, _ = point_mesh_squared_distance(X[far], self.V, self.F)
             out[far] = np.sqrt(np.maximum(np.asarray(sq, float), 0.0))
         return out
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..design.fitting import point_mesh_squared_distance
 from ..errors import InputError
 from .net import Net, read_net
 
@@ -169,7 +170,7 @@ def chart(surface, smap):
     F = surface.F
 
     def to_chart(X):
-        sq, fi, C = igl.point_mesh_squared_distance(np.ascontiguousarray(X, float), surface.V, F)
+        sq, fi, C = point_mesh_squared_distance(np.ascontiguousarray(X, float), surface.V, F)
         fi = np.asarray(fi, np.int64)
         bc = igl.barycentric_coordinates(np.asarray(C, float), surface.V[F[fi, 0]], surface.V[F[fi, 1]],
                                          surface.V[F[fi, 2]])

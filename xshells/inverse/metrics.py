@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..design.fitting import point_mesh_squared_distance
 from .surface import TargetSurface
 
 
@@ -26,9 +27,7 @@ def apply(T: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 def surface_distances(surface: TargetSurface, P: np.ndarray) -> np.ndarray:
     """Unsigned distances (k,) of points to the surface."""
-    import igl
-
-    sq, _, _ = igl.point_mesh_squared_distance(np.asarray(P, float), surface.V, surface.F)
+    sq, _, _ = point_mesh_squared_distance(np.asarray(P, float), surface.V, surface.F)
     return np.sqrt(np.maximum(np.asarray(sq, float), 0.0))
 
 
@@ -42,12 +41,10 @@ def place(surface: TargetSurface, joints: np.ndarray, guess: np.ndarray, target_
     and to its guess with ``target_weight`` (the split of the fitting term,
     eq. 6: the shell may slide along the surface, a little).
     """
-    import igl
-
     T = kabsch(joints, guess)
     for _ in range(iterations):
         X = apply(T, joints)
-        _, _, C = igl.point_mesh_squared_distance(X, surface.V, surface.F)
+        _, _, C = point_mesh_squared_distance(X, surface.V, surface.F)
         goal = (1.0 - target_weight) * np.asarray(C) + target_weight * guess
         T_new = kabsch(joints, goal)
         if np.abs(T_new - T).max() <= 1e-12 * max(1.0, surface.diagonal):

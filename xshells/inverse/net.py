@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..design.fitting import point_mesh_squared_distance
 from ..errors import InputError
 from .scissor import PoissonSolver, ScissorMap
 from .surface import TargetSurface
@@ -90,7 +91,7 @@ def _locate(points2, UV, F):
 
     UV3 = np.c_[UV, np.zeros(len(UV))]
     Q = np.c_[points2, np.zeros(len(points2))]
-    sq, fi, C = igl.point_mesh_squared_distance(Q, UV3, F)
+    sq, fi, C = point_mesh_squared_distance(Q, UV3, F)
     fi = np.asarray(fi, np.int64)
     bc = igl.barycentric_coordinates(np.asarray(C, float), UV3[F[fi, 0]], UV3[F[fi, 1]], UV3[F[fi, 2]])
     span = float(np.ptp(UV, axis=0).max())
