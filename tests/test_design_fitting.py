@@ -239,6 +239,9 @@ def test_a_face_index_out_of_range_is_named(tmp_path):
     (tmp_path / "oob.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\nf 1 2 3 9\n")
     with pytest.raises(InputError, match=r"oob.obj: face 2 .*out of range"):
         read_surface(tmp_path / "oob.obj")
+    (tmp_path / "rel.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nf -3 -2 -1\n")
+    with pytest.raises(InputError, match=r"rel.obj: face 1 .*relative \(negative\) vertex indices"):
+        read_surface(tmp_path / "rel.obj")
 
 
 # ------------------------------------------------------- closest points

@@ -308,6 +308,10 @@ def read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
     tris, origin, first = [], [], 0
     for kind, data in blocks:
         corners = data[:, : _SURFACE_CELLS[kind] or data.shape[1]]
+        if corners.min() < 0 and path.suffix.lower() == ".obj":  # meshio reads OBJ's relative indices as they stand
+            row = int(np.flatnonzero((corners < 0).any(axis=1))[0])
+            raise InputError(f"{path}: face {first + row + 1} of the target surface uses relative (negative) vertex "
+                             "indices, which are not supported: export it with absolute indices")
         if corners.min() < 0 or corners.max() >= len(V):
             row = int(np.flatnonzero((corners < 0).any(axis=1) | (corners >= len(V)).any(axis=1))[0])
             raise InputError(f"{path}: face {first + row + 1} of the target surface has a vertex index out of range")
