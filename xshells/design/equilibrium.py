@@ -173,14 +173,23 @@ class ConstrainedEquilibrium:
 
     def kkt_solve_many(self, R: np.ndarray) -> np.ndarray:
         """:meth:`kkt_solve` for the columns of ``R`` (num_vars, k) at once."""
-        U = self.chol.solve(np.asarray(R, float)[self.free])
+        return self._kkt_solve_free(np.asarray(R, float)[self.free])
+
+    def _kkt_solve_free(self, Rf: np.ndarray) -> np.ndarray:
+        """:meth:`kkt_solve_many` given the free rows (f, k) of the right-hand sides."""
+        U = self.chol.solve(Rf)
+        U -= np.outer(self._v, (self.af @ U) / self._av)
         W = np.zeros((self.nx, U.shape[1]))
-        W[self.free] = U - np.outer(self._v, (self.af @ U) / self._av)
+        W[self.free] = U
         return W
 
     def state_jacobian(self) -> np.ndarray:
-        """``∂x*/∂p`` (num_vars, S), dense: one multi-column KKT solve."""
-        return self.kkt_solve_many(-self.Hxp.toarray())
+        """``∂x*/∂p`` (num_vars, S), dense: one multi-column KKT solve.
+
+        The right-hand sides are formed from the free rows only and column-major, as CHOLMOD takes them
+        (from a row-major array cvxopt copied them element by element: 17 ms of a 0.24 s solve at 8,000 × 340).
+        """
+        return self._kkt_solve_free((-self.Hxp[self.free]).toarray(order="F"))
 
     def energy_hessian_p(self, X=None) -> np.ndarray:
         """``d²E(x*(p), p)/dp² = H_pp + H_px ∂x*/∂p`` (S, S), dense and exact.
