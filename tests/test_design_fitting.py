@@ -235,6 +235,17 @@ def test_larger_convex_polygons_are_fanned_and_concave_ones_refused(tmp_path):
     assert "\n" not in msg and "dart.obj" in msg and "face 2" in msg and "not convex" in msg
 
 
+@pytest.mark.parametrize("face, words", [
+    ("f 1 3 2 4", "face 1 of the target surface is a polygon that is not convex or crosses itself"),  # a bow tie
+    ("f 1 2", "face 1 of the target surface has only 2 corners"),
+])
+def test_a_face_that_crosses_itself_or_has_two_corners_is_named(tmp_path, face, words):
+    (tmp_path / "t.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" + face + "\n")
+    with pytest.raises(InputError) as err:
+        read_surface(tmp_path / "t.obj")
+    assert words in str(err.value) and "\n" not in str(err.value)
+
+
 def test_a_face_index_out_of_range_is_named(tmp_path):
     (tmp_path / "oob.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\nf 1 2 3 9\n")
     with pytest.raises(InputError, match=r"oob.obj: face 2 .*out of range"):

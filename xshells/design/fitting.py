@@ -320,13 +320,16 @@ def read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
             raise InputError(f"{path}: the target surface's vertex {bad + 1} has a non-finite coordinate")
         t, o = _split_polygons(V, corners)
         if o is None:
-            raise InputError(f"{path}: face {first + t + 1} of the target surface is a polygon that is not convex: "
-                             "triangulate it before use")
+            bad, why = t
+            raise InputError(f"{path}: face {first + bad + 1} of the target surface {why}")
         tris.append(t)
         origin.append(first + o)
         first += len(corners)
     F, origin = np.concatenate(tris), np.concatenate(origin)
     return V, F, (None if len(F) == first else origin)
+
+
+_NOT_CONVEX = "is a polygon that is not convex or crosses itself: triangulate it before use"
 
 
 def _split_polygons(V: np.ndarray, faces: np.ndarray):
@@ -341,20 +344,26 @@ def _split_polygons(V: np.ndarray, faces: np.ndarray):
 
     Returns
     -------
-    (triangles (t, 3), face (t,)), or (index of the first polygon no split keeps facing its way, None).
+    (triangles (t, 3), face (t,)), or ((index of the first bad polygon, what is wrong with it), None).
     """
     k, m = faces.shape
+    if m < 3:
+        return (0, f"has only {m} corner{'s' * (m != 1)}: a surface face needs at least 3"), None
     if m == 3:
         return faces, np.arange(k)
     P = V[faces]  # (k, m, 3)
     newell = np.cross(P, np.roll(P, -1, axis=1)).sum(axis=1)  # the polygons' area-weighted normals
-    # a polygon of no area has no way to face: any split (its zero-area triangles are the checks' to report)
     span = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
-    flat = np.linalg.norm(newell, axis=1) <= 1e-12 * span**2
+    tiny = 1e-12 * span**2
+    # A polygon of no area (its corners on a line) has no way to face: any split will do, and its zero-area
+    # triangles are the mesh checks' to report. One whose normal cancels but whose corners span an area (a
+    # bow tie) crosses itself: no split faces its way, and it is refused below.
+    fan_area = np.linalg.norm(np.cross(P[:, 1:-1] - P[:, :1], P[:, 2:] - P[:, :1]), axis=2).max(axis=1)
+    degenerate = (np.linalg.norm(newell, axis=1) <= tiny) & (fan_area <= tiny)
 
     def facing(tri):  # (k, 3) corner positions in faces' columns -> each triangle faces its polygon's way
         a, b, c = (P[np.arange(k), tri[:, i]] for i in range(3))
-        return (np.einsum("ij,ij->i", np.cross(b - a, c - a), newell) > 0) | flat
+        return (np.einsum("ij,ij->i", np.cross(b - a, c - a), newell) > 0) | degenerate
 
     if m == 4:
         one = (np.array([0, 1, 2]), np.array([0, 2, 3]))  # along the diagonal 0–2
@@ -364,14 +373,14 @@ def _split_polygons(V: np.ndarray, faces: np.ndarray):
         shorter = np.linalg.norm(P[:, 0] - P[:, 2], axis=1) <= np.linalg.norm(P[:, 1] - P[:, 3], axis=1)
         use_one = np.where(ok1 & ok2, shorter, ok1 | ~ok2)
         if not (ok1 | ok2).all():
-            return int(np.flatnonzero(~(ok1 | ok2))[0]), None
+            return (int(np.flatnonzero(~(ok1 | ok2))[0]), _NOT_CONVEX), None
         pick = np.where(use_one[:, None, None], np.stack(one)[None], np.stack(two)[None])  # (k, 2, 3)
         tri = np.take_along_axis(faces[:, None, :], pick.reshape(k, 1, 6), axis=2).reshape(k, 2, 3)
         return tri.reshape(-1, 3), np.repeat(np.arange(k), 2)
     fan = [np.array([0, i, i + 1]) for i in range(1, m - 1)]
     ok = np.logical_and.reduce([facing(np.tile(f, (k, 1))) for f in fan])
     if not ok.all():
-        return int(np.flatnonzero(~ok)[0]), None
+        return (int(np.flatnonzero(~ok)[0]), _NOT_CONVEX), None
     tri = np.stack([faces[:, f] for f in fan], axis=1)  # (k, m − 2, 3)
     return tri.reshape(-1, 3), np.repeat(np.arange(k), m - 2)
 

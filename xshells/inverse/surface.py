@@ -106,7 +106,8 @@ def check_target(V, F, where: str = "the target surface", face=None) -> TargetSu
     areas = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
     flat = areas <= 1e-12 * diag**2
     if flat.any():
-        raise InputError(f"{where}: {int(flat.sum())} triangles have zero area (the first is "
+        n = int(flat.sum())
+        raise InputError(f"{where}: {n} triangle{'s have' if n != 1 else ' has'} zero area (the first is "
                          f"{triangle(int(np.flatnonzero(flat)[0]))})")
     E, count = _edges(F)
     if (count > 2).any():
