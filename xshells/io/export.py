@@ -14,20 +14,69 @@ import numpy as np
 
 from .design import Design
 
-__all__ = ["atomic_write_text", "write_design_obj", "write_polylines_obj"]
+__all__ = ["atomic_write_text", "output_target", "replace_with", "write_design_obj", "write_polylines_obj"]
+
+
+def _read_umask() -> int:
+    """The process's umask: from /proc where Linux shows it, else by setting and restoring it (the only
+    portable way to read it, but another thread creating a file meanwhile would get 022)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+# mkstemp makes files only their owner can read (0600); a finished output gets the mode that open() would
+# give it under the process's umask
+_UMASK = _read_umask()
+
+
+def output_target(path: str | os.PathLike) -> str:
+    """The file that writing ``path`` replaces: a symbolic link's target (written through, as ``open``
+    would; replacing the link itself lost it), else ``path`` itself.
+
+    Raises
+    ------
+    InputError
+        ``path`` exists and is not a regular file (a device such as ``/dev/null``, a folder): renaming a
+        finished file onto it would replace the device node.
+    """
+    from ..errors import InputError
+
+    path = os.fspath(path)
+    if not path:
+        raise InputError("the output path is empty")
+    target = os.path.realpath(path)
+    if os.path.exists(target) and not os.path.isfile(target):
+        what = "a folder" if os.path.isdir(target) else "not a regular file"
+        raise InputError(f"{path}: {what}: an output must be a file (give a file name)")
+    return target
+
+
+def replace_with(tmp: str, target: str) -> None:
+    """Move the finished temporary file ``tmp`` onto ``target`` (from :func:`output_target`), with the mode a
+    newly opened file would have."""
+    os.chmod(tmp, 0o666 & ~_UMASK)
+    os.replace(tmp, target)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically (temporary file + ``os.replace``): never a half-written file."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(path), dir=folder)
+    target = output_target(path)
+    folder = os.path.dirname(target)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(target), dir=folder)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        replace_with(tmp, target)
     except BaseException:
         try:
             os.unlink(tmp)

@@ -69,12 +69,14 @@ def save_linkage(path, linkage: Linkage) -> None:
         rod_ref_twist_src=linkage.rods.ref_twist_src,
         theta_prev=linkage._inst_prm[14],
     )
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=".npz.tmp")
+    from ..io.export import output_target, replace_with
+
+    target = output_target(path)
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), suffix=".npz.tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             np.savez(fh, **arrays)
-        os.replace(tmp, path)
+        replace_with(tmp, target)
     except BaseException:
         if os.path.exists(tmp):
             os.remove(tmp)

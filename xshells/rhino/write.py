@@ -144,14 +144,16 @@ def write_3dm(path, *, flat_design=None, deployed=None, actuators=None, target=N
                 f.Objects.AddCircle(rhino3dm.Circle(rhino3dm.Point3d(x0 + pos, y0 - 0.5 * w, 0.0), 0.5 * strips.hole_diameter),
                                     _attrs(rhino3dm, layer))
             f.Objects.AddTextDot(b.label, rhino3dm.Point3d(x0, y0 - 0.5 * w, 0.0), _attrs(rhino3dm, layer))
+    from ..io.export import output_target, replace_with
+
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=".3dm.tmp")
+    target = output_target(path)
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(target), suffix=".3dm.tmp")
     os.close(fd)
     try:
         if not f.Write(tmp, 7):
             raise OSError(f"{path}: rhino3dm could not write the file")
-        os.replace(tmp, path)
+        replace_with(tmp, target)
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
