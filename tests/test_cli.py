@@ -31,3 +31,11 @@ def test_rod_elastica_demo(tmp_path):
 def test_no_command_prints_help(capsys):
     assert main([]) == 2
     assert "usage" in capsys.readouterr().out
+
+
+def test_an_empty_out_folder_gets_one_line(capsys):
+    from data_paths import EXAMPLES
+
+    assert main(["deploy", str(EXAMPLES / "quad.obj"), "--out", "", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--out is empty" in err and "\n" not in err

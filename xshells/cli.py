@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
 def _execute(args) -> int:
     """Runs a parsed command; input errors propagate as :class:`InputError`."""
     out = getattr(args, "out", None)
-    if isinstance(out, str) and out:  # refused before any work starts
+    if isinstance(out, str):  # refused before any work starts (an empty one too: a default is None)
         from .io.export import prepare_output_dir
 
         prepare_output_dir(out)

@@ -96,6 +96,8 @@ def prepare_output_dir(path: str | os.PathLike) -> str:
     from ..errors import InputError
 
     path = os.fspath(path)
+    if not path.strip():
+        raise InputError("--out is empty: give the output folder")
     if os.path.exists(path) and not os.path.isdir(path):
         raise InputError(f"--out {path}: exists and is not a folder")
     # the first folder on the way that does not exist yet: removed again after the probe, so that a
