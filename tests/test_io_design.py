@@ -176,6 +176,11 @@ def test_msh_reading_and_errors(tmp_path):
     with pytest.raises(InputError, match=r"tri\.msh: the design has no line elements \(cell types: triangle\)"):
         read_design(tri)
 
+    mixed = tmp_path / "mixed.msh"  # lines and a triangle: the triangle was dropped without a word
+    _write_msh(mixed, pts, [("line", np.array([[0, 1], [1, 2]])), ("triangle", np.array([[0, 1, 2]]))])
+    with pytest.raises(InputError, match=r"mixed\.msh: the design holds 1 triangle element besides its line elements"):
+        read_design(mixed)
+
     dup = tmp_path / "dup.msh"
     _write_msh(dup, pts, [("line", np.array([[0, 1], [1, 2], [1, 0]]))])
     with pytest.raises(InputError, match=r"dup\.msh: edge 2: duplicate edge between node 0 and node 1, already given at edge 0"):

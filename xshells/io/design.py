@@ -360,6 +360,16 @@ def read_msh_design(path: str | os.PathLike) -> Design:
     if not blocks or sum(len(b) for b in blocks) == 0:
         kinds = sorted({c.type for c in mesh.cells}) or ["none"]
         raise InputError(f"{label}: the design has no line elements (cell types: {', '.join(kinds)})")
+    # anything else beside the lines (a triangle, a quad) would be dropped without a word: say so instead
+    # (point elements carry nothing for a line graph and are skipped, as gmsh writes them for its points)
+    other = {}
+    for c in mesh.cells:
+        if c.type not in ("line", "vertex") and len(c.data):
+            other[c.type] = other.get(c.type, 0) + len(c.data)
+    if other:
+        listed = ", ".join(f"{n} {kind} element{'s' * (n != 1)}" for kind, n in sorted(other.items()))
+        raise InputError(f"{label}: the design holds {listed} besides its line elements: a design is a line graph "
+                         "of beam segments only (a target surface goes to --target-surface)")
     return design_from_arrays(mesh.points, np.concatenate(blocks, axis=0), source=label)
 
 
