@@ -182,7 +182,7 @@ def test_cli_writes_the_answer_and_the_curve(tmp_path, capsys):
 def test_a_run_that_stops_early_says_so_and_suggests_what_to_try(tmp_path, capsys):
     case = _small_case(tmp_path)
     out = tmp_path / "out"
-    assert main(["sparsify", str(case), "--eta", "1e-3", "--max-iters", "1", "--out", str(out), "--no-progress"]) == 0
+    assert main(["sparsify", str(case), "--eta", "1e-3", "--max-iters", "1", "--out", str(out), "--no-progress"]) == 1
     text = capsys.readouterr().out
     r = json.loads((out / "result.json").read_text())
     assert r["converged"] is False and "iteration limit" in r["message"]

@@ -110,7 +110,7 @@ def _run(args, case_path) -> int:
         opts = SelectionOptions(max_fit=max_fit, actuators=args.actuators, tau_max=args.tau_max, full_curve=args.sweep)
         r = run_selection(case_path, args.out, opts, candidates=candidates, angle_deg=args.angle, progress=not args.no_progress)
     _summary(r, args.out)
-    return 0
+    return 0 if r["converged"] else 1  # as `xshells deploy` does for a run that stops short
 
 
 def _summary(r: dict, out: str) -> None:
