@@ -138,6 +138,10 @@ def test_candidates_and_torque_limit_are_kept(dense):
     (["--max-fit", "2"], "between 0 and 100%"), (["--actuators", "0"], "--actuators must be at least 1"),
     (["--eta", "1e-3", "--actuators", "3"], "give one of them"), (["--p", "0.5"], "--p applies to eq. 8 only"),
     (["--max-iters", "5"], "--max-iters applies"), (["--etas", "1e-3"], "--etas needs --sweep"),
+    # these were ignored: --max-fit beside --actuators, and an empty list meant every joint
+    (["--actuators", "2", "--max-fit", "1%"], "--max-fit limits the deviation"),
+    (["--eta", "1e-3", "--max-fit", "1%"], "does not apply with --eta"),
+    (["--candidates", ""], "no vertex index given"), (["--candidates", ",,,"], "no vertex index given"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, capsys, argv, match):
     case = EXAMPLES / "asymm_wings_pointy" / "case.json"

@@ -14,7 +14,7 @@ def register(subparsers) -> None:
                     "joints whose torques reach the same shape within --max-fit (or the best --actuators N), and the "
                     "trade-off curve on the way. Torques are in the energy's units (N·mm for mm and MPa).")
     p.add_argument("case", help="a case file (.json), or a design (.obj, .msh) with --material etc.")
-    p.add_argument("--max-fit", default="1%",
+    p.add_argument("--max-fit",
                    help="the fewest actuators whose mean joint deviation from the dense deployment stays within this "
                         "share of the span: a percentage (1%%) or a fraction (0.01); default 1%%")
     p.add_argument("--actuators", type=int, help="the best N actuators instead of a deviation limit")
@@ -84,13 +84,18 @@ def _run(args, case_path) -> int:
         raise InputError("--eta and --actuators choose the count in two different ways: give one of them")
     if args.etas and not args.sweep:
         raise InputError("--etas needs --sweep")
-    max_fit = parse_fraction(args.max_fit)
+    if args.max_fit is not None and (args.actuators is not None or eq8):
+        raise InputError(f"--max-fit limits the deviation of the default mode: it does not apply with "
+                         f"{'--actuators' if args.actuators is not None else '--eta'}; give one of them")
+    max_fit = parse_fraction("1%" if args.max_fit is None else args.max_fit)
     candidates = None
-    if args.candidates:
+    if args.candidates is not None:  # an empty list is a mistake, not "all joints"
         try:
             candidates = [int(v) for v in args.candidates.split(",") if v.strip()]
         except ValueError:
             raise InputError(f"--candidates {args.candidates}: expected comma-separated vertex indices") from None
+        if not candidates:
+            raise InputError(f"--candidates {args.candidates!r}: no vertex index given (leave the option out for all joints)")
     if args.sweep and args.etas:
         opts = SparsifyOptions(eta=3e-4 if args.eta is None else args.eta, p=p, tau_max=args.tau_max,
                                max_iterations=max_iters)
