@@ -8,7 +8,6 @@ the user did not open. Every problem is an :class:`InputError` with one line.
 """
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -135,10 +134,12 @@ class UploadStore:
         raise InputError(f"{name}: upload a design (.obj, .msh, .3dm) or a case file (.json)")
 
     def _case_from_bytes(self, name: str, content: bytes) -> Project:
+        from ..io.strict_json import loads
+
         try:
-            spec = json.loads(content.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{name}: not valid JSON ({getattr(exc, 'msg', 'not UTF-8')})") from None
+            spec = loads(content.decode("utf-8"), name)
+        except UnicodeDecodeError:
+            raise InputError(f"{name}: not valid JSON (not UTF-8)") from None
         from ..io.case_schema import validate_case
 
         case = validate_case(spec, name)  # the case files' one schema, as for every command

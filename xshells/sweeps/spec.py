@@ -104,10 +104,9 @@ def load_spec(path) -> SweepSpec:
             where = f":{mark.line + 1}" if mark is not None else ""
             raise InputError(f"{path}{where}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
     else:
-        try:
-            data = json.loads(raw)
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
+        from ..io.strict_json import loads
+
+        data = loads(raw, path)
     name = os.path.splitext(os.path.basename(path))[0]
     return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name)
 
@@ -123,7 +122,17 @@ def _yaml_loader():
     import yaml
 
     class Loader(yaml.SafeLoader):
-        pass
+        def construct_mapping(self, node, deep=False):
+            # PyYAML keeps the last of repeated keys without a word: a sweep with ``steps: 3`` and later
+            # ``steps: 4`` ran with 4
+            seen = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                if isinstance(key, str) and key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {key!r} is given twice in one mapping: give it once", key_node.start_mark)
+                seen.add(key)
+            return super().construct_mapping(node, deep=deep)
 
     Loader.add_implicit_resolver(
         "tag:yaml.org,2002:float",
@@ -193,6 +202,9 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> Sweep
         _check_profiles(points)
         for i, p in enumerate(points):  # the whole case, as a case file: the rules across keys too
             validate_case(_nest({k: v for k, v in p.items() if k in CASE_KEYS}), f"sweep task {i}")
+    if task.check is not None:  # the task's own rules across its keys, before anything runs
+        for i, p in enumerate(points):
+            task.check(p, f"sweep task {i}")
     order = _ordered_keys([{k: None for k, _ in axis_values}] + points)  # axes first, in the spec's order
     varying = tuple(k for k in order if len({_canon(p.get(k)) for p in points}) > 1)
     tasks = []

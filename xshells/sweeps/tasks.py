@@ -136,6 +136,9 @@ class TaskDef:
     preload : tuple of str
         Modules that local workers import once, in the server they are forked
         from (imports only: nothing that starts threads, such as running JAX).
+    check : callable or None
+        ``check(params, where)``: the rules across the task's keys (flat keys, as the spec has them),
+        checked for every task before any runs; one-line InputError.
     """
 
     name: str
@@ -144,6 +147,7 @@ class TaskDef:
     case: bool = True
     requires: tuple = ()
     preload: tuple = ()
+    check: Callable | None = None
 
     def resolve(self) -> Callable:
         """The task function; raises InputError when its module does not exist yet."""
@@ -173,9 +177,9 @@ REGISTRY: dict[str, TaskDef] = {}
 
 
 def register_task(name: str, fn: Callable | str, *, params: dict | None = None, case: bool = True,
-                  requires: tuple = (), preload: tuple = ()) -> TaskDef:
+                  requires: tuple = (), preload: tuple = (), check: Callable | None = None) -> TaskDef:
     """Add (or replace) a task; returns its :class:`TaskDef`."""
-    REGISTRY[name] = TaskDef(name, fn, dict(params or {}), case, tuple(requires), tuple(preload))
+    REGISTRY[name] = TaskDef(name, fn, dict(params or {}), case, tuple(requires), tuple(preload), check)
     return REGISTRY[name]
 
 
@@ -254,6 +258,13 @@ SPARSIFY_KEYS = ("eta", "p", "tau_max", "max_iterations")
 SELECTION_KEYS = ("max_fit", "actuators", "tau_max")
 
 
+def _check_sparsify(params: dict, where: str) -> None:
+    """eq. 8's keys and the elimination's exclude each other (before any task runs, and in the task itself)."""
+    if any(params.get(k) is not None for k in ("eta", "p", "max_iterations")) and \
+            any(params.get(k) is not None for k in ("max_fit", "actuators")):
+        raise InputError(f"{where}: give eta/p/max_iterations (eq. 8) or max_fit/actuators (elimination), not both")
+
+
 def sparsify_task(params: dict, out_dir: str) -> dict:
     """Dense deployment, then sparse actuation (``xshells sparsify``, quietly).
 
@@ -269,8 +280,7 @@ def sparsify_task(params: dict, out_dir: str) -> dict:
     keys = ("converged", "message", "num_actuators", "fit_mean", "fit_max", "work", "dense_work", "dense_torque",
             "time_s", "dense_deployment_time_s")
     if any(params.get(k) is not None for k in ("eta", "p", "max_iterations")):
-        if params.get("max_fit") is not None or params.get("actuators") is not None:
-            raise InputError("sparsify: give eta/p (eq. 8) or max_fit/actuators (elimination), not both")
+        _check_sparsify(params, "sparsify")
         opts = SparsifyOptions(**{k: params[k] for k in SPARSIFY_KEYS if params.get(k) is not None})
         r = run_sparsify(case, out_dir, opts, progress=False)
         # η and p as used (defaults included), so that the trade-off plot has them without the spec naming them
@@ -330,7 +340,8 @@ register_task("sparsify", sparsify_task, requires=("xshells.actuation.run:run_se
               preload=("xshells.actuation.run",) + _PLOTS,
               params={"eta": number(0), "p": number(0, 1, open_min=True), "tau_max": optional(number(0, open_min=True)),
                       "max_iterations": number(1, integer=True), "max_fit": number(0, 1, open_min=True),
-                      "actuators": optional(number(1, integer=True))})
+                      "actuators": optional(number(1, integer=True))},
+              check=_check_sparsify)
 register_task("optimize", optimize_task, requires=("xshells.design.run:run_optimize",),
               preload=("xshells.design.run",) + _PLOTS,
               params={"gamma": number(0, 1), "beta": number(0), "max_iterations": number(1, integer=True),
