@@ -119,6 +119,22 @@ def test_cli_with_json_file_and_plot(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["L.json", "out.json", "psi.png"]
 
 
+def test_cli_output_onto_a_device_or_folder_is_refused_and_a_link_written_through(tmp_path, capsys):
+    import os
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)  # as /dev/null or /dev/full: the rename replaced the device node with a file
+    base = ["section", "rectangle", "10", "7", "--young", "1", "--poisson", "0.3", "-o"]
+    for out, words in ((fifo, "not a regular file"), (tmp_path, "a folder")):
+        assert main(base + [str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert words in err and "\n" not in err
+    (tmp_path / "t.json").write_text("{}")
+    os.symlink(tmp_path / "t.json", tmp_path / "link.json")
+    assert main(base + [str(tmp_path / "link.json")]) == 0
+    assert os.path.islink(tmp_path / "link.json") and "area" in json.loads((tmp_path / "t.json").read_text())
+
+
 @pytest.mark.parametrize("argv, fragment", [
     (["section", "hexagon", "1", "2", "--young", "1", "--poisson", "0.3"], "unknown cross-section type"),
     (["section", "rectangle", "1", "-2", "--young", "1", "--poisson", "0.3"], "must be positive"),

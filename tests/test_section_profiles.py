@@ -169,3 +169,76 @@ def test_malformed_json(tmp_path):
 
 def test_contour_needs_material():
     one_line_error(lambda: load_section(EXAMPLES / "custom_A.obj"), "Young")
+
+
+SQUARE_OBJ = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nl 1 2 3 4 1\n"
+
+
+def write_json(tmp_path, name, spec):
+    path = tmp_path / name
+    path.write_text(json.dumps(spec))
+    return path
+
+
+def test_json_contour_scale_is_applied(tmp_path):
+    (tmp_path / "sq.obj").write_text(SQUARE_OBJ)
+    spec = {"type": "contour", "path": "sq.obj", "young": 1, "poisson": 0.3}
+    unscaled = load_section(write_json(tmp_path, "a.json", spec))[0]
+    doubled = load_section(write_json(tmp_path, "b.json", {**spec, "scale": 2}))[0]
+    assert polygon_moments(unscaled.loops)[0] == pytest.approx(1)
+    assert polygon_moments(doubled.loops)[0] == pytest.approx(4)
+
+
+@pytest.mark.parametrize("scale", [0, -1, 0.0, float("inf")])
+def test_json_contour_scale_must_be_positive(tmp_path, scale):
+    # 0 used to fall back to 1 and a negative scale was accepted
+    (tmp_path / "sq.obj").write_text(SQUARE_OBJ)
+    path = write_json(tmp_path, "s.json", {"type": "contour", "path": "sq.obj", "scale": scale,
+                                           "young": 1, "poisson": 0.3})
+    message = one_line_error(lambda: load_section(path), "s.json", "'scale' must be a positive number, got ")
+    assert message == f"{path}: 'scale' must be a positive number, got {json.dumps(scale)}"
+
+
+@pytest.mark.parametrize("spec, fragments", [
+    ({"type": "contour", "path": "sq.obj", "scael": 1000}, ["unknown key 'scael'", "did you mean 'scale'?"]),
+    ({"type": "rectangle", "params": [10, 7], "foo": 1},
+     ["unknown key 'foo'", "allowed keys: type, young, poisson, params"]),
+    ({"type": "rectangle", "params": [10, 7], "E": 20000}, ["unknown key 'E'", "did you mean 'young'?"]),
+    ({"type": "polygon", "points": [[0, 0], [1, 0], [1, 1]], "scale": 2}, ["unknown key 'scale'", "allowed keys"]),
+])
+def test_json_unknown_key_is_refused(tmp_path, spec, fragments):
+    # an unknown key used to be ignored silently (a typo computed at the default)
+    (tmp_path / "sq.obj").write_text(SQUARE_OBJ)
+    spec = {"young": 1, "poisson": 0.3, **spec}
+    if "E" in spec:
+        del spec["young"]
+    path = write_json(tmp_path, "k.json", spec)
+    one_line_error(lambda: load_section(path), "k.json", *fragments)
+
+
+def test_every_documented_json_key_is_accepted(tmp_path):
+    (tmp_path / "sq.obj").write_text(SQUARE_OBJ)
+    for spec in ({"type": "Rectangle", "young": 1, "poisson": 0.3, "params": [12, 8]},
+                 {"type": "contour", "path": "sq.obj", "scale": 1, "young": 1, "poisson": 0.3},
+                 {"type": "polygon", "points": SQUARE, "holes": [[(0.25, 0.25), (0.25, 0.75), (0.75, 0.75)]],
+                  "young": 1, "poisson": 0.3}):
+        load_section(write_json(tmp_path, "d.json", spec))
+
+
+@pytest.mark.parametrize("params, shown", [([True, 7], "got true at position 1"),
+                                           (["10", "7"], 'got "10" at position 1'),
+                                           ([10, None], "got null at position 2"),
+                                           ("10 7", 'got "10 7"')])
+def test_json_params_must_be_numbers(tmp_path, params, shown):
+    # true was read as 1 and "10" as 10
+    path = write_json(tmp_path, "p.json", {"type": "rectangle", "young": 1, "poisson": 0.3, "params": params})
+    one_line_error(lambda: load_section(path), "p.json", "'params' must be a list of numbers", shown)
+
+
+@pytest.mark.parametrize("spec, fragment", [
+    ({"path": "sq.obj", "points": SQUARE}, "'path' (a contour file) or 'points', not both"),
+    ({"path": 5}, "'path' must be a file name (a string), got 5"),
+])
+def test_json_contour_path_is_checked(tmp_path, spec, fragment):
+    path = write_json(tmp_path, "c.json", {"type": "contour", "young": 1, "poisson": 0.3, **spec})
+    one_line_error(lambda: load_section(path), "c.json", fragment)

@@ -82,15 +82,20 @@ def material_from_args(args):
 
 def _write_atomically(path: Path, write) -> None:
     """Call ``write(temp_path)`` then move the result onto ``path``, so readers never see half a file."""
+    from ..io.export import output_target, replace_with
+
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise InputError(f"{path}: folder {directory} does not exist")
-    fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=directory)
+    # a link is written through, and a device (-o /dev/null) or a folder (-o .) refused: the rename
+    # replaced /dev/full with a file
+    target = output_target(path)
+    fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=os.path.dirname(target))
     os.close(fd)
     try:
         write(temp)
-        os.replace(temp, path)
+        replace_with(temp, target)
     finally:
         if os.path.exists(temp):
             os.remove(temp)

@@ -6,7 +6,8 @@ JSON (as in ElasticRods ``examples/cross_sections``)::
 
 and, for a custom contour, ``{"type": "contour", "path": "profile.obj",
 "young": ..., "poisson": ..., "scale": 1}`` with ``path`` relative to the
-JSON file.
+JSON file (``scale`` > 0, default 1), or ``{"type": "polygon", "points": [[x, y], ...],
+"holes": [...], ...}``. Any other key is refused, naming the nearest allowed one.
 
 Contour files (``.obj`` with ``v``/``l`` records, or gmsh ``.msh`` with line
 elements) are an edge soup: edges may come in any order and repeat their
@@ -18,7 +19,9 @@ inside the outer loop are holes. Vertices used by no edge are ignored
 from __future__ import annotations
 
 import contextlib
+import difflib
 import json
+import math
 from io import StringIO
 from pathlib import Path
 
@@ -200,6 +203,46 @@ def _json_number(data: dict, key: str, path: Path):
     return float(value)
 
 
+def _json_text(value, limit: int = 60) -> str:
+    """A value as the file spells it (true, "10", null), cut short for a one-line message."""
+    text = json.dumps(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+# The keys each kind of section file may hold. Anything else is refused: a
+# misspelt key ("scael") would otherwise be ignored and its default used.
+_COMMON_KEYS = ("type", "young", "poisson")
+_CONTOUR_FILE_KEYS = _COMMON_KEYS + ("path", "scale")
+_POINTS_KEYS = _COMMON_KEYS + ("points", "holes")
+_PARAMETRIC_KEYS = _COMMON_KEYS + ("params",)
+# Keys that a case file's material uses, which difflib would not match by spelling
+_KEY_HINTS = {"E": "young", "nu": "poisson"}
+
+
+def _check_keys(data: dict, allowed: tuple, kind: str, path: Path) -> None:
+    """One line for the first key ``allowed`` lacks, suggesting the nearest allowed one."""
+    for key in data:
+        if key in allowed:
+            continue
+        near = [_KEY_HINTS[key]] if _KEY_HINTS.get(key) in allowed else \
+            difflib.get_close_matches(key, allowed, n=1)
+        hint = f"did you mean {near[0]!r}?" if near else f"allowed keys: {', '.join(allowed)}"
+        raise InputError(f"{path}: unknown key {key!r} for a {kind} section ({hint})")
+
+
+def _json_params(data: dict, path: Path) -> list:
+    """``params`` as a list of floats; bool and strings are refused, not converted (true would be 1)."""
+    params = data.get("params")
+    if not isinstance(params, list):
+        shown = "nothing" if "params" not in data else _json_text(params)
+        raise InputError(f"{path}: 'params' must be a list of numbers, got {shown}")
+    for i, value in enumerate(params):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{path}: 'params' must be a list of numbers, "
+                             f"got {_json_text(value)} at position {i + 1}")
+    return [float(value) for value in params]
+
+
 def load_section(path, young: float | None = None, poisson: float | None = None) -> tuple[Profile, float, float]:
     """Read a cross-section file.
 
@@ -219,27 +262,40 @@ def load_section(path, young: float | None = None, poisson: float | None = None)
         if young is None or poisson is None:
             raise InputError(f"{path}: a contour file has no material; give Young's modulus and Poisson's ratio")
         return load_contour(path), float(young), float(poisson)
+    from ..io.strict_json import loads
+
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = loads(path.read_text(encoding="utf-8"), str(path))  # a key given twice is refused too
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or "type" not in data:
         raise InputError(f"{path}: expected an object with 'type', 'young', 'poisson' and 'params'")
+    kind = str(data["type"])
+    if kind.lower() in ("contour", "custom", "polygon"):
+        if "path" in data and "points" in data:
+            # one would be ignored; say so rather than pick one
+            raise InputError(f"{path}: a {kind} section takes 'path' (a contour file) or 'points', not both")
+        allowed = _POINTS_KEYS if "points" in data else _CONTOUR_FILE_KEYS
+    else:
+        allowed = _PARAMETRIC_KEYS
+    _check_keys(data, allowed, kind, path)
     E = young if young is not None else _json_number(data, "young", path)
     nu = poisson if poisson is not None else _json_number(data, "poisson", path)
     if E is None or nu is None:
         missing = "young" if E is None else "poisson"
         raise InputError(f"{path}: missing '{missing}'")
-    kind = str(data["type"])
-    if kind.lower() in ("contour", "custom", "polygon"):
-        if "path" in data:
-            scale = _json_number(data, "scale", path) or 1.0
-            return load_contour(path.parent / str(data["path"]), scale=scale), E, nu
-        if "points" in data:
-            return polygon(data["points"], data.get("holes", []), name=str(path)), E, nu
-        raise InputError(f"{path}: a {kind} section needs 'path' (a contour file) or 'points'")
-    if "params" not in data or not isinstance(data["params"], list):
-        raise InputError(f"{path}: 'params' must be a list of numbers")
-    return make_profile(kind, data["params"], name=str(path)), E, nu
+    if allowed is _CONTOUR_FILE_KEYS:
+        if "path" not in data:
+            raise InputError(f"{path}: a {kind} section needs 'path' (a contour file) or 'points'")
+        if not isinstance(data["path"], str):
+            raise InputError(f"{path}: 'path' must be a file name (a string), got {_json_text(data['path'])}")
+        scale = _json_number(data, "scale", path)
+        # 0 is not "unset": a zero or negative scale would collapse or mirror the profile
+        if scale is not None and not (math.isfinite(scale) and scale > 0):
+            raise InputError(f"{path}: 'scale' must be a positive number, got {_json_text(data['scale'])}")
+        return load_contour(path.parent / data["path"], scale=1.0 if scale is None else scale), E, nu
+    if allowed is _POINTS_KEYS:
+        return polygon(data["points"], data.get("holes", []), name=str(path)), E, nu
+    return make_profile(kind, _json_params(data, path), name=str(path)), E, nu
