@@ -248,6 +248,19 @@ def test_bad_rest_lengths(tmp_path, text, what):
     assert str(path) in str(err.value)
 
 
+@pytest.mark.parametrize("factor, refused", [(1.0, False), (2.5, False), (0.4, False), (10.0, True), (0.1, True)])
+def test_rest_lengths_in_other_units_than_the_design_are_refused(tmp_path, factor, refused):
+    # a file in cm for a design in mm: the solve failed with "reduced variable 57 is not finite"
+    d = design_from_arrays([[0, 0, 0], [100, 0, 0], [100, 50, 0], [0, 50, 0]], [[0, 1], [1, 2], [2, 3], [3, 0]])
+    path = tmp_path / "p.txt"
+    path.write_text("\n".join(repr(factor * v) for v in (100.0, 50.0, 100.0, 50.0)))
+    if refused:
+        with pytest.raises(InputError, match=rf"p.txt: the rest lengths are a median {factor:g}x the design's drawn"):
+            read_rest_lengths(path, 4, d)
+    else:
+        assert read_rest_lengths(path, 4, d).tolist() == [factor * v for v in (100.0, 50.0, 100.0, 50.0)]
+
+
 def test_rest_length_layouts(tmp_path):
     path = tmp_path / "p.txt"
     path.write_text("  1.5\n2.25\n 3   # comment\n4e0")  # padded, no final newline

@@ -47,7 +47,7 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
     t0 = time.perf_counter()
     case = load_case(case_path)
     design = read_design(case.design_path)
-    p = read_rest_lengths(case.rest_lengths_path, design.num_segments) if case.rest_lengths_path else None
+    p = read_rest_lengths(case.rest_lengths_path, design.num_segments, design) if case.rest_lengths_path else None
     L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
     warnings = L.input_warnings()
     why = "".join(f"; {w}" for w in warnings)  # a failure below is most likely explained by these

@@ -63,7 +63,7 @@ def open_path(path: str) -> Project:
 
         case = load_case(path)
         design = read_design(case.design_path)
-        p = read_rest_lengths(case.rest_lengths_path, design.num_segments) if case.rest_lengths_path else None
+        p = read_rest_lengths(case.rest_lengths_path, design.num_segments, design) if case.rest_lengths_path else None
         angle = np.degrees(case.angle_rad) if case.angle_rad is not None else None
         return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p, case.direction)
     if ext in DESIGN_SUFFIXES:

@@ -186,7 +186,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
 
         idle = IdleCores()
     design = read_design(design_path)
-    p = read_rest_lengths(rest_lengths_path, design.num_segments) if rest_lengths_path else None
+    p = read_rest_lengths(rest_lengths_path, design.num_segments, design) if rest_lengths_path else None
     linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
     warnings = linkage.input_warnings()
     if design.note:  # e.g. a .3dm's layer and its units, converted to mm

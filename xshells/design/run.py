@@ -31,7 +31,7 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     case = load_case(case_path)
     design = read_design(case.design_path)
     rl_path = rest_lengths_path or case.rest_lengths_path
-    p = read_rest_lengths(rl_path, design.num_segments) if rl_path else None
+    p = read_rest_lengths(rl_path, design.num_segments, design) if rl_path else None
     L = Linkage(design, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
     warnings = L.input_warnings()
     why = "".join(f"; {w}" for w in warnings)  # a failure below is most likely explained by these

@@ -235,7 +235,7 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
     design = read_design(design_path)
     units_to_mm(options.units)  # refused before any work
     linkage = Linkage(design, material, subdivision=subdivision,
-                      rest_lengths=read_rest_lengths(rest_lengths_path, design.num_segments) if rest_lengths_path else None)
+                      rest_lengths=read_rest_lengths(rest_lengths_path, design.num_segments, design) if rest_lengths_path else None)
     if not linkage.graph.is_planar:
         raise InputError(f"{design_path}: the layout is not flat; fabricate needs the flat design "
                          "(a case's flat_file, or the flat .obj/.msh)")

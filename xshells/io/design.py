@@ -373,7 +373,13 @@ def read_msh_design(path: str | os.PathLike) -> Design:
     return design_from_arrays(mesh.points, np.concatenate(blocks, axis=0), source=label)
 
 
-def read_rest_lengths(path: str | os.PathLike, num_segments: int) -> np.ndarray:
+#: A median ratio of rest length to drawn segment length beyond this factor (either way) is a units mistake
+#: (a file in cm or m for a design in mm), not a design: the reference's designs draw their flat layouts at
+#: their rest lengths (ratio 1 to within 1e-3), and an inverse design's within a few per cent.
+REST_LENGTH_RATIO = 3.0
+
+
+def read_rest_lengths(path: str | os.PathLike, num_segments: int, design: Design | None = None) -> np.ndarray:
     """Read per-segment rest lengths (``design_parameters.txt``).
 
     Format, as in every such file of the reference data: one decimal number
@@ -386,6 +392,9 @@ def read_rest_lengths(path: str | os.PathLike, num_segments: int) -> np.ndarray:
     path : str or PathLike
     num_segments : int
         The design's segment count; the file must hold exactly this many values.
+    design : Design, optional
+        The design they belong to: rest lengths a median more than :data:`REST_LENGTH_RATIO` times
+        longer or shorter than its drawn segments are refused (other units).
 
     Returns
     -------
@@ -407,4 +416,11 @@ def read_rest_lengths(path: str | os.PathLike, num_segments: int) -> np.ndarray:
             values.append(value)
     if len(values) != num_segments:
         raise InputError(f"{path}: {len(values)} rest lengths for a design with {num_segments} segments")
-    return np.array(values, dtype=np.float64)
+    p = np.array(values, dtype=np.float64)
+    if design is not None:  # the solve failed on such files with "reduced variable 57 is not finite"
+        drawn = np.linalg.norm(design.vertices[design.edges[:, 1]] - design.vertices[design.edges[:, 0]], axis=1)
+        ratio = float(np.median(p / np.maximum(drawn, np.finfo(float).tiny)))
+        if not 1.0 / REST_LENGTH_RATIO <= ratio <= REST_LENGTH_RATIO:
+            raise InputError(f"{path}: the rest lengths are a median {ratio:.3g}x the design's drawn segment lengths: "
+                             "are they in the design's units?")
+    return p
