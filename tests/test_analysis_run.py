@@ -42,6 +42,9 @@ def test_the_analysis_reports_and_writes_what_it_should(run):
     (["--supports", "lowest:1", "--load", "point:3:0,0,-1"], "rigid motion(s) free"),
     (["--supports", "under:3", "--load", "point:3:0,0,-1"], "use lowest:N or joints:"),
     (["--supports", "lowest:4", "--load", "wind:3"], "use self-weight, point:"),
+    (["--supports", "joints:0,0,1,2", "--load", "point:3:0,0,-1"], "--supports joints:0,0,1,2: vertex 0 is listed twice"),
+    (["--supports", "lowest:4", "--density", "1e-9", "--load", "self-weight", "--load", "self-weight"],
+     "--load self-weight is given twice"),
 ])
 def test_bad_inputs_get_one_line(tmp_path, capsys, args, words):
     assert main(["analyze", *BASE, "--out", str(tmp_path / "o"), *args]) == 2
@@ -56,3 +59,30 @@ def test_free_joints_keep_the_deployed_state_with_its_actuation_torque(tmp_path)
     assert code == 0
     r = json.loads((tmp_path / "result.json").read_text())
     assert r["joint_mode"] == "free" and r["max_displacement"] < 1e-6
+
+
+@pytest.fixture
+def quad_case(tmp_path):
+    (tmp_path / "quad.obj").write_bytes((EXAMPLES / "quad.obj").read_bytes())
+    (tmp_path / "case.json").write_text(json.dumps({"file": "quad.obj", "steps": 3, "material": {
+        "type": "rectangle", "E": 20000, "nu": 0.3, "params": [10, 7]}}))
+    return tmp_path / "case.json"
+
+
+@pytest.mark.parametrize("option", [["--young", "5"], ["--poisson", "0.2"], ["--material", "rectangle:10,7"]])
+def test_material_options_with_a_case_file_are_refused_not_ignored(quad_case, tmp_path, capsys, option):
+    code = main(["analyze", str(quad_case), *option, "--supports", "lowest:3", "--load", "point:3:0,0,-1",
+                 "--no-critical", "--out", str(tmp_path / "o"), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and f"{option[0]} contradicts the case file" in err and len(err.splitlines()) == 1, err
+
+
+def test_an_analysis_that_stops_says_so_and_why(quad_case, tmp_path, capsys):
+    # three pinned corners and a load on the fourth: the equilibrium stops short of the full load (result.json says why)
+    out = tmp_path / "o"
+    code = main(["analyze", str(quad_case), "--supports", "joints:0,1,2", "--load", "point:3:0,0,-1", "--no-critical",
+                 "--out", str(out), "--no-progress"])
+    r = json.loads((out / "result.json").read_text())
+    assert code == 1 and r["status"] == "stopped"
+    line = f"  stopped at load factor {r['load_factor_reached']:.4g} of 1: {r['message']}"
+    assert line in capsys.readouterr().out.splitlines()

@@ -104,6 +104,18 @@ def test_cli_contradictory_options(tmp_path, capsys):
     assert "contradicts" in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("option", [["--young", "5"], ["--poisson", "0.2"]])
+def test_cli_material_options_with_a_case_file_are_refused_not_ignored(tmp_path, capsys, option):
+    from data_paths import EXAMPLES
+
+    (tmp_path / "quad.obj").write_bytes((EXAMPLES / "quad.obj").read_bytes())
+    (tmp_path / "case.json").write_text(json.dumps({"file": "quad.obj", "steps": 3, "material": {
+        "type": "rectangle", "E": 20000, "nu": 0.3, "params": [10, 7]}}))
+    assert main(["deploy", str(tmp_path / "case.json"), *option, "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"{option[0]} contradicts the case file" in err and len(err.splitlines()) == 1, err
+
+
 # ---------------------------------------------------------------- real designs
 def _optimized(name):
     from xshells.io import read_design, read_rest_lengths

@@ -236,11 +236,15 @@ def test_the_fuzzed_deploy_base_case_is_a_valid_run(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv,match", [
-    (["deploy", "M", "--steps", "0"], "--steps must be at least 1, got 0"),
-    (["deploy", "M", "--subdivision", "0"], "--subdivision must be at least 3"),
-    (["optimize", "M", "--steps", "0"], "--steps must be at least 1"),
-    (["sparsify", "M", "--subdivision", "2"], "--subdivision must be at least 3"),
-    (["demo", "--steps", "0"], "--steps must be at least 1"),
+    (["deploy", "M", "--steps", "0"], "--steps must be from 1 to 100000, got 0"),
+    (["deploy", "M", "--subdivision", "0"], "--subdivision must be from 3 to 1000"),
+    (["optimize", "M", "--steps", "0"], "--steps must be from 1 to 100000"),
+    (["sparsify", "M", "--subdivision", "2"], "--subdivision must be from 3 to 1000"),
+    (["demo", "--steps", "0"], "--steps must be from 1 to 100000"),
+    # the case schema's upper bounds hold on the command line too (there, the run simply never ended)
+    (["deploy", "M", "--subdivision", "100000"], "--subdivision must be from 3 to 1000 edges per segment, got 100000"),
+    (["deploy", "M", "--steps", "1000000"], "--steps must be from 1 to 100000, got 1000000"),
+    (["optimize", "M", "--min-angle", "nan"], "--min-angle must be a finite angle in degrees"),
 ])
 def test_zero_counts_are_refused_not_replaced_by_the_default(tmp_path, capsys, argv, match):
     argv = [str(EXAMPLES / "manta_ray.obj") if a == "M" else a for a in argv]

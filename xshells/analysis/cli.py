@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import os
 
-from ..errors import InputError
-
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -37,16 +35,15 @@ def register(subparsers) -> None:
 def _analyze(args) -> int:
     import numpy as np
 
-    from ..deploy.case import (check_counts, load_case, material_from_spec, material_spec_from_option,
-                               material_strength, resolve_grade, with_material_options)
+    from ..deploy.case import (MATERIAL_OPTIONS, check_counts, load_case, material_from_spec, material_spec_from_option,
+                               material_strength, refuse_case_options, resolve_grade, with_material_options)
     from .run import parse_load, parse_supports, run_analysis
 
     check_counts(args.subdivision, args.steps)
     supports = parse_supports(args.supports)
     loads = [parse_load(t) for t in args.load]
     if args.input.endswith(".json"):
-        if args.material:
-            raise InputError("--material contradicts the case file's material; edit the case file instead")
+        refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision and --steps override the case's
         case = load_case(args.input)
         spec = with_material_options(case.material, args.grade, args.density, args.strength)
         kw = dict(subdivision=case.subdivision if args.subdivision is None else args.subdivision,
@@ -76,5 +73,7 @@ def _analyze(args) -> int:
           (f", critical load factor {r['critical_load_factor']:.4g}" if r["critical_load_factor"] is not None else
            (f", no instability up to {r['critical_searched_to']:.3g}× the load" if r["critical_searched_to"] else "")) +
           ("; BUCKLED" if r["buckled"] else ""))
+    if r["status"] != "complete":  # as xshells deploy's "stopped at …° of …°: why"
+        print(f"  {r['status']} at load factor {r['load_factor_reached']:.4g} of {r['load_factor']:.4g}: {r['message']}")
     print(f"  outputs in {args.out}/")
     return 0 if r["status"] == "complete" else 1

@@ -18,14 +18,20 @@ from .static import Load, StaticOptions, Support
 def parse_supports(text: str, kind: str = "pinned"):
     """``lowest:N`` → ("lowest", N); ``joints:i,j,…`` → ("joints", [i, j, …]) (input vertex indices)."""
     head, _, rest = str(text).partition(":")
+    vertices = None
     try:
         if head == "lowest":
             n = int(rest)
             return "lowest", n
         if head == "joints":
-            return "joints", [int(v) for v in rest.split(",") if v.strip()]
+            vertices = [int(v) for v in rest.split(",") if v.strip()]
     except ValueError:
         pass
+    if vertices is not None:
+        twice = next((v for i, v in enumerate(vertices) if v in vertices[:i]), None)
+        if twice is not None:  # it would be held and counted as two supports: twice the reactions
+            raise InputError(f"--supports {text}: vertex {twice} is listed twice")
+        return "joints", vertices
     raise InputError(f"--supports {text}: use lowest:N or joints:i,j,… (input vertex indices)")
 
 
@@ -66,6 +72,8 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
         raise InputError(f"--load-factor must be a positive number, got {load_factor:g}")
     if not loads:
         raise InputError("give at least one --load (self-weight, point:VERTEX:FX,FY,FZ or area:Q)")
+    if sum(l.kind == "self-weight" for l in loads) > 1:  # point and area loads add up; the weight is there once
+        raise InputError("--load self-weight is given twice: the shell has one self-weight")
     if any(l.kind == "self-weight" for l in loads) and not density_given:
         raise InputError("--load self-weight needs a density: give --density, a --grade, or the material's density")
     from ..io import read_design

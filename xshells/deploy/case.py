@@ -35,13 +35,13 @@ DEFAULT_MATERIAL = {"type": "rectangle", "E": 20000.0, "nu": 0.3, "params": [10.
 
 
 def load_case(path) -> Case:
+    from ..io.strict_json import loads
+
     try:
         with open(path) as fh:
-            spec = json.load(fh)
+            spec = loads(fh.read(), str(path))
     except OSError as exc:
         raise InputError(f"{path}: cannot read case file ({exc.strerror})") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text file (byte {exc.start} is not UTF-8): a case file is JSON") from None
     from ..io.case_schema import validate_case
@@ -173,7 +173,8 @@ def target_angle(case: Case, linkage, angle_deg=None) -> float:
     return linkage.average_angle() + (case.open_by_rad if case.open_by_rad is not None else np.radians(60.0))
 
 
-DESIGN_OPTIONS = ("material", "young", "poisson", "subdivision", "steps")
+MATERIAL_OPTIONS = ("material", "young", "poisson")
+DESIGN_OPTIONS = (*MATERIAL_OPTIONS, "subdivision", "steps")
 
 
 def add_design_options(parser, steps_default: int) -> None:
@@ -187,10 +188,18 @@ def add_design_options(parser, steps_default: int) -> None:
 
 def check_counts(subdivision, steps) -> None:
     """``--subdivision`` and ``--steps`` as given on the command line (None: not given); one line when out of range."""
-    if subdivision is not None and subdivision < 3:
-        raise InputError(f"--subdivision must be at least 3 edges per segment, got {subdivision}")
-    if steps is not None and steps < 1:
-        raise InputError(f"--steps must be at least 1, got {steps}")
+    # the same bounds as the case schema's (xshells/io/case_schema.py): beyond them a run only runs out of time
+    if subdivision is not None and not 3 <= subdivision <= 1000:
+        raise InputError(f"--subdivision must be from 3 to 1000 edges per segment, got {subdivision}")
+    if steps is not None and not 1 <= steps <= 100000:
+        raise InputError(f"--steps must be from 1 to 100000, got {steps}")
+
+
+def refuse_case_options(args, options=DESIGN_OPTIONS) -> None:
+    """One line when any of ``options`` (argparse names) is given with a case file: it would contradict the case."""
+    given = [f"--{k}" for k in options if getattr(args, k) is not None]
+    if given:
+        raise InputError(f"{', '.join(given)} contradict{'s' if len(given) == 1 else ''} the case file; edit the case file instead")
 
 
 def case_path_from_args(args, command: str, steps_default: int) -> str:
@@ -200,9 +209,7 @@ def case_path_from_args(args, command: str, steps_default: int) -> str:
     """
     path = args.case
     if path.endswith(".json"):
-        given = [f"--{k}" for k in DESIGN_OPTIONS if getattr(args, k) is not None]
-        if given:
-            raise InputError(f"{', '.join(given)} contradict{'s' if len(given) == 1 else ''} the case file; edit the case file instead")
+        refuse_case_options(args)
         return path
     if not path.lower().endswith((".obj", ".msh", ".3dm")):
         raise InputError(f"{path}: {command} takes a case file (.json) or a design (.obj, .msh, .3dm)")

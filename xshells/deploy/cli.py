@@ -5,7 +5,6 @@ import os
 
 import numpy as np
 
-from ..errors import InputError
 
 DEMO_DESIGN = os.path.join(os.path.dirname(__file__), "..", "data", "examples", "manta_ray.obj")
 
@@ -49,13 +48,13 @@ def _material_spec_from_args(args) -> dict:
 
 
 def _deploy(args) -> int:
-    from .case import check_counts, load_case, material_from_spec, material_strength, with_material_options
+    from .case import (MATERIAL_OPTIONS, check_counts, load_case, material_from_spec, material_strength,
+                       refuse_case_options, with_material_options)
     from .run import run_deployment
 
     check_counts(args.subdivision, args.steps)
     if args.input.endswith(".json"):
-        if args.material:
-            raise InputError("--material contradicts the case file's material; edit the case file instead")
+        refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision and --steps override the case's
         case = load_case(args.input)
         spec = with_material_options(case.material, args.grade, args.density, args.strength)
         material = material_from_spec(spec)

@@ -33,6 +33,8 @@ def _optimize(args) -> int:
     from .objective import DesignWeights
     from .optimize import OptimizeOptions
 
+    if args.min_angle is not None and not (np.isfinite(args.min_angle) and -180.0 < args.min_angle < 180.0):
+        raise InputError(f"--min-angle must be a finite angle in degrees, got {args.min_angle:g}")
     case_path = case_path_from_args(args, "optimize", steps_default=20)
     weights = DesignWeights(**{k: v for k, v in (("gamma", args.gamma), ("beta", args.beta)) if v is not None})
     opts = OptimizeOptions(method=args.method, max_iterations=args.max_iters,

@@ -1,0 +1,33 @@
+"""User-written JSON: a key given twice is named, not silently resolved to its last value."""
+import pytest
+
+from data_paths import EXAMPLES
+from xshells.errors import InputError
+from xshells.io.strict_json import loads
+
+
+def test_a_repeated_key_is_named_at_any_depth():
+    assert loads('{"a": 1, "b": {"a": 2}}', "f.json") == {"a": 1, "b": {"a": 2}}  # the same key in two objects
+    for text in ('{"steps": 3, "steps": 4}', '{"material": {"E": 1, "E": 2}}'):
+        with pytest.raises(InputError) as err:
+            loads(text, "f.json")
+        assert str(err.value).startswith("f.json: key ") and "given twice" in str(err.value)
+
+
+def test_invalid_json_names_the_line():
+    with pytest.raises(InputError, match=r"^f.json:2: not valid JSON"):
+        loads('{"a": 1,\n}', "f.json")
+
+
+def test_case_files_and_sweep_files_refuse_a_repeated_key(tmp_path):
+    from xshells.deploy.case import load_case
+    from xshells.sweeps.spec import load_spec
+
+    case = tmp_path / "case.json"
+    case.write_text(f'{{"file": "{EXAMPLES / "quad.obj"}", "steps": 3, "steps": 4}}')
+    with pytest.raises(InputError, match=r"case.json: key 'steps' is given twice"):
+        load_case(case)
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(f"task: deploy\nbase:\n  file: {EXAMPLES / 'quad.obj'}\n  steps: 3\n  steps: 4\naxes:\n  angle_deg: [100]\n")
+    with pytest.raises(InputError, match=r"s.yaml:5: .*key 'steps' is given twice"):
+        load_spec(sweep)
