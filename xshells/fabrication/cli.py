@@ -42,8 +42,9 @@ def _fabricate(args) -> int:
                                  stock_length=args.stock_length, sheet=parse_sheet(args.sheet) if args.sheet else None,
                                  kerf=args.kerf, units=args.units, top=args.top)
     if args.input.endswith(".json"):
-        if args.material or args.young is not None or args.poisson is not None:
-            raise InputError("--material/--young/--poisson contradict the case file's material; edit the case file instead")
+        from ..deploy.case import MATERIAL_OPTIONS, refuse_case_options
+
+        refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision overrides the case's
         case = load_case(args.input)
         spec, subdivision, name = case.material, case.subdivision, case.name
         rest = args.rest_lengths or case.rest_lengths_path
