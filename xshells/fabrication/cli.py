@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import os
 
-from ..errors import InputError
-
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
