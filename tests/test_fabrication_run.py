@@ -93,6 +93,7 @@ def test_a_design_in_metres_is_converted_and_says_so(tmp_path, capsys):
     (["--sheet", "big"], "use WIDTHxHEIGHT"),
     (["--sheet", "500x500"], "does not fit on a sheet"),
     (["--end-margin", "0.5"], "at least the hole radius"),
+    (["--end-margin", "inf"], "--end-margin must be a finite length"),
     (["--stock-length", "3000", "--sheet", "3000x1000"], "not both"),
     (["--kerf", "-1", "--stock-length", "3000"], "--kerf"),
 ])

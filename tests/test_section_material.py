@@ -125,7 +125,7 @@ def test_cli_output_onto_a_device_or_folder_is_refused_and_a_link_written_throug
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)  # as /dev/null or /dev/full: the rename replaced the device node with a file
     base = ["section", "rectangle", "10", "7", "--young", "1", "--poisson", "0.3", "-o"]
-    for out, words in ((fifo, "not a regular file"), (tmp_path, "a folder")):
+    for out, words in ((fifo, "not a regular file"), (tmp_path, "a folder"), ("/proc/x.json", "cannot write there")):
         assert main(base + [str(out)]) == 2
         err = capsys.readouterr().err.strip()
         assert words in err and "\n" not in err

@@ -211,6 +211,8 @@ def test_cli_serial_sweep_and_bad_yaml(tmp_path, capsys):
     (tmp_path / "s.yaml").write_text("task: noop\naxes:\n  sleep_s: [0, 0.001]\n")
     assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--workers", "0", "--no-progress"]) == 0
     assert "2 tasks, 2 run now" in capsys.readouterr().out
+    assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "o3"), "--max-tasks", "-1"]) == 2
+    assert "--max-tasks must be at least 1" in capsys.readouterr().err
     (tmp_path / "bad.yaml").write_text("task: [noop\n")
     assert main(["sweep", str(tmp_path / "bad.yaml"), "--out", str(tmp_path / "o2")]) == 2
     assert "not valid YAML" in capsys.readouterr().err

@@ -164,7 +164,9 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
         raise InputError(f"--hole-diameter {hole:g} mm is not smaller than the section width {width:g} mm")
     if options.end_margin is not None:
         m = float(options.end_margin)
-        if not np.isfinite(m) or m < 0.5 * hole:
+        if not np.isfinite(m):
+            raise InputError(f"--end-margin must be a finite length in mm, got {options.end_margin!r}")
+        if m < 0.5 * hole:
             raise InputError(f"--end-margin {options.end_margin!r} mm must be at least the hole radius ({0.5 * hole:g} mm): "
                              "the outermost holes would break out of the strip ends")
     XY = flat_coordinates(graph.design.vertices) if xy is None else np.asarray(xy, float)

@@ -91,7 +91,10 @@ def _write_atomically(path: Path, write) -> None:
     # a link is written through, and a device (-o /dev/null) or a folder (-o .) refused: the rename
     # replaced /dev/full with a file
     target = output_target(path)
-    fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=os.path.dirname(target))
+    try:
+        fd, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=os.path.dirname(target))
+    except OSError as exc:  # a folder that takes no new files (/proc, read-only)
+        raise InputError(f"{path}: cannot write there ({exc.strerror or exc})") from None
     os.close(fd)
     try:
         write(temp)

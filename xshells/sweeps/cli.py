@@ -27,6 +27,8 @@ def _sweep(args) -> int:
 
     if args.workers is not None and args.workers < 0:
         raise InputError(f"--workers must be 0 (serial) or more, got {args.workers}")
+    if args.max_tasks is not None and args.max_tasks < 1:
+        raise InputError(f"--max-tasks must be at least 1, got {args.max_tasks} (leave it out to run every task)")
     if args.workers is not None and args.scheduler:
         raise InputError("--workers sizes a local cluster; it contradicts --scheduler")
     spec = load_spec(args.spec)
