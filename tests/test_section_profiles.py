@@ -142,6 +142,15 @@ def test_negative_dimension(kind, params):
     one_line_error(lambda: profiles.make_profile(kind, params), "must be positive")
 
 
+@pytest.mark.parametrize("kind, params, words", [
+    # these divided by zero, found the torsion solve singular, or ran out of memory meshing
+    ("ellipse", [1e-300, 1e-300], "is outside 1e-06 to 1e+06"), ("rectangle", [1e200, 1e200], "is outside"),
+    ("rectangle", [100000, 1], "span 1e+05x"), ("I", [1, 1, 1, 1, 1, 1e-9], "is outside"),
+])
+def test_dimensions_out_of_range_or_proportion(kind, params, words):
+    one_line_error(lambda: profiles.make_profile(kind, params), words)
+
+
 def test_wrong_parameter_count():
     one_line_error(lambda: profiles.make_profile("L", [1, 2, 3]), "takes 4 parameters")
 

@@ -233,6 +233,11 @@ def polygon(outer, holes: Sequence = (), name: str = "polygon") -> Profile:
     return Profile(outer=outer, holes=holes, kind="polygon", name=name)
 
 
+#: the range of a parametric profile's dimensions, in any units, and the largest ratio between them (the
+#: bundled profiles reach 25; thin-walled steel about 200)
+MIN_DIMENSION, MAX_DIMENSION, MAX_ASPECT = 1e-6, 1e6, 1e3
+
+
 def _check_params(kind: str, params, count: int, name: str) -> tuple:
     """Number and sign checks shared by the parametric types."""
     try:
@@ -244,6 +249,15 @@ def _check_params(kind: str, params, count: int, name: str) -> tuple:
     for label, value in zip(PARAM_NAMES[kind].split(", "), values):
         if not np.isfinite(value) or value <= 0:
             raise InputError(f"{name}: {kind} dimension {label} must be positive, got {value:g}")
+        # moments go as size⁴: far outside this range they underflow or overflow (a division by zero,
+        # a "singular" torsion solve), whatever the units (mm or m: 1 nm to 1000 km)
+        if not MIN_DIMENSION <= value <= MAX_DIMENSION:
+            raise InputError(f"{name}: {kind} dimension {label} = {value:g} is outside {MIN_DIMENSION:g} to "
+                             f"{MAX_DIMENSION:g}: check the units")
+    if max(values) > MAX_ASPECT * min(values):
+        # the torsion mesh resolves the thinnest part over the whole profile: at 1e5 it ran out of memory
+        raise InputError(f"{name}: {kind} dimensions span {max(values) / min(values):.3g}x (largest over smallest), "
+                         f"more than {MAX_ASPECT:g}x: the torsion mesh cannot resolve such a profile")
     return values
 
 
