@@ -428,3 +428,16 @@ def test_material_option_keeps_a_section_files_own_moduli(tmp_path):
     assert (m.E, m.nu) == (5000.0, 0.25)
     m = material_from_spec(material_spec_from_option("rectangle:10,7"))
     assert (m.E, m.nu) == (20000.0, 0.3)
+
+
+@pytest.mark.parametrize("option, words", [
+    (["--young", "0"], "--young must be a positive Young's modulus"), (["--poisson", "0.7"], "--poisson must lie in"),
+    (["--material", "rectangle:1"], "--material rectangle:1: rectangle takes 2 parameters"),
+])
+def test_cli_material_errors_name_the_option(tmp_path, capsys, option, words):
+    # they said "rectangle: Young's modulus must be positive", naming no option
+    from data_paths import EXAMPLES
+
+    assert main(["deploy", str(EXAMPLES / "quad.obj"), *option, "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err

@@ -74,6 +74,11 @@ def material_spec_from_option(option: str | None, young: float | None = None, po
                               grade: str | None = None, density: float | None = None, strength: float | None = None) -> dict:
     """A case's material object from a ``--material`` option: ``TYPE:P1,P2,...`` or a cross-section JSON file,
     with ``--grade``, ``--density``, ``--strength`` where given."""
+    # named as the user gave them (the material's own checks name only the section type)
+    if young is not None and not (np.isfinite(young) and young > 0):
+        raise InputError(f"--young must be a positive Young's modulus (MPa for a design in mm), got {young:g}")
+    if poisson is not None and not (np.isfinite(poisson) and -1.0 < poisson < 0.5):
+        raise InputError(f"--poisson must lie in (-1, 0.5), got {poisson:g}")
     extra = {k: v for k, v in (("grade", grade), ("density", density), ("strength", strength)) if v is not None}
     if extra:
         from ..analysis.materials import named_material
@@ -101,6 +106,11 @@ def material_spec_from_option(option: str | None, young: float | None = None, po
         values = [float(v) for v in params.split(",")] if params else []
     except ValueError:
         raise InputError(f"--material {option}: parameters must be numbers, as in rectangle:10,7") from None
+    from ..section.profiles import PARAM_NAMES
+
+    count = len(PARAM_NAMES[kind].split(", ")) if kind in PARAM_NAMES else None
+    if count is not None and len(values) != count:
+        raise InputError(f"--material {option}: {kind} takes {count} parameters ({PARAM_NAMES[kind]}), got {len(values)}")
     return {"type": kind, "params": values, "E": E, "nu": nu}
 
 
