@@ -161,7 +161,7 @@ def _validate(d: Design) -> None:
     bad_rows = np.flatnonzero(~np.all(np.isfinite(V), axis=1))
     if bad_rows.size:
         v = int(bad_rows[0])
-        raise InputError(f"{label}: {d.where_vertex(v)} has a non-finite coordinate {tuple(V[v])}")
+        raise InputError(f"{label}: {d.where_vertex(v)} has a non-finite coordinate {tuple(V[v].tolist())}")
     out = np.flatnonzero(np.any((E < 0) | (E >= len(V)), axis=1))
     if out.size:
         s = int(out[0])
