@@ -96,6 +96,8 @@ def test_a_design_in_metres_is_converted_and_says_so(tmp_path, capsys):
     (["--end-margin", "inf"], "--end-margin must be a finite length"),
     (["--stock-length", "3000", "--sheet", "3000x1000"], "not both"),
     (["--kerf", "-1", "--stock-length", "3000"], "--kerf"),
+    (["--kerf", "1e9", "--stock-length", "3000"], "is not less than the stock length"),
+    (["--kerf", "5000", "--sheet", "3000x1000"], "is not less than the sheet's short side"),
 ])
 def test_bad_inputs_get_one_line(tmp_path, capsys, args, words):
     assert main(["fabricate", str(EXAMPLES / "manta_ray.obj"), "--out", str(tmp_path / "o"), "--no-progress", *args]) == 2

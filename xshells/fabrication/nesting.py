@@ -97,6 +97,8 @@ def nest_bars(lengths, stock_length: float, kerf: float = 3.0, labels=None) -> N
     """
     L = _check_positive(stock_length, "--stock-length")
     k = _check_kerf(kerf)
+    if k >= L:  # one piece per bar whatever the lengths: a kerf in other units, not a saw
+        raise InputError(f"--kerf {k:g} mm is not less than the stock length {L:g} mm")
     lengths = np.asarray(lengths, float)
     names = labels if labels is not None else [str(i) for i in range(len(lengths))]
     if len(lengths) and lengths.max() > L:
@@ -142,6 +144,8 @@ def nest_sheets(lengths, widths, sheet, kerf: float = 3.0, labels=None) -> Nesti
     W, H = (_check_positive(v, "--sheet") for v in sheet)
     k = _check_kerf(kerf)
     long, short = max(W, H), min(W, H)
+    if k >= short:
+        raise InputError(f"--kerf {k:g} mm is not less than the sheet's short side {short:g} mm")
     lengths, widths = np.asarray(lengths, float), np.asarray(widths, float)
     names = labels if labels is not None else [str(i) for i in range(len(lengths))]
     for i in range(len(lengths)):
