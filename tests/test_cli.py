@@ -39,3 +39,12 @@ def test_an_empty_out_folder_gets_one_line(capsys):
     assert main(["deploy", str(EXAMPLES / "quad.obj"), "--out", "", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "--out is empty" in err and "\n" not in err
+
+
+def test_3dm_options_on_another_design_get_one_line(capsys, tmp_path):
+    from data_paths import EXAMPLES
+
+    # --layer on an .obj was ignored without a word
+    assert main(["deploy", str(EXAMPLES / "quad.obj"), "--layer", "beams", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--layer reads a .3dm design" in err and "\n" not in err

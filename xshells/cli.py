@@ -129,6 +129,11 @@ def _execute(args) -> int:
     if hasattr(args, "layer"):  # this command's .3dm options (None: the reader's own defaults)
         from .rhino.read import set_defaults
 
+        given = [f"--{k}" for k in ("layer", "sample") if getattr(args, k) is not None]
+        path = next((v for v in (getattr(args, k, None) for k in ("input", "case", "design")) if isinstance(v, str)), "")
+        if given and path.lower().endswith((".obj", ".msh")):  # they would be ignored
+            raise InputError(f"{' and '.join(given)} read{'s' * (len(given) == 1)} a .3dm design: {path} is not one")
+
         set_defaults(layer=args.layer, sample=args.sample)
     with np.errstate(all="ignore"):
         return int(args.func(args) or 0)
