@@ -168,8 +168,10 @@ def solve_optimize(values: dict, ctx: Context) -> dict:
 def solve_sparsify(values: dict, ctx: Context) -> dict:
     import rhino3dm
 
-    code, r, layers = _on_lines("sparsify", values, ctx, lambda tmp: ["--max-fit", str(values["MaxFit"]), *_optional(
-        values, "Actuators", "--actuators")], "actuated.3dm")
+    # Actuators > 0 chooses the count, else MaxFit the deviation (the command refuses both at once)
+    count = _optional(values, "Actuators", "--actuators")
+    code, r, layers = _on_lines("sparsify", values, ctx, lambda tmp: count or ["--max-fit", str(values["MaxFit"])],
+                                "actuated.3dm")
     exact = dict(zip(r.get("actuated_joints", []), r.get("torques", [])))  # the dots round the torques
     points, torques = [], []
     for g in layers.get("actuators", []):
