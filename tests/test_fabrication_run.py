@@ -103,6 +103,7 @@ def test_bad_inputs_get_one_line(tmp_path, capsys, args, words):
     assert main(["fabricate", str(EXAMPLES / "manta_ray.obj"), "--out", str(tmp_path / "o"), "--no-progress", *args]) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and "\n" not in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()  # the folder it made before the refusal is gone (it was left empty)
 
 
 def test_a_deployed_layout_is_refused(tmp_path, capsys):

@@ -118,10 +118,22 @@ def main(argv: list[str] | None = None) -> int:
 def _execute(args) -> int:
     """Runs a parsed command; input errors propagate as :class:`InputError`."""
     out = getattr(args, "out", None)
+    fresh = None  # the output folder, if this run is the one that creates it
     if isinstance(out, str):  # refused before any work starts (an empty one too: a default is None)
         from .io.export import prepare_output_dir
 
+        fresh = None if os.path.exists(out) else out
         prepare_output_dir(out)
+    try:
+        return _execute_checked(args)
+    except InputError:
+        # refused after the command made its folder (a check that needs the design): leave nothing behind
+        if fresh is not None and os.path.isdir(fresh) and not os.listdir(fresh):
+            os.rmdir(fresh)
+        raise
+
+
+def _execute_checked(args) -> int:
     # Floating-point warnings (overflow, 0/0 in a collapsing state) are not for the
     # command line: a run that goes wrong says so in its own one-line message.
     import numpy as np
