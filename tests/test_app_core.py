@@ -501,3 +501,14 @@ def test_a_topology_edit_carries_the_deployed_state_over_where_it_can(tmp_path):
         assert diff <= 1e-6, diff
     finally:
         s.close()
+
+
+def test_a_bad_design_gets_its_line_before_any_server_starts(tmp_path, capsys):
+    # the server's banner (seven lines) came first, then the error
+    from xshells.cli import main
+
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nl 1 3\n")
+    assert main(["app", str(bad), "--out", str(tmp_path / "o")]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "bad.obj: line 3" in err and len(err.strip().splitlines()) == 1

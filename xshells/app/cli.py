@@ -17,11 +17,13 @@ def register(subparsers) -> None:
     p.set_defaults(func=_app)
 
 
-def start(input_path: str | None = None, *, host: str = "127.0.0.1", port: int = 8080, out_dir: str = "xshells_app_out"):
+def start(input_path: str | None = None, *, host: str = "127.0.0.1", port: int = 8080, out_dir: str = "xshells_app_out",
+          project=None):
     """Build the session and the server; returns the :class:`~xshells.app.ui.App` (already serving).
 
     The server listens first, so the browser loads the page while the design
-    is read; the solver is imported and run later, on the session's worker.
+    is read (unless ``project``, read already, is given); the solver is
+    imported and run later, on the session's worker.
     """
     if not 0 < port < 65536:
         raise InputError(f"--port must be 1 to 65535, got {port}")
@@ -32,7 +34,8 @@ def start(input_path: str | None = None, *, host: str = "127.0.0.1", port: int =
         from .loading import grid_project, open_path
         from .session import Session
 
-        project = open_path(input_path) if input_path else grid_project(6, 6)
+        if project is None:
+            project = open_path(input_path) if input_path else grid_project(6, 6)
         return App(Session(project, out_dir=out_dir), server=server)
     except BaseException:
         server.stop()
@@ -44,7 +47,14 @@ def _app(args) -> int:
 
     if args.input and not os.path.isfile(args.input):
         raise InputError(f"{args.input}: no such file")
-    app = start(args.input, host=args.host, port=args.port, out_dir=args.out)
+    if not 0 < args.port < 65536:
+        raise InputError(f"--port must be 1 to 65535, got {args.port}")
+    project = None
+    if args.input:  # a bad file gets its one line here, not after the server's banner (tens of ms sooner)
+        from .loading import open_path
+
+        project = open_path(args.input)
+    app = start(args.input, host=args.host, port=args.port, out_dir=args.out, project=project)
     print(f"xshells app: http://{args.host}:{app.server.get_port()}  (Ctrl-C to stop)", flush=True)
     try:
         while True:
