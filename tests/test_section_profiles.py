@@ -104,6 +104,14 @@ def test_open_contour(tmp_path):
     one_line_error(lambda: load_contour(path), "open.obj", "open")
 
 
+def test_points_off_the_section_plane_are_refused_and_a_plane_z_is_dropped():
+    # the z of [[0, 0, 5], [10, 0, 0], ...] was dropped without a word
+    one_line_error(lambda: profiles.polygon([(0, 0, 5), (10, 0, 0), (10, 7, 99), (0, 7, 0)], name="p"),
+                   "p: outer contour", "leave the section's plane")
+    flat = profiles.polygon([(0, 0, 3), (10, 0, 3), (10, 7, 3), (0, 7, 3)], name="p")
+    assert np.allclose(flat.outer, profiles.polygon([(0, 0), (10, 0), (10, 7), (0, 7)]).outer)
+
+
 def test_self_intersecting_polygon():
     bow_tie = [(0, 0), (1, 1), (1, 0), (0, 1)]
     one_line_error(lambda: profiles.polygon(bow_tie, name="bowtie"), "bowtie", "intersects itself")

@@ -168,9 +168,14 @@ def _as_loop(points, what: str) -> np.ndarray:
         raise InputError(f"{what}: points must be numbers") from None
     if loop.ndim != 2 or loop.shape[1] not in (2, 3):
         raise InputError(f"{what}: expected a list of (x, y) points, got shape {loop.shape}")
-    loop = loop[:, :2]
     if not np.all(np.isfinite(loop)):
         raise InputError(f"{what}: points must be finite")
+    if loop.shape[1] == 3:  # a contour drawn in a plane z = const (as OBJ writes it) loses only its z
+        z = loop[:, 2]
+        if np.ptp(z) > 1e-9 * max(1.0, float(np.abs(loop[:, :2]).max())):
+            raise InputError(f"{what}: the points leave the section's plane (z from {z.min():g} to {z.max():g}): "
+                             "a section is drawn in x, y")
+    loop = loop[:, :2]
     if len(loop) > 1 and np.allclose(loop[0], loop[-1], rtol=0, atol=1e-12 * (1 + np.abs(loop).max())):
         loop = loop[:-1]
     # consecutive duplicates would make zero-length edges
