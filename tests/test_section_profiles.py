@@ -104,6 +104,16 @@ def test_open_contour(tmp_path):
     one_line_error(lambda: load_contour(path), "open.obj", "open")
 
 
+def test_a_missing_contour_file_is_named_with_its_json_key(tmp_path):
+    import json
+
+    from xshells.section.io import load_section
+
+    spec = tmp_path / "c.json"
+    spec.write_text(json.dumps({"type": "contour", "path": "gone.obj", "young": 1, "poisson": 0.3}))
+    one_line_error(lambda: load_section(spec), "c.json: 'path' names 'gone.obj', which is not a file")
+
+
 def test_points_off_the_section_plane_are_refused_and_a_plane_z_is_dropped():
     # the z of [[0, 0, 5], [10, 0, 0], ...] was dropped without a word
     one_line_error(lambda: profiles.polygon([(0, 0, 5), (10, 0, 0), (10, 7, 99), (0, 7, 0)], name="p"),

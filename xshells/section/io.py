@@ -295,7 +295,10 @@ def load_section(path, young: float | None = None, poisson: float | None = None)
         # 0 is not "unset": a zero or negative scale would collapse or mirror the profile
         if scale is not None and not (math.isfinite(scale) and scale > 0):
             raise InputError(f"{path}: 'scale' must be a positive number, got {_json_text(data['scale'])}")
-        return load_contour(path.parent / data["path"], scale=1.0 if scale is None else scale), E, nu
+        contour = path.parent / data["path"]
+        if not contour.is_file():
+            raise InputError(f"{path}: 'path' names {data['path']!r}, which is not a file (relative to the JSON's folder)")
+        return load_contour(contour, scale=1.0 if scale is None else scale), E, nu
     if allowed is _POINTS_KEYS:
         return polygon(data["points"], data.get("holes", []), name=str(path)), E, nu
     return make_profile(kind, _json_params(data, path), name=str(path)), E, nu
