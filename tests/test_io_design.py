@@ -176,6 +176,12 @@ def test_msh_reading_and_errors(tmp_path):
     with pytest.raises(InputError, match=r"tri\.msh: the design has no line elements \(cell types: triangle\)"):
         read_design(tri)
 
+    badref = tmp_path / "badref.msh"  # an element naming node 7 of 4: meshio's IndexError text alone said little
+    badref.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n4\n1 0 0 0\n2 1 0 0\n3 1 1 0\n4 0 1 0\n$EndNodes\n"
+                      "$Elements\n2\n1 1 2 0 0 1 2\n2 1 2 0 0 4 7\n$EndElements\n")
+    with pytest.raises(InputError, match=r"badref\.msh: cannot read gmsh file \(an element refers to a node the file does not"):
+        read_design(badref)
+
     mixed = tmp_path / "mixed.msh"  # lines and a triangle: the triangle was dropped without a word
     _write_msh(mixed, pts, [("line", np.array([[0, 1], [1, 2]])), ("triangle", np.array([[0, 1, 2]]))])
     with pytest.raises(InputError, match=r"mixed\.msh: the design holds 1 triangle element besides its line elements"):

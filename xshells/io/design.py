@@ -352,8 +352,11 @@ def read_msh_design(path: str | os.PathLike) -> Design:
         with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
             mesh = meshio.read(path, file_format="gmsh")
     except (Exception, SystemExit) as exc:
-        # On SystemExit meshio's printed text only repeats the file name.
-        reason = "not a valid gmsh file" if isinstance(exc, SystemExit) else f"{chatter.getvalue()} {exc}"
+        # On SystemExit meshio's printed text only repeats the file name; an IndexError is an element
+        # naming a node the file does not have ("index 6 is out of bounds for axis 0 with size 4")
+        reason = ("not a valid gmsh file" if isinstance(exc, SystemExit) else
+                  f"an element refers to a node the file does not define: {exc}" if isinstance(exc, IndexError) else
+                  f"{chatter.getvalue()} {exc}")
         msg = " ".join(reason.split())
         raise InputError(f"{label}: cannot read gmsh file ({msg})") from None
     blocks = [c.data for c in mesh.cells if c.type == "line"]
