@@ -48,3 +48,13 @@ def test_3dm_options_on_another_design_get_one_line(capsys, tmp_path):
     assert main(["deploy", str(EXAMPLES / "quad.obj"), "--layer", "beams", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert "--layer reads a .3dm design" in err and "\n" not in err
+
+
+def test_an_option_of_the_wrong_type_gets_one_line(capsys):
+    # argparse printed the whole usage block first
+    import pytest
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["deploy", "x.obj", "--steps", "2.5"])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "--steps: invalid int value: '2.5'" in err and "\n" not in err

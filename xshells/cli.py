@@ -41,9 +41,17 @@ SUBCOMMANDS = [
 DESIGN_COMMANDS = ("deploy", "optimize", "sparsify", "fabricate", "analyze", "app", "sweep")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with its errors in one line as every other input error (it printed the whole usage first);
+    the subcommands' parsers are of this class too (argparse makes them of their parent's)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser(modules: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser with the subcommands of ``modules`` (default: all of :data:`SUBCOMMANDS`)."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="xshells",
         description="Design, simulate and fabricate X-shells (deployable elastic gridshells).",
     )
