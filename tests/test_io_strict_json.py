@@ -17,6 +17,8 @@ def test_a_repeated_key_is_named_at_any_depth():
 def test_invalid_json_names_the_line():
     with pytest.raises(InputError, match=r"^f.json:2: not valid JSON"):
         loads('{"a": 1,\n}', "f.json")
+    with pytest.raises(InputError, match=r"^f.json: not valid JSON \(nested too deeply\)"):  # a RecursionError
+        loads("[" * 100000 + "]" * 100000, "f.json")
 
 
 def test_case_files_and_sweep_files_refuse_a_repeated_key(tmp_path):

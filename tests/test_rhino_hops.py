@@ -193,6 +193,35 @@ def test_a_bad_input_to_the_command_is_the_components_error(server):
     assert len(reply["errors"]) == 1 and "rectangle:ten,7" in reply["errors"][0], reply["errors"]
 
 
+@pytest.mark.parametrize("extra, words", [
+    # an internal error (int(nan)); the value read as an option ("--angle: expected one argument"); a
+    # negative angle run at the default angle without a word; true read as 1; a huge --sample filled the memory
+    ({"Steps": ("System.Int32", "NaN")}, "input 'Steps': expected a whole number"),
+    ({"Steps": ("System.Int32", True)}, "input 'Steps': expected a number"),
+    ({"Angle": ("System.Double", -5.0)}, "input 'Angle': must be 0 (the default) or positive, got -5"),
+    ({"Sample": ("System.Int32", 1000000000)}, "--sample must be from 1 to 1000 segments per curve"),
+])
+def test_bad_numbers_get_one_line_and_no_default_in_their_place(server, extra, words):
+    url, _, _ = server
+    status, reply = _post(url + "/solve", _payload(**extra))
+    assert status == 200 and len(reply["errors"]) == 1 and words in reply["errors"][0], reply["errors"]
+
+
+def test_a_struct_without_its_fields_and_a_value_starting_with_a_dash():
+    from xshells.errors import InputError
+    from xshells.rhino.components import _joined
+    from xshells.rhino.hops import Param, decode_item
+
+    line = Param("Lines", "Curve", "")
+    for data in ({"From": {"X": 0, "Y": 0, "Z": 0}}, {"From": {"X": 0, "Y": 0}, "To": {"X": 1, "Y": 0, "Z": 0}}):
+        with pytest.raises(InputError, match=r"^input 'Lines': an item could not be read"):  # KeyError before
+            decode_item({"type": "Rhino.Geometry.Line", "data": json.dumps(data)}, line)
+    with pytest.raises(InputError, match=r"^input 'Lines': malformed item"):
+        decode_item("abc", line)
+    assert _joined(["deploy", "d.3dm", "--angle", "-inf", "--load", "--help", "--out", "o"]) == \
+        ["deploy", "d.3dm", "--angle=-inf", "--load=--help", "--out=o"]
+
+
 def test_unknown_get_is_404_with_a_message(server):
     url, _, _ = server
     with pytest.raises(urllib.error.HTTPError) as e:

@@ -42,3 +42,5 @@ def loads(text: str, where: str):
                          "give it once") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{where}:{exc.lineno}: not valid JSON ({exc.msg})") from None
+    except RecursionError:  # [[[[…]]]] deeper than the parser's stack
+        raise InputError(f"{where}: not valid JSON (nested too deeply)") from None

@@ -89,8 +89,10 @@ def _common(values: dict) -> list:
 
 def _optional(values: dict, name: str, flag: str, positive: bool = True) -> list:
     v = values.get(name)
-    if v is None or (positive and v <= 0):
+    if v is None or (positive and v == 0):  # 0: the command's default
         return []
+    if positive and not v > 0:  # a negative angle ran at the default angle without a word
+        raise InputError(f"input {name!r}: must be 0 (the default) or positive, got {v:g}")
     return [flag, repr(v) if isinstance(v, float) else str(v)]
 
 
@@ -98,7 +100,21 @@ def _run(argv: list) -> tuple[int, str]:
     """Runs ``xshells ARGV`` here; returns (exit code, out folder). Input errors raise InputError."""
     from ..cli import run_in_process
 
-    return run_in_process(argv), argv[argv.index("--out") + 1]
+    return run_in_process(_joined(argv)), argv[argv.index("--out") + 1]
+
+
+def _joined(argv: list) -> list:
+    """Every option built here takes a value: joined as ``--flag=value``, so that a value that starts with
+    "-" (-inf, "-1%", a Loads text "--help") is read as the value, not as another option."""
+    joined, i = [], 0
+    while i < len(argv):
+        if argv[i].startswith("--") and "=" not in argv[i] and i + 1 < len(argv):
+            joined.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            joined.append(argv[i])
+            i += 1
+    return joined
 
 
 def _result(out: str) -> dict:

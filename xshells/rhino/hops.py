@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import sys
 import threading
 import time
@@ -37,6 +38,10 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from ..errors import InputError
+
+#: the largest request body read (a design's curves are kilobytes; a Content-Length of 1e15 made the
+#: handler raise MemoryError and answer nothing)
+MAX_BODY = 256 * 1024 * 1024
 
 #: Hops parameter kinds: (ParamType in the metadata, result type of the items we send)
 KINDS = {
@@ -106,6 +111,18 @@ def _point(d) -> tuple:
 
 def decode_item(item: dict, param: Param):
     """One item of an input tree: a Python number, bool or str, or a rhino3dm geometry object."""
+    if not isinstance(item, dict) or not isinstance(item.get("type", ""), str):
+        raise InputError(f"input {param.name!r}: malformed item {str(item)[:60]!r} (expected {{type, data}})")
+    try:
+        return _decode_item(item, param)
+    except (KeyError, TypeError, AttributeError, ValueError, OverflowError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        # a struct without its fields ({"From": {...}} without "To", a point without "Z", "X": "a")
+        raise InputError(f"input {param.name!r}: an item could not be read ({type(exc).__name__}: {exc})") from None
+
+
+def _decode_item(item: dict, param: Param):
     import rhino3dm
 
     kind, raw = item.get("type", ""), item.get("data")
@@ -115,12 +132,14 @@ def decode_item(item: dict, param: Param):
         data = raw  # Hops sends plain text for some strings
     where = f"input {param.name!r}"
     if param.kind in ("Number", "Integer"):
+        if isinstance(data, bool):  # JSON true is not 1
+            raise InputError(f"{where}: expected a number, got {raw!r}")
         try:
             v = float(data)
         except (TypeError, ValueError):
             raise InputError(f"{where}: expected a number, got {raw!r}") from None
         if param.kind == "Integer":
-            if v != int(v):
+            if not math.isfinite(v) or v != int(v):
                 raise InputError(f"{where}: expected a whole number, got {v:g}")
             return int(v)
         return v
@@ -323,6 +342,10 @@ def make_server(service: HopsService, host: str = "127.0.0.1", port: int = 5000)
                 length = int(self.headers.get("Content-Length") or 0)
             except ValueError:
                 length = 0
+            if length > MAX_BODY:  # reading it would take the memory first
+                self._reply(413, json.dumps({"values": [], "errors": [f"a request of {length} bytes, more than the "
+                                                                       f"{MAX_BODY} this server reads"], "warnings": []}))
+                return
             body = self.rfile.read(length) if length > 0 else b""
             self._reply(200, service.solve(self.path.split("?")[0], body))
 

@@ -23,14 +23,17 @@ from ..io.design import Design, design_from_arrays
 RHINO_UNITS_TO_MM = {"Millimeters": 1.0, "Centimeters": 10.0, "Decimeters": 100.0, "Meters": 1000.0,
                      "Kilometers": 1e6, "Microns": 1e-3, "Inches": 25.4, "Feet": 304.8, "Yards": 914.4}
 NEAR_MISS = 100.0  # an end within this many tolerances of another vertex, but not within one, is a missed join
+#: the most straight segments one curve is sampled into (--sample)
+MAX_SAMPLE = 1000
 # what ``read_design`` uses for a .3dm when not told: set by the command line's --layer and --sample
 _DEFAULTS = {"layer": None, "sample": None}
 
 
 def set_defaults(layer: str | None = None, sample: int | None = None) -> None:
     """The layer and sampling that :func:`xshells.io.read_design` uses for ``.3dm`` designs (the CLI's options)."""
-    if sample is not None and sample < 1:
-        raise InputError(f"--sample must be at least 1 segment per curve, got {sample}")
+    if sample is not None and not 1 <= sample <= MAX_SAMPLE:
+        # each sample is a beam segment: 1e9 of them filled 24 GB before anything was said
+        raise InputError(f"--sample must be from 1 to {MAX_SAMPLE} segments per curve, got {sample}")
     _DEFAULTS.update(layer=layer, sample=sample)
 
 
@@ -91,6 +94,8 @@ def read_3dm_design(path, layer: str | None = None, sample: int | None = None) -
     path = os.fspath(path)
     layer = _DEFAULTS["layer"] if layer is None else layer
     sample = _DEFAULTS["sample"] if sample is None else sample
+    if sample is not None and not 1 <= sample <= MAX_SAMPLE:
+        raise InputError(f"--sample must be from 1 to {MAX_SAMPLE} segments per curve, got {sample}")
     rhino3dm, f = _open(path)
     units, to_mm = _units(path, f)
     tol = float(f.Settings.ModelAbsoluteTolerance) or 1e-6
