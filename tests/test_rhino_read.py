@@ -148,7 +148,7 @@ def test_the_command_line_takes_layer_and_sample(tmp_path, capsys):
         err = capsys.readouterr().err
         assert "Traceback" not in err and "\n" not in err.strip()  # read, then refused in one line (one segment, no joint)
         assert main(["deploy", str(two), "--sample", "0", "--out", str(tmp_path / "p"), "--no-progress"]) == 2
-        assert "--sample must be at least 1" in capsys.readouterr().err
+        assert "--sample must be from 1 to 1000 segments per curve, got 0" in capsys.readouterr().err
         d = read_design(EXAMPLES / "manta_ray.obj")
         m = _write(tmp_path / "manta_m.3dm", units="Meters", tolerance=1e-5,
                    segments=[(d.vertices[a] / 1000, d.vertices[b] / 1000) for a, b in d.edges])
