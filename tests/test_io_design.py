@@ -202,6 +202,8 @@ def test_design_from_arrays():
         design_from_arrays([[0, 0, 0], [np.nan, 0, 0]], [[0, 1]])
     with pytest.raises(InputError, match="no line elements"):
         design_from_arrays([[0, 0, 0]], np.zeros((0, 2), int))
+    with pytest.raises(InputError, match=r"node 1 lies 1e\+200 from the origin, beyond 1e\+12: check the units"):
+        design_from_arrays([[0, 0, 0], [1e200, 0, 0]], [[0, 1]])  # an internal error from SciPy before
 
 
 def test_write_polylines_obj(tmp_path):

@@ -160,3 +160,17 @@ def test_the_command_line_takes_layer_and_sample(tmp_path, capsys):
         assert r["bom"]["beams"] == 26  # the manta ray's strips, in mm
     finally:
         set_defaults()  # the process-wide defaults back for the other tests
+
+
+def test_an_empty_mesh_as_a_target_surface_is_one_line(tmp_path):
+    # an internal error before ("data must be of shape (n, m)")
+    import rhino3dm
+
+    from xshells.design.fitting import read_surface
+    from xshells.errors import InputError
+
+    f = rhino3dm.File3dm()
+    f.Objects.AddMesh(rhino3dm.Mesh())
+    f.Write(str(tmp_path / "empty.3dm"), 7)
+    with pytest.raises(InputError, match=r"empty.3dm: the surface's mesh has no vertices$"):
+        read_surface(tmp_path / "empty.3dm")

@@ -155,6 +155,10 @@ def design_from_arrays(vertices, edges, source: str | os.PathLike | None = None,
     return design
 
 
+#: the farthest a vertex may lie from the origin, in any units (1e12 mm is 1000 km)
+MAX_COORDINATE = 1e12
+
+
 def _validate(d: Design) -> None:
     """Raise InputError for the first defect found, in file order of checks."""
     V, E, label = d.vertices, d.edges, d.label()
@@ -162,6 +166,11 @@ def _validate(d: Design) -> None:
     if bad_rows.size:
         v = int(bad_rows[0])
         raise InputError(f"{label}: {d.where_vertex(v)} has a non-finite coordinate {tuple(V[v].tolist())}")
+    huge = np.flatnonzero(np.abs(V).max(axis=1) > MAX_COORDINATE)
+    if huge.size:  # the solver's squares overflow (1e200: an internal error from SciPy)
+        v = int(huge[0])
+        raise InputError(f"{label}: {d.where_vertex(v)} lies {float(np.abs(V[v]).max()):.3g} from the origin, beyond "
+                         f"{MAX_COORDINATE:g}: check the units (the bundled designs are in mm)")
     out = np.flatnonzero(np.any((E < 0) | (E >= len(V)), axis=1))
     if out.size:
         s = int(out[0])

@@ -83,6 +83,8 @@ def _layers(path: str, ctx: Context) -> dict:
 
 
 def _common(values: dict) -> list:
+    if not str(values["Section"]).strip():  # it ran with the default 10 × 7 without a word
+        raise InputError("input 'Section': empty (give TYPE:P1,P2,..., e.g. rectangle:10,7)")
     return ["--material", str(values["Section"]), "--young", repr(float(values["Young"])),
             "--poisson", repr(float(values["Poisson"]))]
 

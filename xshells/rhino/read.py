@@ -239,6 +239,8 @@ def read_3dm_surface(path, layer: str | None = None) -> tuple[np.ndarray, np.nda
             F.append([base + a, base + b, base + c])
             if d != c:  # a quad
                 F.append([base + a, base + c, base + d])
+    if not V or not F:  # an empty mesh: the snap below failed on its (0,) arrays
+        raise InputError(f"{path}: the surface's mesh has no {'vertices' if not V else 'faces'}")
     V, index = _snap(np.asarray(V, float), tol)
     F = index[np.asarray(F, np.int64)]
     F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
