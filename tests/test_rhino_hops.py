@@ -201,6 +201,7 @@ def test_a_bad_input_to_the_command_is_the_components_error(server):
     ({"Angle": ("System.Double", -5.0)}, "input 'Angle': must be 0 (the default) or positive, got -5"),
     ({"Sample": ("System.Int32", 1000000000)}, "--sample must be from 1 to 1000 segments per curve"),
     ({"Section": ("System.String", "")}, "input 'Section': empty"),  # ran with the default section
+    ({"Section": ("System.String", "contour:x.json")}, "not a file"),  # was read on the server
 ])
 def test_bad_numbers_get_one_line_and_no_default_in_their_place(server, extra, words):
     url, _, _ = server

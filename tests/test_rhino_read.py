@@ -174,3 +174,19 @@ def test_an_empty_mesh_as_a_target_surface_is_one_line(tmp_path):
     f.Write(str(tmp_path / "empty.3dm"), 7)
     with pytest.raises(InputError, match=r"empty.3dm: the surface's mesh has no vertices$"):
         read_surface(tmp_path / "empty.3dm")
+
+
+@pytest.mark.parametrize("end, words", [((0, 0, 0), "is not a valid curve"), ((float("inf"), 0, 0), "non-finite coordinates")])
+def test_a_degenerate_line_is_not_called_curved(tmp_path, end, words):
+    import rhino3dm
+
+    from xshells.errors import InputError
+    from xshells.io import read_design
+
+    f = rhino3dm.File3dm()
+    f.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Millimeters
+    f.Objects.AddCurve(rhino3dm.LineCurve(rhino3dm.Point3d(0, 0, 0), rhino3dm.Point3d(100, 0, 0)))
+    f.Objects.AddCurve(rhino3dm.LineCurve(rhino3dm.Point3d(0, 0, 0), rhino3dm.Point3d(*end)))
+    f.Write(str(tmp_path / "d.3dm"), 7)
+    with pytest.raises(InputError, match=rf"d.3dm: object 1 .*{words}"):  # "is curved ... give --sample" before
+        read_design(tmp_path / "d.3dm")

@@ -83,8 +83,13 @@ def _layers(path: str, ctx: Context) -> dict:
 
 
 def _common(values: dict) -> list:
-    if not str(values["Section"]).strip():  # it ran with the default 10 × 7 without a word
+    section = str(values["Section"]).strip()
+    if not section:  # it ran with the default 10 × 7 without a word
         raise InputError("input 'Section': empty (give TYPE:P1,P2,..., e.g. rectangle:10,7)")
+    if section.lower().endswith(".json") or "/" in section or "\\" in section:
+        # the command would read a file on the server, relative to where the server runs
+        raise InputError(f"input 'Section': give TYPE:P1,P2,... (e.g. rectangle:10,7), not a file ({section!r}): "
+                         "the server does not read files from the canvas")
     return ["--material", str(values["Section"]), "--young", repr(float(values["Young"])),
             "--poisson", repr(float(values["Poisson"]))]
 

@@ -316,6 +316,8 @@ def make_server(service: HopsService, host: str = "127.0.0.1", port: int = 5000)
     from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
     class Handler(BaseHTTPRequestHandler):
+        timeout = 60  # seconds a request may take to arrive: a Content-Length beyond its body waited forever
+
         def log_message(self, fmt, *args):  # one line per request, to the service's log
             service.log(f"{self.address_string()} {fmt % args}")
 

@@ -67,6 +67,11 @@ def _curve_points(rhino3dm, g, sample, where: str) -> np.ndarray:
     pl = g.TryGetPolyline()
     if pl is not None:
         return np.array([[pl[i].X, pl[i].Y, pl[i].Z] for i in range(pl.Count)], float)
+    if not g.IsValid:  # not a polyline because it is no curve at all: say that, not "curved"
+        s, e = g.PointAtStart, g.PointAtEnd
+        if not np.isfinite([s.X, s.Y, s.Z, e.X, e.Y, e.Z]).all():
+            raise InputError(f"{where} has non-finite coordinates")
+        raise InputError(f"{where} is not a valid curve (a line of zero length?)")
     if not sample:
         raise InputError(f"{where} is curved: a design is made of lines and polylines "
                          "(give --sample N to replace each curve by N straight segments)")
