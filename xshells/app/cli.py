@@ -47,8 +47,6 @@ def _app(args) -> int:
 
     if args.input and not os.path.isfile(args.input):
         raise InputError(f"{args.input}: no such file")
-    if not 0 < args.port < 65536:
-        raise InputError(f"--port must be 1 to 65535, got {args.port}")
     project = None
     if args.input:  # a bad file gets its one line here, not after the server's banner (tens of ms sooner)
         from .loading import open_path
