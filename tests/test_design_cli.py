@@ -58,6 +58,7 @@ def test_optimize_writes_its_outputs_and_resumes(small_case, tmp_path):
     (["--target-surface", "missing.obj"], "missing.obj"), (["--resume"], "does not exist"),
     (["--min-angle", "170", "--no-baseline"], "is infeasible"),
     (["--material", "rectangle:1,1"], "--material contradicts the case file"),
+    (["--max-iters", "0"], "--max-iters must be at least 1, got 0"),  # was "max_iterations must be ..."
 ])
 def test_bad_input_is_one_line(small_case, tmp_path, capsys, argv, match):
     assert main(["optimize", str(small_case), "--out", str(tmp_path / "o"), "--no-progress", *argv]) == 2

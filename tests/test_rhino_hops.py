@@ -199,7 +199,10 @@ def test_a_bad_input_to_the_command_is_the_components_error(server):
     ({"Steps": ("System.Int32", "NaN")}, "input 'Steps': expected a whole number"),
     ({"Steps": ("System.Int32", True)}, "input 'Steps': expected a number"),
     ({"Angle": ("System.Double", -5.0)}, "input 'Angle': must be 0 (the default) or positive, got -5"),
-    ({"Sample": ("System.Int32", 1000000000)}, "--sample must be from 1 to 1000 segments per curve"),
+    ({"Sample": ("System.Int32", 1000000000)}, "input 'Sample' must be from 1 to 1000 segments per curve"),
+    # the command's own checks name the component's inputs, not its options or the server's temporary files
+    ({"Steps": ("System.Int32", 0)}, "input 'Steps' must be from 1 to 100000, got 0"),
+    ({"Young": ("System.Double", -5.0)}, "input 'Young' must be a positive Young's modulus"),
     ({"Section": ("System.String", "")}, "input 'Section': empty"),  # ran with the default section
     ({"Section": ("System.String", "contour:x.json")}, "not a file"),  # was read on the server
 ])
@@ -207,6 +210,19 @@ def test_bad_numbers_get_one_line_and_no_default_in_their_place(server, extra, w
     url, _, _ = server
     status, reply = _post(url + "/solve", _payload(**extra))
     assert status == 200 and len(reply["errors"]) == 1 and words in reply["errors"][0], reply["errors"]
+
+
+def test_command_errors_are_put_in_the_components_words(tmp_path):
+    from xshells.rhino.components import as_inputs
+
+    tmp = str(tmp_path / "xshells-hops-abc")
+    design = tmp + "/design.3dm"
+    assert as_inputs(f"{design}: the design has no joint", tmp) == "input 'Lines': the design has no joint"
+    assert as_inputs(f"could not read {tmp}/surface.3dm", tmp) == "could not read input 'Surface'"
+    assert as_inputs("--max-fit 200%: must lie between 0 and 100%", tmp) == "input 'MaxFit' 200%: must lie between 0 and 100%"
+    assert as_inputs("--max-iters must be at least 1 (see xshells optimize --help)", tmp) == "input 'MaxIters' must be at least 1"
+    assert as_inputs(f"cannot write {tmp}/out/x", tmp) == "cannot write the server's work folder/out/x"
+    assert as_inputs("--unknown-option and --out stay", tmp) == "--unknown-option and --out stay"
 
 
 def test_a_struct_without_its_fields_and_a_value_starting_with_a_dash():

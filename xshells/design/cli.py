@@ -35,6 +35,8 @@ def _optimize(args) -> int:
 
     if args.min_angle is not None and not (np.isfinite(args.min_angle) and -180.0 < args.min_angle < 180.0):
         raise InputError(f"--min-angle must be a finite angle in degrees, got {args.min_angle:g}")
+    if args.max_iters < 1:  # OptimizeOptions would say "max_iterations", which is not what the user typed
+        raise InputError(f"--max-iters must be at least 1, got {args.max_iters}")
     case_path = case_path_from_args(args, "optimize", steps_default=20)
     weights = DesignWeights(**{k: v for k, v in (("gamma", args.gamma), ("beta", args.beta)) if v is not None})
     opts = OptimizeOptions(method=args.method, max_iterations=args.max_iters,

@@ -103,11 +103,39 @@ def _optional(values: dict, name: str, flag: str, positive: bool = True) -> list
     return [flag, repr(v) if isinstance(v, float) else str(v)]
 
 
-def _run(argv: list) -> tuple[int, str]:
-    """Runs ``xshells ARGV`` here; returns (exit code, out folder). Input errors raise InputError."""
+# The command's options and files, as the component inputs they come from: an error names what the
+# Grasshopper user connected ("input 'Steps'"), not the command line built for them ("--steps").
+OPTION_INPUTS = {"--steps": "Steps", "--subdivision": "Subdivision", "--angle": "Angle", "--sample": "Sample",
+                 "--young": "Young", "--poisson": "Poisson", "--material": "Section", "--max-fit": "MaxFit",
+                 "--actuators": "Actuators", "--load": "Loads", "--supports": "Supports", "--density": "Density",
+                 "--max-iters": "MaxIters", "--spacing": "Spacing", "--grading": "Grading", "--tries": "Tries",
+                 "--direction": "Direction", "--target-surface": "Target"}
+FILE_INPUTS = {"design.3dm": "Lines", "surface.3dm": "Surface", "target.3dm": "Target"}
+
+
+def _run(argv: list, tmp: str) -> tuple[int, str]:
+    """Runs ``xshells ARGV`` here; returns (exit code, out folder). Input errors raise InputError, in the
+    component's words (:func:`as_inputs`); ``tmp`` is the folder of the files written for the command."""
     from ..cli import run_in_process
 
-    return run_in_process(_joined(argv)), argv[argv.index("--out") + 1]
+    try:
+        return run_in_process(_joined(argv)), argv[argv.index("--out") + 1]
+    except InputError as exc:
+        raise InputError(as_inputs(str(exc), tmp)) from None
+
+
+def as_inputs(message: str, tmp: str) -> str:
+    """A command's error message with its options and the files written in ``tmp`` named as component inputs."""
+    import re
+
+    for name, param in FILE_INPUTS.items():
+        path = os.path.join(tmp, name)
+        message = message.replace(path + ": ", f"input {param!r}: ").replace(path, f"input {param!r}")
+    message = message.replace(tmp, "the server's work folder")
+    message = re.sub(r" \(see xshells [a-z]+ --help\)$", "", message)
+    return re.sub(r"--[a-z][a-z-]*(?![a-z-])",
+                  lambda m: f"input {OPTION_INPUTS[m.group(0)]!r}" if m.group(0) in OPTION_INPUTS else m.group(0),
+                  message)
 
 
 def _joined(argv: list) -> list:
@@ -160,7 +188,7 @@ def _on_lines(command: str, values: dict, ctx: Context, options, result_3dm: str
         argv = [command, design, *_common(values), "--steps", str(values["Steps"]), "--subdivision",
                 str(values["Subdivision"]), *options(tmp), "--out", os.path.join(tmp, "out"),
                 *_optional(values, "Angle", "--angle"), *_optional(values, "Sample", "--sample")]
-        code, out = _run(argv)
+        code, out = _run(argv, tmp)
         return code, _result(out), _layers(os.path.join(out, result_3dm), ctx)
 
 
@@ -230,7 +258,7 @@ def solve_inverse(values: dict, ctx: Context) -> dict:
                 "--direction", values["Direction"], "--tries", str(values["Tries"]), "--out", os.path.join(tmp, "out")]
         if spacing > 0:  # in the document's units; the command works in mm
             argv += ["--spacing", repr(spacing * RHINO_UNITS_TO_MM[ctx.units])]
-        code, out = _run(argv)
+        code, out = _run(argv, tmp)
         r = _result(out)
         layers = _layers(os.path.join(out, "inverse.3dm"), ctx)
     text, warnings = _report("inverse", r, code)
