@@ -193,6 +193,22 @@ def test_msh_reading_and_errors(tmp_path):
         read_design(dup)
 
 
+def test_an_ascii_msh_with_node_data_reads_as_its_binary_twin(tmp_path):
+    # meshio cannot read back the $NodeData of an ASCII file it writes itself ("could not be read to its
+    # end"): such a design was refused; its nodes and elements are all a design needs
+    src = EXAMPLES / "asymm_wings_pointy" / "flat_opt.msh"
+    m = meshio.read(src)
+    assert m.point_data  # the reference's files carry node data
+    ascii_copy = tmp_path / "ascii.msh"
+    meshio.write(ascii_copy, m, file_format="gmsh22", binary=False)
+    a, b = read_design(ascii_copy), read_design(src)
+    assert np.array_equal(a.edges, b.edges) and np.allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
+    broken = tmp_path / "broken.msh"  # a damaged data block still fails in one line, not on the retry
+    broken.write_text(ascii_copy.read_text().replace("$Elements", "$Elements\nx", 1))
+    with pytest.raises(InputError, match=r"broken\.msh: cannot read gmsh file"):
+        read_design(broken)
+
+
 def test_design_from_arrays():
     d = design_from_arrays([[0, 0], [1, 0], [1, 1]], [[0, 1], [1, 2]])
     assert isinstance(d, Design) and d.source is None and d.vertices.shape == (3, 3)

@@ -247,6 +247,22 @@ def test_unknown_get_is_404_with_a_message(server):
     assert e.value.code == 404 and "no component /nothing" in json.loads(e.value.read())["errors"][0]
 
 
+@pytest.mark.parametrize("method, code, words", [
+    ("PUT", 405, "PUT is not served"), ("DELETE", 405, "DELETE is not served"),
+    ("FOO", 501, "501 Unsupported method ('FOO')"),  # http.server's own error: its HTML page before
+])
+def test_other_methods_get_a_json_error(server, method, code, words):
+    import http.client
+
+    url, _, _ = server
+    conn = http.client.HTTPConnection(url.split("//")[1], timeout=10)
+    conn.request(method, "/solve", body=b"{}")
+    r = conn.getresponse()
+    assert r.status == code and r.getheader("Content-Type") == "application/json"
+    assert words in json.loads(r.read())["errors"][0]
+    conn.close()
+
+
 @pytest.mark.parametrize("pointer, extra, expect", [
     ("/sparsify", {"Actuators": ("System.Int32", 4)}, {"Actuators": 4, "Torques": 4}),
     ("/optimize", {"MaxIters": ("System.Int32", 2)}, {"Layout": 170}),

@@ -359,7 +359,14 @@ def read_msh_design(path: str | os.PathLike) -> Design:
     try:
         # meshio prints its parse errors and may call sys.exit on a bad file.
         with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
-            mesh = meshio.read(path, file_format="gmsh")
+            try:
+                mesh = meshio.read(path, file_format="gmsh")
+            except ValueError:
+                # meshio cannot read back the $NodeData of an ASCII file it wrote itself ("could not be read
+                # to its end"): a design needs its nodes and elements only, so read it without its data blocks
+                mesh = _read_ascii_msh_without_data(path, meshio)
+                if mesh is None:
+                    raise
     except (Exception, SystemExit) as exc:
         # On SystemExit meshio's printed text only repeats the file name; an IndexError is an element
         # naming a node the file does not have ("index 6 is out of bounds for axis 0 with size 4")
@@ -383,6 +390,36 @@ def read_msh_design(path: str | os.PathLike) -> Design:
         raise InputError(f"{label}: the design holds {listed} besides its line elements: a design is a line graph "
                          "of beam segments only (a target surface goes to --target-surface)")
     return design_from_arrays(mesh.points, np.concatenate(blocks, axis=0), source=label)
+
+
+_DATA_BLOCKS = ("$NodeData", "$ElementData", "$ElementNodeData")
+
+
+def _read_ascii_msh_without_data(path, meshio):
+    """An ASCII gmsh file read by meshio without its data blocks (None for a binary file: they read as they are)."""
+    import tempfile
+
+    with open(path, "rb") as fh:
+        head = fh.read(64).split()
+    if len(head) < 3 or head[0] != b"$MeshFormat" or head[2] != b"0":  # "$MeshFormat 2.2 0 8": 0 is ASCII
+        return None
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        kept, skip = [], None
+        for line in fh:
+            word = line.strip()
+            if skip is None and word in _DATA_BLOCKS:
+                skip = "$End" + word[1:]
+            elif skip is not None:
+                if word == skip:
+                    skip = None
+            else:
+                kept.append(line)
+    with tempfile.NamedTemporaryFile("w", suffix=".msh", delete=False, encoding="utf-8") as tmp:
+        tmp.writelines(kept)
+    try:
+        return meshio.read(tmp.name, file_format="gmsh")
+    finally:
+        os.unlink(tmp.name)
 
 
 #: A median ratio of rest length to drawn segment length beyond this factor (either way) is a units mistake

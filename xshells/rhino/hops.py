@@ -339,6 +339,34 @@ def make_server(service: HopsService, host: str = "127.0.0.1", port: int = 5000)
             self.send_response(200)
             self.end_headers()
 
+        def _not_served(self):
+            self.send_response(405)
+            self.send_header("Allow", "GET, HEAD, POST")
+            data = json.dumps({"values": [], "warnings": [], "errors": [
+                f"{self.command} is not served: GET / lists the components, POST /solve solves one"]}).encode("utf-8")
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(data)))
+            self.end_headers()
+            self.wfile.write(data)
+
+        do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _not_served
+
+        def send_error(self, code, message=None, explain=None):
+            """http.server's own errors (an unknown method, a malformed request line) as JSON, not its HTML page."""
+            short, long = self.responses.get(code, ("Error", ""))
+            text = message or short
+            self.log_error("code %d, message %s", code, text)
+            self.send_response(code, short)
+            self.send_header("Connection", "close")
+            body = b""
+            if code >= 200 and code not in (204, 304) and self.command != "HEAD":
+                body = json.dumps({"values": [], "warnings": [], "errors": [f"{code} {text}" + (f": {explain}" if explain else "")]}).encode("utf-8")
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            if body:
+                self.wfile.write(body)
+
         def do_POST(self):
             try:
                 length = int(self.headers.get("Content-Length") or 0)
