@@ -222,14 +222,15 @@ def entry() -> None:
     Every file is written and closed by then; what is left is freeing modules and arrays, which the
     operating system does at once: 0.08 of a second after ``xshells deploy`` returned on the manta ray,
     against 0.02 this way. Exit handlers still run. Where another thread is alive (a server's), the
-    ordinary exit waits for it as before.
+    ordinary exit waits for it as before; under a profiler or tracer (``python -m cProfile -m
+    xshells.cli``, coverage) too, as they write their results after the program returns.
     """
     code = main()
     import atexit
     import threading
 
     run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
-    if threading.active_count() > 1 or run_exit_handlers is None:
+    if threading.active_count() > 1 or run_exit_handlers is None or sys.getprofile() or sys.gettrace():
         sys.exit(code)
     run_exit_handlers()
     for stream in (sys.stdout, sys.stderr):

@@ -62,8 +62,33 @@ def space_parallel_directors(t: np.ndarray, first_d1: np.ndarray) -> np.ndarray:
     -------
     d1 : (n, 3) array, with zero reference twist at every interior vertex.
     """
+    return space_parallel_directors_of_rods(t, np.array([0, len(t)]), np.asarray(first_d1, float)[None, :])
+
+
+def space_parallel_directors_of_rods(t: np.ndarray, offsets: np.ndarray, first_d1: np.ndarray) -> np.ndarray:
+    """:func:`space_parallel_directors` of many rods at once: one transport per edge position, all rods together
+    (a loop over the rods' edges took 50 of the 130 ms of building the manta ray's linkage).
+
+    Parameters
+    ----------
+    t : (E, 3) array
+        Unit tangents of every rod's consecutive edges, rod after rod.
+    offsets : (R + 1,) int array
+        Rod r's edges are ``offsets[r]:offsets[r + 1]`` (each rod has at least one).
+    first_d1 : (R, 3) array
+        Director of each rod's first edge.
+
+    Returns
+    -------
+    d1 : (E, 3) array, the same numbers as rod by rod (the same operations on each element).
+    """
+    starts = np.asarray(offsets[:-1], dtype=np.int64)
+    lengths = np.diff(offsets)
     d1 = np.empty_like(t)
-    d1[0] = orthonormalize(first_d1[None, :], t[:1])[0]
-    for j in range(1, len(t)):
-        d1[j] = transport(t[j - 1 : j], t[j : j + 1], d1[j - 1 : j])[0]
+    if not len(starts):
+        return d1
+    d1[starts] = orthonormalize(first_d1, t[starts])
+    for j in range(1, int(lengths.max())):
+        at = starts[lengths > j] + j
+        d1[at] = transport(t[at - 1], t[at], d1[at - 1])
     return orthonormalize(d1, t)

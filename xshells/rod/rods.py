@@ -212,12 +212,7 @@ class ElasticRods:
             if len(dirs) != self.num_rods:
                 raise InputError(f"directors: expected {self.num_rods} vectors (one per rod), got {len(dirs)}")
             first = dirs
-        d1_rest = np.concatenate(
-            [
-                frames.space_parallel_directors(t_rest[a:b], first[r])
-                for r, (a, b) in enumerate(zip(self.edge_offsets[:-1], self.edge_offsets[1:]))
-            ]
-        )
+        d1_rest = frames.space_parallel_directors_of_rods(t_rest, self.edge_offsets, first)
         # Rest curvature and twist, measured with straight-rest defaults of zero.
         self.kappa_bar = np.zeros((self.num_stencils, 4))
         self.twist_bar = np.zeros(self.num_stencils)
