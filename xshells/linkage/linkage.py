@@ -853,10 +853,12 @@ class _ReducedHessianAssembler:
         self._jac_flat = np.zeros(jac_zero + 1)
         all_r = np.concatenate([e[1] for es in entries.values() for e in es])
         all_c = np.concatenate([e[2] for es in entries.values() for e in es])
-        keys = np.sort(all_r * size + all_c)  # np.unique's values by a plain sort (np.unique hashed: 58 of 100 ms here)
-        keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))]
-        self.indices = (keys % size).astype(np.int32)
-        self.indptr = np.searchsorted(keys // size, np.arange(size + 1)).astype(np.int32)
+        # the pattern by SciPy's COO -> CSR conversion (a counting sort by row: 33 ms for a sort of every key)
+        P = sp.csr_matrix((np.ones(len(all_r), dtype=np.int32), (all_r, all_c)), shape=(size, size))
+        P.sum_duplicates()
+        keys = np.repeat(np.arange(size, dtype=np.int64), np.diff(P.indptr)) * size + P.indices
+        self.indices = P.indices.astype(np.int32)
+        self.indptr = P.indptr.astype(np.int32)
         self.nnz = len(keys)
         sizes = {0: 169 * rods.num_stencils, 1: 49 * rods.num_edges, 2: len(self.buffer)}
         self.gather = {}
