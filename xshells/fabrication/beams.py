@@ -163,7 +163,7 @@ def trace_beams(graph, rest_lengths, sections: list[Section], *, xy=None, end_ma
     p = np.asarray(rest_lengths, float)
     if p.shape != (graph.num_segments,):
         raise InputError(f"rest lengths: expected {graph.num_segments} values (one per segment), got {p.size}")
-    XY = flat_coordinates(graph.design.vertices) if xy is None else np.asarray(xy, float)
+    XY = flat_coordinates(graph.design.vertices, graph.layout_normal) if xy is None else np.asarray(xy, float)
     raw = []
     for b, steps in enumerate(graph.beams):
         verts = graph.beam_vertices(b)

@@ -169,7 +169,7 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
         if m < 0.5 * hole:
             raise InputError(f"--end-margin {options.end_margin!r} mm must be at least the hole radius ({0.5 * hole:g} mm): "
                              "the outermost holes would break out of the strip ends")
-    XY = flat_coordinates(graph.design.vertices) if xy is None else np.asarray(xy, float)
+    XY = flat_coordinates(graph.design.vertices, graph.layout_normal) if xy is None else np.asarray(xy, float)
     beams = trace_beams(graph, rest_lengths, sections, xy=XY, end_margin=options.end_margin, to_mm=to_mm)
     flat = graph.joint_opening_angles if flat_angles is None else flat_angles
     joints = joint_table(graph, beams, flat, deployed_angles, top=top)

@@ -16,18 +16,28 @@ from ..errors import InputError
 from .export import atomic_write_bytes, atomic_write_text
 
 
-def flat_coordinates(vertices) -> np.ndarray:
-    """In-plane coordinates (n, 2) of a flat design's vertices (n, 3).
+def flat_coordinates(vertices, normal=None) -> np.ndarray:
+    """In-plane coordinates (n, 2) of a flat design's vertices (n, 3), seen from the layout's up side.
 
     A design in the z = 0 plane keeps its x, y; one drawn in another plane
-    is projected onto its best-fit plane.
+    is projected onto its best-fit plane, in axes (u, v) with u × v along
+    ``normal`` (3,): the layout's "up" normal (``LinkageGraph.layout_normal``,
+    which ``--direction up`` means). By default that normal's own rule: the
+    plane's normal with its largest component positive. Without it the axes'
+    order was the SVD's, and a design drawn in a tilted plane was drawn, in
+    four of six random orientations, as seen from below: mirrored.
     """
     V = np.asarray(vertices, float)
     if np.ptp(V[:, 2]) == 0:
         return V[:, :2].copy()
     c = V.mean(axis=0)
     _, _, vt = np.linalg.svd(V - c, full_matrices=False)
-    return (V - c) @ vt[:2].T
+    if normal is None:  # the rule of linkage.graph's layout plane (this module sits below it)
+        normal = vt[2] if vt[2][np.argmax(np.abs(vt[2]))] > 0 else -vt[2]
+    axes = vt[:2].copy()
+    if np.cross(axes[0], axes[1]) @ np.asarray(normal, float) < 0:
+        axes[1] = -axes[1]
+    return (V - c) @ axes.T
 
 
 def _lengths(V: np.ndarray, E: np.ndarray) -> np.ndarray:
