@@ -28,9 +28,49 @@ def test_the_analysis_reports_and_writes_what_it_should(run):
     assert len(r["reactions"]) == 4
     assert r["equilibrium_error"] <= 1e-8
     assert r["stable"] and not r["buckled"]
+    # this shell snaps through at 1.87x its load (tests/test_analysis_run.py::test_the_snap_through_is_found);
+    # the search sampled 1x, 2x, 4x ... from the requested load, landed past the fold, and said "no
+    # instability up to 50x"
+    assert r["critical_kind"] == "limit point" and 1.8 < r["critical_load_factor"] < 1.95
     for name in ("analysis.png", "beams.csv", "loaded.ply", "loaded.3dm", "deploy/result.json", "deploy/deployed.3dm"):
         assert (out / name).is_file(), name
     assert "utilization" in (out / "loaded.ply").read_bytes()[:2000].decode("latin-1")
+
+
+def test_the_snap_through_is_found(run):
+    """Past the critical factor the equilibrium jumps: followed in small load steps, the largest displacement
+    grows smoothly up to 0.99x the reported factor, then leaps at 1.01x (and the lowest eigenvalue, near 0
+    before, is back up after: a limit point, not a bifurcation)."""
+    import copy
+
+    import numpy as np
+
+    from xshells.analysis.run import parse_load
+    from xshells.analysis.static import (Load, StaticOptions, Support, held_variables, load_vector, lowest_supports,
+                                         smallest_eigenvalue, solve_loaded, translate)
+    from xshells.deploy.case import material_from_spec
+    from xshells.deploy.run import run_deployment
+
+    _, out, r = run
+    crit = r["critical_load_factor"]
+    states = {}
+    spec = {"type": "rectangle", "E": 20000, "nu": 0.3, "params": [0.05, 0.035], "density": 1.9e-9}
+    run_deployment(DESIGN, material_from_spec(spec), out_dir=str(out / "again"), subdivision=5, target_angle=np.radians(60),
+                   steps=6, progress=False, states=states)
+    L = states["deployed"]
+    translate(L, -L.vertex_positions().mean(axis=0))
+    held = held_variables(L, [Support(v) for v in lowest_supports(L, 4)], "locked")
+    f, _ = load_vector(L, [Load("self-weight"), parse_load("point:3:0,0,-1e-3")])
+    P0 = L.vertex_positions()
+    lam, d, mu = 0.0, [], []
+    for target in (0.9, 0.95, 0.99, 1.01):
+        assert solve_loaded(L, f, held, target * crit, StaticOptions(load_steps=4), escape=False, start_factor=lam).converged
+        lam = target * crit
+        d.append(float(np.linalg.norm(L.vertex_positions() - P0, axis=1).max()))
+        mu.append(smallest_eigenvalue(L, held))
+    smooth = (d[2] - d[1]) / 0.04  # growth per unit of the factor just before
+    assert d[3] - d[2] > 3 * smooth * 0.02  # the leap: several times what the path's own slope would give
+    assert 0 < mu[2] < 0.6 * mu[0] and mu[3] > 2 * mu[2]  # μ falls toward the fold (as its square root), then is back
 
 
 @pytest.mark.parametrize("args, words", [
@@ -42,6 +82,8 @@ def test_the_analysis_reports_and_writes_what_it_should(run):
     (["--supports", "lowest:1", "--load", "point:3:0,0,-1"], "rigid motion(s) free"),
     (["--supports", "under:3", "--load", "point:3:0,0,-1"], "use lowest:N or joints:"),
     (["--supports", "lowest:4", "--load", "wind:3"], "use self-weight, point:"),
+    (["--supports", "lowest:4", "--load", "point:3:0,0,0"], "a point load of zero"),  # equilibrium_error 1.7e291
+    (["--supports", "lowest:4", "--load", "area:0"], "an area load of zero"),
     (["--supports", "joints:0,0,1,2", "--load", "point:3:0,0,-1"], "--supports joints:0,0,1,2: vertex 0 is listed twice"),
     (["--supports", "lowest:4", "--density", "1e-9", "--load", "self-weight", "--load", "self-weight"],
      "--load self-weight is given twice"),

@@ -92,6 +92,49 @@ def test_reactions_balance_the_load():
     assert np.linalg.norm(R + total) <= 1e-8 * np.linalg.norm(total)
 
 
+def test_clamped_free_ends_balance_the_load_in_force_and_moment():
+    # A clamped free end holds its end vertex, the next rod vertex and the end edge's twist: its reaction
+    # is theirs together (the end vertex's alone was 30x the load, and no moment was reported)
+    for clamped, loaded in (((1, 2, 3, 4), (0,)), ((1, 3), (2, 4))):  # the second twists the arms it holds
+        L, _, _ = plus(10)
+        sup = [Support(v, "clamped") for v in clamped]
+        held = held_variables(L, sup, "locked")
+        F = np.array([0.2, -0.1, -1.0])
+        f, total = load_vector(L, [Load("point", vertex=v, vector=tuple(F)) for v in loaded])
+        assert solve_loaded(L, f, held).converged
+        R, R_total = reactions(L, sup, f, held)
+        assert np.linalg.norm(R_total + total) <= 1e-8 * np.linalg.norm(total)
+        P = L.vertex_positions()
+        moment = sum(np.cross(P[v], F) for v in loaded)
+        moment = moment + sum(np.cross(P[r["vertex"]], r["force"]) + np.array(r["moment"]) for r in R)
+        assert np.linalg.norm(moment) <= 1e-8 * np.linalg.norm(F) * ARM, (clamped, moment)
+
+
+def test_a_load_step_that_fails_leaves_the_last_equilibrium(monkeypatch):
+    # the third load step "fails" after moving the state: what is reported is the second step's equilibrium
+    # (its displacement and load factor), not the failed iterate (3252 mm of displacement at factor 0 before)
+    import xshells.solve as solve
+
+    L, sup, held = plus(5)
+    f, _ = load_vector(L, [Load("point", vertex=1, vector=(0, 0, -0.05))])
+    ref = copy.deepcopy(L)
+    solve_loaded(ref, f, held, 0.2)  # the equilibrium at two steps of ten
+    real, calls = solve.minimize, []
+
+    def failing(problem, **kw):
+        calls.append(1)
+        rep = real(problem, **kw)
+        if len(calls) == 3:
+            problem.set_vars(problem.get_vars() + 1.0)  # wherever a failed Newton run leaves it
+            rep.converged, rep.message = False, "stopped after 200 iterations"
+        return rep
+
+    monkeypatch.setattr(solve, "minimize", failing)
+    st = solve_loaded(L, f, held, 1.0)
+    assert not st.converged and st.load_factor == pytest.approx(0.2) and "0.3" in st.message
+    np.testing.assert_allclose(L.vertex_positions(), ref.vertex_positions(), atol=1e-9 * ARM)
+
+
 def test_a_small_load_doubled_doubles_the_displacement():
     L, sup, held = plus(10)
     f, _ = load_vector(L, [Load("point", vertex=1, vector=(0, 0, -0.01))])

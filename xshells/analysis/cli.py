@@ -69,8 +69,10 @@ def _analyze(args) -> int:
           f"largest von Mises {r['max_von_mises']:.4g}" +
           (f", utilization {r['max_utilization']:.3g}" if r["max_utilization"] is not None else ""))
     print(f"  total load {np.round(r['total_load'], 6).tolist()}, reactions {np.round(r['reactions_total'], 6).tolist()}; "
-          f"{'stable' if r['stable'] else 'UNSTABLE'}" +
-          (f", critical load factor {r['critical_load_factor']:.4g}" if r["critical_load_factor"] is not None else
+          f"{'stability unknown' if r['stable'] is None else 'stable' if r['stable'] else 'UNSTABLE'}" +
+          (f", critical load factor {r['critical_load_factor']:.4g}" +
+           (" (a limit point: it snaps through)" if r.get("critical_kind") == "limit point" else "")
+           if r["critical_load_factor"] is not None else
            (f", no instability up to {r['critical_searched_to']:.3g}× the load" if r["critical_searched_to"] else "")) +
           ("; BUCKLED" if r["buckled"] else ""))
     if r["status"] != "complete":  # as xshells deploy's "stopped at …° of …°: why"

@@ -46,12 +46,18 @@ def parse_load(text: str) -> Load:
             vec = tuple(float(v) for v in parts[2].split(","))
             if len(vec) != 3 or not np.all(np.isfinite(vec)):
                 raise ValueError
+            if not any(vec):  # nothing to analyse (and a relative balance of 0/0)
+                raise InputError(f"--load {text}: a point load of zero")
             return Load("point", vertex=int(parts[1]), vector=vec)
         if parts[0] == "area" and len(parts) == 2:
             q = float(parts[1])
             if not np.isfinite(q):
                 raise ValueError
+            if q == 0:
+                raise InputError(f"--load {text}: an area load of zero")
             return Load("area", q=q)
+    except InputError:
+        raise
     except ValueError:
         pass
     raise InputError(f"--load {text}: use self-weight, point:VERTEX:FX,FY,FZ or area:Q")
@@ -133,9 +139,14 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     finally:
         if bar is not None:
             bar.close()
-    total_force = (base if base is not None else 0.0) + load_factor * f
+    reached = st.load_factor  # short of load_factor where a step did not converge: the last equilibrium's
+    total_force = (base if base is not None else 0.0) + reached * f
     reac, reac_total = reactions(L, supports, total_force, held)
-    mu = smallest_eigenvalue(L, held)
+    try:
+        mu = smallest_eigenvalue(L, held)
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as exc:  # ARPACK on a bad state
+        mu = float("nan")
+        st.message += f"; its stability could not be computed ({type(exc).__name__})"
     stresses = rod_stresses(L, strength)
     t_load = time.perf_counter() - t1
     crit = None
@@ -154,14 +165,17 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
         "loads": [l.__dict__ for l in loads], "load_factor": load_factor, "load_factor_reached": st.load_factor,
         "max_displacement": float(disp.max()), "max_displacement_vertex": int(np.argmax(disp)),
         "max_von_mises": stresses.max_von_mises, "max_utilization": stresses.max_utilization, "strength": strength,
-        "reactions": reac, "reactions_total": reac_total.tolist(), "total_load": (load_factor * resultant).tolist(),
-        "equilibrium_error": float(np.linalg.norm(reac_total + load_factor * resultant) / max(np.linalg.norm(load_factor * resultant), 1e-300)),
-        "min_eigenvalue": mu, "stable": bool(mu >= 0),
+        "reactions": reac, "reactions_total": reac_total.tolist(), "total_load": (reached * resultant).tolist(),
+        # relative to the total load; None where the loads cancel (self-balanced, or nothing reached)
+        "equilibrium_error": (float(np.linalg.norm(reac_total + reached * resultant) / np.linalg.norm(reached * resultant))
+                              if np.linalg.norm(reached * resultant) > 0 else None),
+        "min_eigenvalue": None if np.isnan(mu) else mu, "stable": None if np.isnan(mu) else bool(mu >= 0),
         "critical_load_factor": None if crit is None else crit.factor,
         "critical_bracket": None if crit is None else list(crit.bracket),
         "critical_method": None if crit is None else crit.method,
         "critical_searched_to": None if crit is None else crit.searched_to,
-        "buckled": bool(crit is not None and crit.factor is not None and load_factor > crit.factor) or not mu >= 0,
+        "critical_kind": None if crit is None or crit.factor is None else crit.kind,
+        "buckled": bool(crit is not None and crit.factor is not None and load_factor > crit.factor) or bool(mu < 0),
         "deployment": {"reached": dep["reached"], "angle_deg": dep["deployed"]["average_angle_deg"],
                        "utilization_max": dep.get("utilization_max")},
         "timings_s": {"deploy": t_dep, "load": t_load, "critical": t_crit, "total": time.perf_counter() - t0},

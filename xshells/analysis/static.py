@@ -244,12 +244,15 @@ def smallest_eigenvalue(linkage, held) -> float:
 
 
 def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOptions = StaticOptions(),
-                 base_force=None, callback=None, escape: bool = True) -> LoadedState:
+                 base_force=None, callback=None, escape: bool = True, start_factor: float = 0.0) -> LoadedState:
     """Equilibrium of ``linkage`` (in place) under ``load_factor · f`` (+ ``base_force``), ``held`` variables fixed.
 
     Load stepping in ``options.load_steps`` equal increments; ``callback(step,
     factor)`` after each (return True to stop). ``base_force``: a force always
-    present (the actuation torque when the joints are free).
+    present (the actuation torque when the joints are free). ``start_factor``:
+    the factor ``linkage`` is already in equilibrium under (the steps run from
+    it). A step that does not converge leaves the linkage at the last
+    equilibrium, whose factor the result gives.
     """
     from ..solve import minimize
 
@@ -260,13 +263,19 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
         from dataclasses import replace
 
         opts = replace(opts, saddle_gradient_factor=0.0)
-    reached, its, message, ok = 0.0, 0, "", True
+    from ..linkage.state import restore, snapshot
+
+    reached, its, message, ok = start_factor, 0, "", True
     for k in range(1, options.load_steps + 1):
-        lam = load_factor * k / options.load_steps
+        lam = start_factor + (load_factor - start_factor) * k / options.load_steps
+        last = snapshot(linkage)
         rep = minimize(linkage, fixed=held, force=base + lam * f, options=opts)
         linkage.update_source_frame()
         its += rep.iterations
-        if not rep.converged:
+        if not rep.converged or not np.all(np.isfinite(linkage.get_vars())):
+            # the last equilibrium is what is reported, not the iterate that failed (its displacement and
+            # stresses were those of no equilibrium, beside the reactions of another load)
+            restore(linkage, last)
             ok, message = False, f"the equilibrium at load factor {lam:.4g} did not converge ({rep.message})"
             break
         reached = lam
@@ -275,8 +284,6 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
             break
     if ok:  # polish the last equilibrium below the round-off estimate: the reactions' balance is what it leaves
         from dataclasses import replace
-
-        from ..linkage.state import restore, snapshot
 
         before = snapshot(linkage)
         free = np.setdiff1d(np.arange(linkage.num_vars), held)
@@ -301,13 +308,24 @@ def reactions(linkage, supports, f_total, held) -> tuple[list, np.ndarray]:
     for s in supports:
         pos, rows = support_rows(linkage, s)
         force = g[pos]  # ∇E = f + R at a held variable: the support's reaction is R = ∇E − f
-        row = {"vertex": int(s.vertex), "kind": s.kind, "force": force.tolist(), "moment": None}
+        moment = None
         j = int(linkage.graph.vertex_joint[s.vertex])
         if s.kind == "clamped" and j >= 0:
             # ω is a rotation vector about the joint's current frame (reset to 0 after every solve), so its
             # energy gradient is the moment the clamp applies
-            row["moment"] = g[9 * j + 3: 9 * j + 6].tolist()
-        out.append(row)
+            moment = g[9 * j + 3: 9 * j + 6]
+        elif s.kind == "clamped":
+            # a clamped free end holds its end vertex, the next rod vertex and the end edge's twist: the
+            # reaction is all of theirs (the end vertex's alone left out most of it: 30x off on a test)
+            nb_rows, twist_row = rows[3:6], rows[6]
+            rv, nb, edge = linkage.free_end_rod_vertex(int(s.vertex))
+            P = linkage.rods.points
+            a, b = linkage.rods.edges[edge]
+            t = (P[b] - P[a]) / np.linalg.norm(P[b] - P[a])
+            force = force + g[nb_rows]
+            moment = np.cross(P[nb] - P[rv], g[nb_rows]) + g[twist_row] * t
+        out.append({"vertex": int(s.vertex), "kind": s.kind, "force": force.tolist(),
+                    "moment": None if moment is None else moment.tolist()})
         total += force
     return out, total
 
@@ -325,6 +343,9 @@ class CriticalFactor:
     method : str
     searched_to : float
     samples : list of (factor, smallest eigenvalue or nan)
+    kind : {"bifurcation", "limit point"} or None
+        How stability ends: an eigenvalue through zero on the branch (it buckles), or a load beyond which
+        the branch has no equilibrium (a limit point: it snaps through).
     """
 
     factor: float | None
@@ -332,6 +353,7 @@ class CriticalFactor:
     method: str
     searched_to: float
     samples: list = field(default_factory=list)
+    kind: str | None = None
 
 
 def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOptions(), base_force=None,
@@ -340,10 +362,17 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
 
     The smallest eigenvalue μ(λ) of the loaded Hessian is followed along the
     loaded branch (Newton without saddle escapes, so a symmetric state that
-    passes its critical load stays on its branch, as a saddle); steps grow
-    from ``start`` by secant extrapolation of μ toward 0 (at most ×2), and the
-    first sign change (or the first load without an equilibrium: a limit
-    point) is bisected to ``factor_tolerance``.
+    passes its critical load stays on its branch, as a saddle), from
+    ``start``/8 (a snap below the requested load is looked for too) up to
+    ``options.max_factor`` × ``start``, that factor itself sampled last. Steps
+    grow by secant extrapolation of μ toward 0 (×1.1 to ×2). The first sign
+    change, the first load without an equilibrium, or the first step whose
+    equilibrium *jumped* (the joints moved more than three times as far as
+    the tangent dx/dλ = H⁻¹f predicts: Newton converged past a limit point,
+    onto the branch after a snap-through, where μ > 0 again) is bisected to
+    ``factor_tolerance``; a jump is first retried with halved steps, and one
+    that shorter steps resolve into a smooth path is no limit point: the
+    continuation goes on from there.
     """
     import copy
 
@@ -352,44 +381,80 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
     work = copy.deepcopy(linkage)
     base_state = snapshot(work)
     samples = []
+    free = np.setdiff1d(np.arange(work.num_vars), held)
+    joints = 9 * np.arange(work.num_joints)[:, None] + np.arange(3)[None, :]
+    on_free = np.isin(free, joints.ravel())  # the joints' positions among the free variables: lengths
 
-    def mu_at(lam, from_state):
+    def positions():
+        return np.asarray(work.get_vars(), float)[joints.ravel()]
+
+    def tangent_step():
+        """max |dx/dλ| of the joints' positions at the current (stable) state: H⁻¹f on the free variables."""
+        from ..solve.cholesky import NotPositiveDefinite, SparseCholesky
+
+        chol = SparseCholesky()
+        try:
+            chol.factorize(work.hessian()[free][:, free].tocsr())
+        except NotPositiveDefinite:
+            return np.inf
+        u = chol.solve(np.asarray(f, float)[free])
+        return float(np.abs(u[on_free]).max()) if on_free.any() else 0.0
+
+    def mu_at(lam, from_state, from_lam, rate):
+        """(μ, state, rate, jumped) at ``lam`` solved from ``from_state`` at ``from_lam``; μ None where there is
+        no equilibrium on the branch (no convergence, a failed eigen-solve, or a jump)."""
         restore(work, from_state)
+        x0 = positions()
         st = solve_loaded(work, f, held, lam, StaticOptions(joints=options.joints, load_steps=max(1, options.load_steps // 2),
-                                                            gravity=options.gravity), base_force=base_force, escape=False)
+                                                            gravity=options.gravity), base_force=base_force, escape=False,
+                          start_factor=from_lam)
         if not st.converged:
             samples.append((lam, float("nan")))
-            return None, None
-        mu = smallest_eigenvalue(work, held)
+            return None, None, None, False
+        moved = float(np.abs(positions() - x0).max())
+        if rate is not None and moved > 3.0 * rate * (lam - from_lam) + 1e-9 * (1.0 + float(np.abs(x0).max())):
+            samples.append((lam, float("nan")))  # past a limit point (a snap-through), or a step too long
+            return None, None, None, True
+        try:
+            mu = smallest_eigenvalue(work, held)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError):  # ARPACK on a state gone bad
+            samples.append((lam, float("nan")))
+            return None, None, None, False
         samples.append((lam, mu))
-        return mu, snapshot(work)
+        return mu, snapshot(work), (tangent_step() if mu >= 0 else None), False
 
     mu0 = smallest_eigenvalue(work, held)
     samples.append((0.0, mu0))
     lo, mu_lo, state_lo = 0.0, mu0, base_state
-    lam = start
-    hi = None
+    rate_lo = tangent_step() if mu0 >= 0 else None
     limit = options.max_factor * max(start, 1e-300)
-    while lam <= limit:
-        mu, st = mu_at(lam, state_lo)
+    lam = min(start / 8.0, limit)
+    hi, kind = None, None
+    while True:
+        mu, st, rate, jumped = mu_at(lam, state_lo, lo, rate_lo)
+        if jumped and lam - lo > options.factor_tolerance * lam:
+            lam = lo + 0.5 * (lam - lo)  # a shorter step: a strongly nonlinear but continuous path passes then
+            continue
         if mu is None or mu < 0:
-            hi = lam
+            hi, kind = lam, ("limit point" if mu is None else "bifurcation")
             break
         # secant toward μ = 0, at most doubling, at least 10 % further
         slope = (mu - mu_lo) / (lam - lo) if lam > lo else 0.0
         nxt = lam - mu / slope if slope < 0 else 2.0 * lam
-        lo, mu_lo, state_lo = lam, mu, st
-        lam = float(np.clip(nxt * 1.02, 1.1 * lam, 2.0 * lam))
+        lo, mu_lo, state_lo, rate_lo = lam, mu, st, rate
+        if lam >= limit:
+            break
+        lam = min(float(np.clip(nxt * 1.02, 1.1 * lam, 2.0 * lam)), limit)
     if hi is None:
         return CriticalFactor(None, (lo, float("inf")), "continuation in the load factor", limit, samples)
     while hi - lo > options.factor_tolerance * hi:
         mid = 0.5 * (lo + hi)
-        mu, st = mu_at(mid, state_lo)
+        mu, st, rate, _ = mu_at(mid, state_lo, lo, rate_lo)
         if mu is None or mu < 0:
-            hi = mid
+            hi, kind = mid, ("limit point" if mu is None else "bifurcation")
         else:
-            lo, state_lo = mid, st
-    return CriticalFactor(0.5 * (lo + hi), (lo, hi), "continuation in the load factor, bisected", limit, samples)
+            lo, state_lo, rate_lo = mid, st, rate
+    return CriticalFactor(0.5 * (lo + hi), (lo, hi), "continuation in the load factor, bisected", limit, samples, kind)
 
 
 def translate(linkage, shift) -> None:
