@@ -402,7 +402,10 @@ def test_deploy_warns_about_a_section_wider_than_the_segments_and_a_design_that_
     assert main(["deploy", str(tmp_path / "small.obj"), "--material", "rectangle:10,7", "--subdivision", "4",
                  "--steps", "2", "--out", str(tmp_path / "a"), "--no-progress"]) in (0, 1)
     warnings = json.loads((tmp_path / "a" / "result.json").read_text())["warnings"]
-    assert len(warnings) == 1 and "slender" in warnings[0] and "same units" in warnings[0]
+    assert len(warnings) == 2 and "slender" in warnings[0] and "same units" in warnings[0]
+    # nor are drawings of strips whose holes overlap written
+    assert warnings[1].startswith("fabrication files not written: strip ") and "closer than their diameter" in warnings[1]
+    assert not (tmp_path / "a" / "cutlist.csv").exists()
 
     V = np.array(small.vertices, float)
     V[:, 2] = 0.01 * V[:, 0] ** 2  # a curved (deployed-looking) input

@@ -106,6 +106,15 @@ def test_bad_inputs_get_one_line(tmp_path, capsys, args, words):
     assert not (tmp_path / "o").exists()  # the folder it made before the refusal is gone (it was left empty)
 
 
+def test_holes_closer_than_their_diameter_are_refused(tmp_path, capsys):
+    # the unit-sized bundled linkage with the default 10 mm section: holes 0.49 mm apart for 3.3 mm holes,
+    # drawn and nested before without a word
+    assert main(["fabricate", str(EXAMPLES / "uniform_linkage.obj"), "--subdivision", "5", "--out", str(tmp_path / "o"),
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "closer than their diameter" in err and "drawn in mm" in err and "\n" not in err
+
+
 def test_a_deployed_layout_is_refused(tmp_path, capsys):
     assert main(["fabricate", str(WINGS / "deployed_opt.msh"), "--material", "rectangle:12,8", "--out", str(tmp_path),
                  "--no-progress"]) == 2

@@ -87,14 +87,14 @@ def _start_writer(out_dir: str, linkage: Linkage, design, background: bool):
     return Background(first, imports=_WRITER_IMPORTS, lanes=2, inline=not background)
 
 
-def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles, writer=None) -> None:
+def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles, writer=None, warnings=None) -> None:
     """The deployed state's files. ``writer``: from :func:`_start_writer` (None: all here); forked, its lane 0
     writes the picture and the fabrication files, its lane 1 the Rhino file (then :func:`_finish`'s deployment
     plot), and this process the meshes, at the same time; :func:`_finish` joins it."""
     from ..fabrication.run import plan_of, write_fabrication
     from ..viz.render import render_linkage
 
-    plan = plan_of(linkage, flat_angles, linkage.joint_angles())
+    plan = plan_of(linkage, flat_angles, linkage.joint_angles(), skipped=warnings)
     if writer is not None and writer.forked:  # the flat layout, the deployed state and the strips (docs/rhino.md)
         from ..linkage.state import snapshot
 
@@ -188,7 +188,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     design = read_design(design_path)
     p = read_rest_lengths(rest_lengths_path, design.num_segments, design) if rest_lengths_path else None
     linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
-    warnings = linkage.input_warnings()
+    warnings = list(linkage.input_warnings())
     if design.note:  # e.g. a .3dm's layer and its units, converted to mm
         warnings = [design.note] + list(warnings)
     if progress:
@@ -287,7 +287,7 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
         deployed["stiffness_gap"] = res.stiffness_gap
         deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
     try:  # a Ctrl-C outside the command line's handler: result.json is still written (each file is whole or absent)
-        _write_deployed_outputs(out_dir, linkage, design, flat_angles, writer)
+        _write_deployed_outputs(out_dir, linkage, design, flat_angles, writer, head["warnings"])
     except KeyboardInterrupt:
         interrupted = True
     steps_out = [asdict(s) for s in (res.steps if res is not None else [])]

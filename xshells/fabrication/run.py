@@ -171,6 +171,7 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
                              "the outermost holes would break out of the strip ends")
     XY = flat_coordinates(graph.design.vertices, graph.layout_normal) if xy is None else np.asarray(xy, float)
     beams = trace_beams(graph, rest_lengths, sections, xy=XY, end_margin=options.end_margin, to_mm=to_mm)
+    _check_hole_spacing(beams, hole, options.units)
     flat = graph.joint_opening_angles if flat_angles is None else flat_angles
     joints = joint_table(graph, beams, flat, deployed_angles, top=top)
     lengths = [b.length for b in beams]
@@ -187,6 +188,22 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
     return FabricationPlan(beams, joints, nesting, float(hole), to_mm, str(options.units).strip().lower(), XY, top)
 
 
+def _check_hole_spacing(beams, hole: float, units: str) -> None:
+    """Refuse strips whose holes would overlap (closer than a hole's diameter): not a part anyone can drill.
+
+    A design drawn in other units than its section's is the usual cause (the bundled unit-sized linkages
+    with the default 10 mm section: holes 0.49 mm apart for 3.3 mm holes, all drawn without a word)."""
+    worst = None
+    for b in beams:
+        gaps = np.diff(np.sort(np.asarray(b.hole_positions, float)))
+        if len(gaps) and (worst is None or gaps.min() < worst[0]):
+            worst = (float(gaps.min()), b.label)
+    if worst is not None and worst[0] < hole:
+        raise InputError(f"strip {worst[1]}: holes {worst[0]:.3g} mm apart, closer than their diameter ({hole:.3g} mm): "
+                         f"the segments are too short for the section; is the design drawn in {units} (the units it is read "
+                         f"in), or is the section too wide?")
+
+
 def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
     """Write the files of :data:`FABRICATION_FILES` into ``out_dir`` (each atomically); the paths written."""
     from .drawings import assembly_svg, beams_dxf, beams_svg
@@ -201,8 +218,9 @@ def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
     return paths
 
 
-def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> FabricationPlan | None:
-    """The fabrication plan (default options) of a command that solved ``linkage``; None for a layout that is not flat.
+def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None, skipped: list | None = None) -> FabricationPlan | None:
+    """The fabrication plan (default options) of a command that solved ``linkage``; None for a layout that is not
+    flat, or that cannot be built with its section (then why goes into ``skipped``, if given).
 
     ``flat_angles``: the joint angles of its flat assembly state; ``rest_lengths``
     default to the linkage's own.
@@ -211,7 +229,12 @@ def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> Fa
         return None
     p = linkage.rest_lengths if rest_lengths is None else rest_lengths
     mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
-    return fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles)
+    try:
+        return fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles)
+    except InputError as exc:  # a layout no one can build with its section: no drawings of it
+        if skipped is not None:
+            skipped.append(f"fabrication files not written: {exc}")
+        return None
 
 
 def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> list[str]:
