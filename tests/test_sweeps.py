@@ -138,6 +138,17 @@ def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
     assert run_sweep(spec, str(tmp_path), SweepSettings(workers=0)).ran == 0
 
 
+def test_an_output_folder_of_another_sweep_is_refused_and_the_same_one_extended(tmp_path):
+    a = spec_from_dict({"name": "a", "task": "noop", "axes": {"sleep_s": [0.0, 0.001]}}, str(tmp_path))
+    assert run_sweep(a, str(tmp_path / "out"), SweepSettings(workers=0)).ran == 2
+    b = spec_from_dict({"name": "b", "task": "noop", "axes": {"sleep_s": [0.0]}}, str(tmp_path))
+    with pytest.raises(InputError, match=r"holds the sweep 'a' \(task noop\), not 'b'"):  # its manifest was replaced
+        run_sweep(b, str(tmp_path / "out"), SweepSettings(workers=0))
+    more = spec_from_dict({"name": "a", "task": "noop", "axes": {"sleep_s": [0.0, 0.001, 0.002]}}, str(tmp_path))
+    rep = run_sweep(more, str(tmp_path / "out"), SweepSettings(workers=0))  # the same sweep, one value more
+    assert (rep.ran, rep.skipped) == (1, 2)
+
+
 def test_failed_tasks_are_kept_unless_retried(tmp_path):
     spec = spec_from_dict({"task": "noop", "axes": {"fail": [False, "boom"]}}, str(tmp_path))
     rep = run_sweep(spec, str(tmp_path), SweepSettings(workers=0))

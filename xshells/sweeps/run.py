@@ -129,6 +129,7 @@ def run_sweep(spec: SweepSpec, out_dir: str, settings: SweepSettings = SweepSett
 
     taskdef = get_task(spec.task)  # raises "not available yet" before anything runs
     out_dir = os.path.abspath(out_dir)  # workers elsewhere (or in another folder) get a path that still means it
+    _check_same_sweep(spec, out_dir)
     os.makedirs(os.path.join(out_dir, "tasks"), exist_ok=True)
     _write_manifest(spec, out_dir)
     records = {t.id: read_record(out_dir, t) for t in spec.tasks}
@@ -501,6 +502,23 @@ def _unpack(files: dict, folder: str) -> None:
         with open(tmp, "wb") as fh:
             fh.write(data)
         os.replace(tmp, path)
+
+
+def _check_same_sweep(spec: SweepSpec, out_dir: str) -> None:
+    """Refuse an output folder that holds another sweep (another name or task): its manifest would be replaced
+    and its tasks' folders mixed with these. The same sweep, edited (more values), resumes there."""
+    path = os.path.join(out_dir, "sweep.json")
+    if not os.path.exists(path):
+        return
+    try:
+        with open(path, encoding="utf-8") as fh:
+            old = json.load(fh)
+    except (OSError, ValueError):
+        raise InputError(f"--out {out_dir}: its sweep.json cannot be read: give another --out, or remove it") from None
+    if not isinstance(old, dict) or (old.get("name"), old.get("task")) != (spec.name, spec.task):
+        held = f"the sweep {old.get('name')!r} (task {old.get('task')})" if isinstance(old, dict) else "another sweep"
+        raise InputError(f"--out {out_dir} holds {held}, not {spec.name!r} (task {spec.task}): give another --out, "
+                         "or remove that folder")
 
 
 def _write_manifest(spec: SweepSpec, out_dir: str) -> None:
