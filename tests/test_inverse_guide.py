@@ -88,7 +88,7 @@ def test_the_last_stage_design_is_checked_every_few_iterations(monkeypatch, ever
     def after_stage(mu):
         checked.append(mu if mu else (mu, seen[-1]))
 
-    opts = GuideOptions(schedule=(1.0, 0.0), iterations=3, final_iterations=25, checkpoint_every=every)
+    opts = GuideOptions(schedule=(1.0, 0.0), iterations=3, final_iterations=25, checkpoint_every=every, polish=0.0)
     stages = guided_optimization(_Problem(), _NoHold(), opts, after_stage=after_stage)
     assert [s.load_factor for s in stages] == [1.0, 0.0]
     assert checked == expected  # in the last stage at 10 and 20 (not again at the limit), and once it ends
@@ -103,3 +103,27 @@ def test_a_stop_request_skips_the_checkpoint(monkeypatch):
     stages = guided_optimization(_Problem(), _NoHold(), opts, callback=lambda mu, rec: rec.iteration == 10,
                                  after_stage=lambda mu: checked.append(seen[-1]))
     assert stages[0].message == "stopped by request" and checked == [10]  # once, after the stage, not twice
+    assert len(stages) == 1  # and no polish after a stop
+
+
+def test_the_polish_goes_on_with_twice_the_fit_weight_and_is_checked_like_the_last_stage(monkeypatch):
+    from xshells.inverse.guide import GuideOptions, guided_optimization
+
+    seen, checked, weights = [], [], []
+    _fake_optimize(monkeypatch, seen)
+    from xshells.design.objective import DesignWeights
+
+    problem = _Problem()
+    problem.w = DesignWeights(beta=1000.0)
+
+    def after_stage(mu):
+        checked.append((mu, seen[-1]))
+        weights.append(problem.w.beta)
+
+    opts = GuideOptions(schedule=(1.0, 0.0), iterations=3, final_iterations=25, checkpoint_every=10)
+    stages = guided_optimization(problem, _NoHold(), opts, after_stage=after_stage)
+    assert [s.load_factor for s in stages] == [1.0, 0.0, 0.0] and stages[2].message.startswith("polish, beta x2")
+    assert stages[2].iterations == 20 and problem._cache == {}  # the derivatives of the old weight are gone
+    # the last stage at 10, 20 and its end; the polish at 10 and its end (20), with the weight doubled
+    assert checked == [(1.0, 3), (0.0, 10), (0.0, 20), (0.0, 25), (0.0, 10), (0.0, 20)]
+    assert weights == [1000.0] * 4 + [2000.0] * 2

@@ -76,6 +76,8 @@ def test_the_case_loads_where_cases_load(cap_run):
     (["--tries", "0"], "--tries must be a whole number from 1 to 4"),
     (["--tries", "9"], "--tries must be a whole number from 1 to 4"),
     (["--tries", "9", "--beams", "even"], "--tries must be a whole number from 1 to 4"),
+    (["--polish", "0.5"], "--polish must be 0 (off) or a factor above 1"),
+    (["--polish", "inf"], "--polish must be 0 (off) or a factor above 1"),
 ])
 def test_bad_options_get_one_line(tmp_path, capsys, args, words):
     assert main(["inverse", str(CAP), "--out", str(tmp_path / "o"), "--no-progress", *args]) == 2
@@ -261,7 +263,8 @@ def test_max_iters_is_the_budget_of_the_last_stage(tmp_path, monkeypatch):
     assert code in (0, 1) and seen["final"] == 3
     with open(tmp_path / "result.json") as fh:
         stages = json.load(fh)["stages"]
-    assert len(stages) == 1 and stages[0]["iterations"] <= 3
+    assert len(stages) == 2 and stages[0]["iterations"] <= 3  # the stage, and the polish after it
+    assert stages[1]["message"].startswith("polish, beta x2") and stages[1]["iterations"] <= 20
 
 
 def test_the_help_states_the_default_budget_of_the_last_stage(capsys):
@@ -286,7 +289,7 @@ def test_no_stage_whose_flat_state_overlaps_is_kept(tmp_path, monkeypatch):
 
     real = guide.guided_optimization
     monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
-        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2), **kw))
+        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2, polish=0.0), **kw))
     monkeypatch.setattr(clearance, "beam_overlaps", lambda L, width: "beams 1 and 2 come within 1 of each other")
     main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--out", str(tmp_path), "--no-progress"])
     with open(tmp_path / "result.json") as fh:
@@ -304,7 +307,7 @@ def test_beams_run_on_to_the_boundary_as_free_ends_unless_asked_not_to(tmp_path,
 
     real = guide.guided_optimization
     monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
-        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2), **kw))  # one short stage
+        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2, polish=0.0), **kw))  # one short stage
     main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--out", str(tmp_path), "--no-progress"]
          + flag)
     r = json.loads((tmp_path / "result.json").read_text())
@@ -353,7 +356,7 @@ def test_a_free_end_that_crowds_a_neighbouring_beam_is_left_off(tmp_path, monkey
 
     real = guide.guided_optimization
     monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
-        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2), **kw))
+        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2, polish=0.0), **kw))  # one check
     calls = []
 
     def crowded(L, width):  # the first layout's last segment (a free end's) comes too close; nothing after
@@ -381,7 +384,7 @@ def test_a_curved_developable_surface_is_named_in_a_warning_and_in_the_miss(tmp_
 
     real = guide.guided_optimization
     monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
-        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2), **kw))  # one short stage
+        problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2, polish=0.0), **kw))  # one short stage
     n, R = 13, 1500.0
     x, y = np.meshgrid(np.linspace(-1200, 1200, n), np.linspace(-1200, 1200, n), indexing="ij")
     V = np.c_[x.ravel(), y.ravel(), (np.sqrt(R**2 - x**2) - R).ravel()]

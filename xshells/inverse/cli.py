@@ -53,6 +53,9 @@ def register(subparsers) -> None:
     p.add_argument("--tries", type=int, default=1,
                    help="designs of each net, the fit weight doubled from one to the next; the best is kept "
                         "(default 1; each try costs a whole design's time)")
+    p.add_argument("--polish", type=float, default=None,
+                   help="after the last stage, 20 more iterations with the fit weight times this, from the design "
+                        "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
     p.add_argument("--workers", type=int, help="processes for the fan screen, the tries of one net and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
     p.add_argument("--out", default="inverse_out", help="output folder")
@@ -69,6 +72,8 @@ def _inverse(args) -> int:
         raise InputError(f"--max-iters must be at least 1, got {args.max_iters}")
     if args.buckling is not None and not (args.buckling >= 0 and args.buckling < float("inf")):
         raise InputError(f"--buckling must be a non-negative number, got {args.buckling}")
+    if args.polish is not None and not (args.polish == 0 or 1 < args.polish < float("inf")):
+        raise InputError(f"--polish must be 0 (off) or a factor above 1, got {args.polish}")
     spec = material_spec_from_option(args.material, args.young, args.poisson)
     opts = InverseOptions(spacing=args.spacing, angle=args.angle, orientation=args.orientation, flat_angle=args.flat_angle,
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
@@ -76,6 +81,10 @@ def _inverse(args) -> int:
                           free_ends=not args.no_free_ends, workers=args.workers, tries=args.tries,
                           **({} if args.max_iters is None else {"max_iters": args.max_iters}),
                           **({} if args.buckling is None else {"buckling": args.buckling}))
+    if args.polish is not None:
+        from dataclasses import replace
+
+        opts = replace(opts, guide=replace(opts.guide, polish=args.polish))
     r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
     if r["status"] in ("complete", "missed", "invalid"):
         print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "

@@ -805,7 +805,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     eps = max(ks0 - np.radians(0.5), 0.5 * ks0) if ks0 > 0 else ks0 - np.radians(0.5)
     g = options.guide
     g = GuideOptions(**{**asdict(g), "final_iterations": options.max_iters})  # --max-iters: the last stage, load gone
-    total = sum(g.iterations for _ in g.schedule[:-1]) + g.final_iterations
+    total = sum(g.iterations for _ in g.schedule[:-1]) + g.final_iterations + \
+        ((g.polish_iterations or g.final_iterations) if g.polish > 0 else 0)
     bar = _stage_bar(progress, total, "optimizing while letting go")
 
     def on_iter(mu, rec):
