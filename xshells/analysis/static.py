@@ -244,7 +244,8 @@ def smallest_eigenvalue(linkage, held) -> float:
 
 
 def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOptions = StaticOptions(),
-                 base_force=None, callback=None, escape: bool = True, start_factor: float = 0.0) -> LoadedState:
+                 base_force=None, callback=None, escape: bool = True, start_factor: float = 0.0,
+                 polish: bool = True, max_iterations: int | None = None) -> LoadedState:
     """Equilibrium of ``linkage`` (in place) under ``load_factor · f`` (+ ``base_force``), ``held`` variables fixed.
 
     Load stepping in ``options.load_steps`` equal increments; ``callback(step,
@@ -252,7 +253,9 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
     present (the actuation torque when the joints are free). ``start_factor``:
     the factor ``linkage`` is already in equilibrium under (the steps run from
     it). A step that does not converge leaves the linkage at the last
-    equilibrium, whose factor the result gives.
+    equilibrium, whose factor the result gives. ``polish``: take the last equilibrium below the solver's
+    round-off estimate (up to four Newton steps), for the reactions' balance. ``max_iterations``: Newton's per
+    load step (default 200).
     """
     from ..solve import minimize
 
@@ -263,6 +266,10 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
         from dataclasses import replace
 
         opts = replace(opts, saddle_gradient_factor=0.0)
+    if max_iterations is not None:
+        from dataclasses import replace
+
+        opts = replace(opts, max_iterations=max_iterations)
     from ..linkage.state import restore, snapshot
 
     reached, its, message, ok = start_factor, 0, "", True
@@ -282,7 +289,7 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
         if callback is not None and callback(k, lam):
             ok, message = False, "stopped by request"
             break
-    if ok:  # polish the last equilibrium below the round-off estimate: the reactions' balance is what it leaves
+    if ok and polish:  # the last equilibrium below the round-off estimate: the reactions' balance is what it leaves
         from dataclasses import replace
 
         before = snapshot(linkage)
@@ -356,6 +363,12 @@ class CriticalFactor:
     kind: str | None = None
 
 
+#: Newton iterations per load step in the critical-load search: from a nearby equilibrium a step converges in
+#: far fewer; past a limit point Newton walks to the far branch (a jump, or no equilibrium: either way the
+#: bracket's upper end) and the walk's hundreds of iterations were most of the search's time.
+SEARCH_NEWTON_ITERATIONS = 40
+
+
 def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOptions(), base_force=None,
                          start: float = 1.0) -> CriticalFactor:
     """Continuation in the load factor from the unloaded state (``linkage`` is left unchanged).
@@ -363,16 +376,17 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
     The smallest eigenvalue μ(λ) of the loaded Hessian is followed along the
     loaded branch (Newton without saddle escapes, so a symmetric state that
     passes its critical load stays on its branch, as a saddle), from
-    ``start``/8 (a snap below the requested load is looked for too) up to
+    ``start``/2 (a snap below the requested load is looked for too) up to
     ``options.max_factor`` × ``start``, that factor itself sampled last. Steps
-    grow by secant extrapolation of μ toward 0 (×1.1 to ×2). The first sign
-    change, the first load without an equilibrium, or the first step whose
-    equilibrium *jumped* (the joints moved more than three times as far as
-    the tangent dx/dλ = H⁻¹f predicts: Newton converged past a limit point,
-    onto the branch after a snap-through, where μ > 0 again) is bisected to
-    ``factor_tolerance``; a jump is first retried with halved steps, and one
-    that shorter steps resolve into a smooth path is no limit point: the
-    continuation goes on from there.
+    grow by secant extrapolation of μ toward 0 (at most ×2, a little past the
+    predicted zero). The first sign change, the first load without an
+    equilibrium, or the first step whose equilibrium *jumped* (the joints
+    moved more than three times as far as the tangent dx/dλ = H⁻¹f predicts:
+    Newton converged past a limit point, onto the branch after a
+    snap-through, where μ > 0 again) is bracketed to ``factor_tolerance``
+    (:func:`_bracketed`). A jump where μ had not fallen toward 0 is tried
+    again from just below it: one that then steps smoothly was a strongly
+    nonlinear path, not a limit point, and the continuation goes on.
     """
     import copy
 
@@ -405,9 +419,11 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
         no equilibrium on the branch (no convergence, a failed eigen-solve, or a jump)."""
         restore(work, from_state)
         x0 = positions()
-        st = solve_loaded(work, f, held, lam, StaticOptions(joints=options.joints, load_steps=max(1, options.load_steps // 2),
+        # from the stable state at from_lam in two load steps (it is near: the steps at most double the
+        # factor), without the final polish that only the reactions need
+        st = solve_loaded(work, f, held, lam, StaticOptions(joints=options.joints, load_steps=max(1, options.load_steps // 5),
                                                             gravity=options.gravity), base_force=base_force, escape=False,
-                          start_factor=from_lam)
+                          start_factor=from_lam, polish=False, max_iterations=SEARCH_NEWTON_ITERATIONS)
         if not st.converged:
             samples.append((lam, float("nan")))
             return None, None, None, False
@@ -427,34 +443,64 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
     samples.append((0.0, mu0))
     lo, mu_lo, state_lo = 0.0, mu0, base_state
     rate_lo = tangent_step() if mu0 >= 0 else None
+    prev = (None, None)  # the sample before lo: (factor, μ), for the secant
     limit = options.max_factor * max(start, 1e-300)
-    lam = min(start / 8.0, limit)
-    hi, kind = None, None
+    tol = options.factor_tolerance
+    lam = min(start / 2.0, limit)
     while True:
         mu, st, rate, jumped = mu_at(lam, state_lo, lo, rate_lo)
-        if jumped and lam - lo > options.factor_tolerance * lam:
-            lam = lo + 0.5 * (lam - lo)  # a shorter step: a strongly nonlinear but continuous path passes then
-            continue
         if mu is None or mu < 0:
-            hi, kind = lam, ("limit point" if mu is None else "bifurcation")
-            break
-        # secant toward μ = 0, at most doubling, at least 10 % further
+            kind = "bifurcation" if mu is not None else "limit point"
+            lo2, mu_lo2, state2, rate2, prev2, hi, kind = _bracketed(mu_at, lo, mu_lo, state_lo, rate_lo, prev, lam, mu, kind, tol)
+            if jumped and kind == "limit point" and mu_lo2 > 0.1 * mu0:
+                # μ has not fallen toward 0 on the way: no fold in sight. Stepped from just below, is the jump
+                # still there? Where it is not, the path was only strongly nonlinear: go on from there.
+                mu3, st3, rate3, jumped3 = mu_at(hi, state2, lo2, rate2)
+                if mu3 is not None and mu3 >= 0:
+                    prev, lo, mu_lo, state_lo, rate_lo = (lo2, mu_lo2), hi, mu3, st3, rate3
+                    if lo >= limit:
+                        break
+                    lam = min(2.0 * lo, limit)
+                    continue
+            return CriticalFactor(0.5 * (lo2 + hi), (lo2, hi), "continuation in the load factor, bracketed", limit,
+                                  samples, kind)
+        # the secant toward μ = 0 (a bifurcation, or a limit point ahead), at most doubling: stepping a little
+        # past the predicted zero brackets it closely
         slope = (mu - mu_lo) / (lam - lo) if lam > lo else 0.0
         nxt = lam - mu / slope if slope < 0 else 2.0 * lam
-        lo, mu_lo, state_lo, rate_lo = lam, mu, st, rate
+        prev, lo, mu_lo, state_lo, rate_lo = (lo, mu_lo), lam, mu, st, rate
         if lam >= limit:
             break
-        lam = min(float(np.clip(nxt * 1.02, 1.1 * lam, 2.0 * lam)), limit)
-    if hi is None:
-        return CriticalFactor(None, (lo, float("inf")), "continuation in the load factor", limit, samples)
-    while hi - lo > options.factor_tolerance * hi:
-        mid = 0.5 * (lo + hi)
-        mu, st, rate, _ = mu_at(mid, state_lo, lo, rate_lo)
-        if mu is None or mu < 0:
-            hi, kind = mid, ("limit point" if mu is None else "bifurcation")
+        lam = min(float(np.clip(nxt * 1.02, lam * (1.0 + 2.0 * tol), 2.0 * lam)), limit)
+    return CriticalFactor(None, (lo, float("inf")), "continuation in the load factor", limit, samples)
+
+
+def _bracketed(mu_at, lo, mu_lo, state_lo, rate_lo, prev, hi, mu_hi, kind, tol):
+    """Narrow the bracket (lo stable, hi not) to ``tol`` (relative): regula falsi on μ where both ends have one
+    (a bifurcation), else the secant through the last two stable samples (a limit point, where μ → 0), each
+    kept inside the bracket and alternated with halving once an end stops moving (Illinois' safeguard).
+    Returns (lo, μ(lo), its state, its rate, the sample before lo, hi, the kind of what ends stability at hi)."""
+    same_end = 0
+    last_end = None
+    while hi - lo > tol * hi:
+        w = hi - lo
+        guess = None
+        if mu_hi is not None and mu_hi < 0 < mu_lo:
+            guess = lo + w * mu_lo / (mu_lo - mu_hi)
+        elif prev[0] is not None and prev[1] > mu_lo > 0:
+            guess = lo + mu_lo * (lo - prev[0]) / (prev[1] - mu_lo)
+        if guess is None or not np.isfinite(guess) or same_end >= 1 or not lo + 0.1 * w < guess < hi - 0.1 * w:
+            x = lo + 0.5 * w  # halving: no prediction inside the bracket, or one end has just moved twice
         else:
-            lo, state_lo, rate_lo = mid, st, rate
-    return CriticalFactor(0.5 * (lo + hi), (lo, hi), "continuation in the load factor, bisected", limit, samples, kind)
+            x = guess
+        mu, st, rate, _ = mu_at(x, state_lo, lo, rate_lo)
+        if mu is None or mu < 0:
+            hi, mu_hi, kind, end = x, mu, ("bifurcation" if mu is not None else "limit point"), "hi"
+        else:
+            prev, lo, mu_lo, state_lo, rate_lo, end = (lo, mu_lo), x, mu, st, rate, "lo"
+        same_end = same_end + 1 if end == last_end else 0
+        last_end = end
+    return lo, mu_lo, state_lo, rate_lo, prev, hi, kind
 
 
 def translate(linkage, shift) -> None:
