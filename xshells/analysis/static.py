@@ -21,7 +21,7 @@ MPa for the bundled data).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -263,12 +263,8 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
     P0 = linkage.vertex_positions()
     opts = _newton_options(linkage)
     if not escape:  # stay on the branch (a symmetric state past its critical load is kept, as a saddle)
-        from dataclasses import replace
-
         opts = replace(opts, saddle_gradient_factor=0.0)
     if max_iterations is not None:
-        from dataclasses import replace
-
         opts = replace(opts, max_iterations=max_iterations)
     from ..linkage.state import restore, snapshot
 
@@ -290,8 +286,6 @@ def solve_loaded(linkage, f, held, load_factor: float = 1.0, options: StaticOpti
             ok, message = False, "stopped by request"
             break
     if ok and polish:  # the last equilibrium below the round-off estimate: the reactions' balance is what it leaves
-        from dataclasses import replace
-
         before = snapshot(linkage)
         free = np.setdiff1d(np.arange(linkage.num_vars), held)
         force = base + reached * f
