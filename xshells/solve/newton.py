@@ -333,20 +333,47 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         actuated angles) and positive definite in most states; where it is
         not, the augmented one decides stability. Raises NotPositiveDefinite.
         """
+        plain_failed = False
         if constraint is not None and ws.skip_plain <= 0:
             try:
                 chol.factorize(H)
                 chol.tag = free_idx
                 return 0.0
             except NotPositiveDefinite:
-                ws.skip_plain = 4  # go straight to the augmented form for the next few factorizations
+                plain_failed = True
         ws.skip_plain -= 1
         chol.factorize(augmented(H))
         chol.tag = free_idx
+        if plain_failed:
+            # indefinite along the actuated direction alone (past the torque's limit point): go
+            # straight to the augmented form for the next few factorizations (where both fail,
+            # the state is indefinite and the shifted factorizations try the plain form first)
+            ws.skip_plain = 4
         return aug if constraint is not None else 0.0
 
-    def shifted(H, sigma):
-        return ws.combine("shift", [H, mass_part()], [1.0, sigma])
+    def shifted(H, sigma, name="shift"):
+        return ws.combine(name, [H, mass_part()], [1.0, sigma])
+
+    def factor_shifted(H, sigma) -> float:
+        """Factorize the plain ``H + σM`` if it is positive definite, else ``H + ρ a aᵀ + σM``; returns the ρ used.
+
+        Both give the same constrained step (a term ρ a aᵀ changes only the
+        multiplier), and the plain one factors about a third faster: ``a aᵀ`` is a
+        dense block over the actuated angles (manta ray: 4.6 against 3.0 ms).
+        Where the plain one is not positive definite the augmented one decides,
+        with the same σ, so the shifts are those of the augmented form alone.
+        Raises NotPositiveDefinite (of the augmented form).
+        """
+        if constraint is None:
+            chol.factorize(shifted(H, sigma))
+            return 0.0
+        try:
+            chol.factorize(shifted(H, sigma, "shift_plain"))
+            return 0.0
+        except NotPositiveDefinite:
+            pass
+        chol.factorize(shifted(augmented(H), sigma))
+        return aug
 
     def first_shift() -> float:
         """σ0 = sigma_factor·λmax(H)/λmax(M) of the augmented Hessian, computed once per call."""
@@ -420,17 +447,13 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 # the shift decays (options.shift_decay) after an indefinite spell (pure Newton
                 # steps right away were tried: near a saddle they head back to it, and each new
                 # escape costs an eigen-solve)
-                H = augmented(H)
-                rho = aug if constraint is not None else 0.0
-                chol.factorize(shifted(H, sigma))
+                rho = factor_shifted(H, sigma)
         except NotPositiveDefinite:
             indefinite = True
-            H = augmented(H) if sigma == 0 else H
-            rho = aug if constraint is not None else 0.0
             sigma = first_shift() if sigma == 0 else 4 * sigma
             while True:
                 try:
-                    chol.factorize(shifted(H, sigma))
+                    rho = factor_shifted(H, sigma)
                     break
                 except NotPositiveDefinite:
                     sigma *= 4
@@ -449,8 +472,9 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 if ws.eig_chol is None:
                     ws.eig_chol = SparseCholesky()
                 chol.forget()  # its factor may be overwritten by the shift search
+                Ha = augmented(H)  # the escape's eigen-solve judges the augmented form
                 v, s_eig = _most_negative_direction(whole_augmented(), mass(), chol.chol, sigma, ws.eig_chol,
-                                                    lambda s: shifted(H, s))
+                                                    lambda s: shifted(Ha, s))
                 # H + s_eig·M factors too (s_eig is within 100× of |λmin|): the next steps' shift
                 # decays from 100·s_eig, not from σ (at σ ≫ |λmin| a step barely moves the soft
                 # modes: Darth Vader took 16 such steps after its buckling escape)
