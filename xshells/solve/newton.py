@@ -73,6 +73,14 @@ class NewtonOptions:
         the caller (:func:`_constrained_tangent` with ``reuse``). Default 0:
         every minimum is checked at its own point. Deployments use 0.01
         (:class:`~xshells.deploy.DeployOptions`).
+    keep_shift_scale : bool
+        Measure ``λmax(H)/λmax(M)`` (the scale of the first shift) once per
+        problem, free set and constraint, and keep it for later calls, instead
+        of measuring it in every call that meets an indefinite Hessian. Two
+        Lanczos solves, 20 ms on the manta ray, four times in a 10-step
+        deployment; ``λmax`` is a stretching stiffness, which a deployment
+        hardly changes. Deployments use True
+        (:class:`~xshells.deploy.DeployOptions`).
     """
 
     max_iterations: int = 200
@@ -85,6 +93,7 @@ class NewtonOptions:
     require_minimum: bool = True
     shift_decay: float = 2.0
     minimum_from_last_step: float = 0.0
+    keep_shift_scale: bool = False
 
 
 @dataclass
@@ -146,6 +155,7 @@ class _Workspace:
         self.aug = None  # (a copy, ρ)
         self.skip_plain = 0  # factorizations left before the plain (unaugmented) Hessian is tried again
         self.eig_chol = None  # a second factor, of H + sM with the eigen-solve's shift s
+        self.shift_scale = None  # (free indices, constraint vector or None, λmax(H)/λmax(M)), see keep_shift_scale
 
     def free_part(self, H, free_idx, n, kind="full"):
         if H.format != "csr":
@@ -261,7 +271,6 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
     ws = _workspace(problem)
     chol = ws.chol
     sigma, sigma0 = 0.0, None
-    lam_M = None
     _mass = []
     # A problem with hessian_lower() hands over the lower triangle of its Hessian: all that the
     # factorizations read. The sums below (free part, augmentation, shift) then run on that
@@ -376,11 +385,19 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         return aug
 
     def first_shift() -> float:
-        """σ0 = sigma_factor·λmax(H)/λmax(M) of the augmented Hessian, computed once per call."""
-        nonlocal sigma0, lam_M
+        """σ0 = sigma_factor·λmax(H)/λmax(M) of the augmented Hessian, computed once per call
+        (or once per free set and constraint, with ``options.keep_shift_scale``)."""
+        nonlocal sigma0
         if sigma0 is None:
-            lam_M = lam_M or _largest_eigenvalue(mass())
-            sigma0 = options.sigma_factor * _largest_eigenvalue(whole_augmented()) / lam_M
+            kept = ws.shift_scale if options.keep_shift_scale else None
+            a_key = None if constraint is None else a
+            if (kept is None or not np.array_equal(kept[0], free_idx) or (kept[1] is None) != (a_key is None)
+                    or (a_key is not None and not np.array_equal(kept[1], a_key))):
+                scale = _largest_eigenvalue(whole_augmented()) / _largest_eigenvalue(mass())
+                kept = (free_idx.copy(), None if a_key is None else a_key.copy(), scale)
+                if options.keep_shift_scale:
+                    ws.shift_scale = kept
+            sigma0 = options.sigma_factor * kept[2]
         return sigma0
 
     def free_gradient():
