@@ -613,7 +613,33 @@ class Linkage:
         # divided before the masses are formed: one material gives densities of exactly 1 (and ½ on shared
         # edges), so the metric is the same to the last bit whatever the density (deployments that pass
         # near a bifurcation can follow round-off)
-        return (J.T @ self.rods.mass_matrix(self.rods.density / rho) @ J).tocsr()
+        return self._on_mass_pattern(J, (J.T @ self.rods.mass_matrix(self.rods.density / rho) @ J).tocsr())
+
+    def _on_mass_pattern(self, J: sp.csr_matrix, M: sp.csr_matrix) -> sp.csr_matrix:
+        """``M`` (= ``Jᵀ D J``) on the structural pattern of ``JᵀJ``, explicit zeros kept.
+
+        SciPy's sparse product drops the entries that come out exactly zero, and which do depends on the
+        state (the flat state's zero heights): the metric's pattern changed from one deployment step to the
+        next, and every change cost the solver a new union pattern and a new symbolic factorization of
+        ``H + σM`` (manta ray at 10 steps: six of each). The pattern depends only on the linkage's topology.
+        """
+        pattern = getattr(self, "_mass_pattern", None)
+        n = M.shape[1]
+        if pattern is None:
+            ones = sp.csr_matrix((np.ones(J.nnz), J.indices, J.indptr), shape=J.shape)
+            P = (ones.T @ ones).tocsr()  # sums of positive terms: no entry cancels
+            P.sort_indices()
+            keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(P.indptr)) * n + P.indices
+            pattern = self._mass_pattern = (P.indices.astype(np.int32), P.indptr.astype(np.int32), keys)
+        indices, indptr, keys = pattern
+        M.sort_indices()
+        slots = np.searchsorted(keys, np.repeat(np.arange(n, dtype=np.int64), np.diff(M.indptr)) * n + M.indices)
+        data = np.zeros(len(keys))
+        data[slots] = M.data
+        out = sp.csr_matrix((data, indices, indptr), shape=M.shape)
+        out.indices, out.indptr = indices, indptr  # the constructor may copy them: one pattern, recognisably
+        out.has_canonical_format = True
+        return out
 
     def gravity_force(self, g=(0.0, 0.0, -9810.0)) -> np.ndarray:
         """Generalized gravity force on ``x`` (``Jᵀ f`` of the rods' lumped gravity), (num_vars,).
