@@ -73,12 +73,12 @@ class DeployOptions:
     # Escape along negative curvature whenever the Hessian is indefinite, not
     # only near stationary points: deployments start from exactly symmetric
     # flat states whose out-of-plane gradient is zero.
-    # The shift decays by 10 after an indefinite spell, not by halves (NewtonOptions.shift_decay).
+    # The shift decays by 100 after an indefinite spell, not by halves (NewtonOptions.shift_decay).
     # A point that Newton's quadratic convergence reached keeps its last step's positive-definite factor as its
     # minimum check and for the next step's tangent (NewtonOptions.minimum_from_last_step).
     # The first shift's scale λmax(H)/λmax(M) is measured once per linkage and free set (NewtonOptions.keep_shift_scale).
     newton: NewtonOptions = NewtonOptions(gradient_tolerance=1e-6, max_iterations=200, saddle_gradient_factor=float("inf"),
-                                          shift_decay=10.0, minimum_from_last_step=0.01, keep_shift_scale=True)
+                                          shift_decay=100.0, minimum_from_last_step=0.01, keep_shift_scale=True)
     final_tolerance_factor: float = 1e-1
     step_tolerance_factor: float = 1.0
     min_joint_edge_length: float | None = None

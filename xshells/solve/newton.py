@@ -57,12 +57,12 @@ class NewtonOptions:
         After an indefinite spell the shift σ is divided by this after every
         accepted step, until it is below 1e-8 of its first value. Pure
         Newton steps right after the spell (no decay) head back to the
-        saddle. Deployments use 10 (:class:`~xshells.deploy.DeployOptions`):
+        saddle. Deployments use 100 (:class:`~xshells.deploy.DeployOptions`):
         halving kept them shifted for up to 27 damped iterations (manta ray
-        at 10 steps: 137 Newton iterations with 2, 104 with 10, the same
-        equilibria to 4e-9 of the span). The default stays 2 for free
+        at 10 steps: 137 Newton iterations with 2, 104 with 10, 98 with 100,
+        the same equilibria to 4e-9 of the span). The default stays 2 for free
         equilibria (torque control, loads, design optimization's inner
-        solves): 10 has not been measured there (docs/design-notes.md).
+        solves): 10 and 100 have not been measured there (docs/design-notes.md).
     minimum_from_last_step : float
         With ``require_minimum``: a point below the tolerance that a full,
         unshifted Newton step reached, on a positive-definite factor, cutting
