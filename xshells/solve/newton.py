@@ -457,6 +457,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         if H is None:
             H = hessian()
         indefinite = False
+        sigma_failed = 0.0
         try:
             if sigma == 0:
                 rho = factor_unshifted(H)
@@ -467,13 +468,14 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 rho = factor_shifted(H, sigma)
         except NotPositiveDefinite:
             indefinite = True
+            sigma_failed = sigma  # H + σM is indefinite for every σ up to this one (M is positive definite)
             sigma = first_shift() if sigma == 0 else 4 * sigma
             while True:
                 try:
                     rho = factor_shifted(H, sigma)
                     break
                 except NotPositiveDefinite:
-                    sigma *= 4
+                    sigma_failed, sigma = sigma, 4 * sigma
         report.sigma.append(sigma)
         if constraint is None:
             d = -chol.solve(g)
@@ -491,7 +493,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
                 chol.forget()  # its factor may be overwritten by the shift search
                 Ha = augmented(H)  # the escape's eigen-solve judges the augmented form
                 v, s_eig = _most_negative_direction(whole_augmented(), mass(), chol.chol, sigma, ws.eig_chol,
-                                                    lambda s: shifted(Ha, s))
+                                                    lambda s: shifted(Ha, s), floor=sigma_failed)
                 # H + s_eig·M factors too (s_eig is within 100× of |λmin|): the next steps' shift
                 # decays from 100·s_eig, not from σ (at σ ≫ |λmin| a step barely moves the soft
                 # modes: Darth Vader took 16 such steps after its buckling escape)
@@ -690,14 +692,18 @@ def smallest_eigenvalues(H, M, k: int = 2, shift: float | None = None, dense_siz
     return (np.sort(lam), s) if return_shift else np.sort(lam)
 
 
-def _lowered_shift(solver: SparseCholesky, other: SparseCholesky, shifted, s: float, tries: int):
+def _lowered_shift(solver: SparseCholesky, other: SparseCholesky, shifted, s: float, tries: int, floor: float = 0.0):
     """Lower the shift ``s`` by factors of 100 while ``shifted(s)`` (= ``H + sM``) still factors.
 
     ``solver`` holds the factor at ``s``; the two Cholesky objects take turns,
     so a failed try never overwrites the last factor that succeeded. Returns
-    the one holding that factor and its shift.
+    the one holding that factor and its shift. A shift at or below ``floor``
+    (one already known not to factor) is not tried: with ``M`` positive
+    definite no lower one factors either.
     """
     for _ in range(tries):
+        if s / 100 <= floor:
+            break
         try:
             other.factorize(shifted(s / 100))
         except NotPositiveDefinite:
@@ -707,7 +713,7 @@ def _lowered_shift(solver: SparseCholesky, other: SparseCholesky, shifted, s: fl
 
 
 def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: SparseCholesky | None = None,
-                             shifted=None):
+                             shifted=None, floor: float = 0.0):
     """Eigenvector of the most negative eigenvalue of ``H d = λ M d`` (or None), and the smallest shift tried that factors.
 
     Shift-invert about ``−s``. The step's shift σ (``chol`` holds ``H + σM``)
@@ -720,11 +726,13 @@ def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: Sp
     ``|λmin|`` (a few factorizations; the solve then takes one Lanczos cycle).
     ``chol`` and ``spare`` take turns, so a failed try never overwrites the
     last factor that succeeded; ``chol`` may be left holding another matrix.
+    ``floor``: a shift known not to factor (the step's last failed one); no
+    lower one is tried.
     """
     n = H.shape[0]
     solver, s = chol, sigma
     if spare is not None and shifted is not None:
-        solver, s = _lowered_shift(chol, spare, shifted, sigma, 8)
+        solver, s = _lowered_shift(chol, spare, shifted, sigma, 8, floor)
     op = spla.LinearOperator((n, n), matvec=solver.solve, dtype=float)
     try:
         lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n),
