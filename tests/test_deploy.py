@@ -67,10 +67,53 @@ def test_reported_torque_is_the_angle_gradient():
     assert np.allclose(g, g.mean(), rtol=1e-4, atol=1e-6 * np.abs(g).max())  # equal torque at every joint
 
 
+def test_a_step_whose_angle_did_not_move_is_not_reported_as_reached():
+    """A segment 1e-9 of the others' length (the file reader refuses it; built here from arrays) makes the
+    gradient tolerance meaningless: the solver once took no step at all and reported the target reached,
+    30° away from it. The angle itself is now checked after every step."""
+    from xshells.io.design import Design
+
+    # a square 4 × 4 grid, segments of 100, with a free end 1e-9 long at a corner
+    V = [[100.0 * i, 100.0 * j, 0.0] for i in range(4) for j in range(4)] + [[300.000000001, 300.0, 0.0]]
+    E = [[4 * i + j, 4 * i + j + 1] for i in range(4) for j in range(3)] + [[4 * i + j, 4 * i + j + 4] for i in range(3) for j in range(4)]
+    L = Linkage(Design(np.array(V), np.array(E + [[15, 16]])), Material.uniform("rectangle", [10, 7], E=20000, nu=0.3), subdivision=4)
+    rest_length_solve(L)
+    res = deploy(L, np.radians(60), DeployOptions(steps=5))
+    assert not res.converged
+    assert "average angle stayed" in res.message, res.message
+
+
 def test_unreachable_angle_is_refused():
     L = Linkage(warped_grid(3), FLAT_BEAM, subdivision=4)
     with pytest.raises(InputError, match="out of reach"):
         deploy(L, np.radians(185))
+
+
+def test_an_interrupted_deploy_keeps_the_steps_it_finished(tmp_path, monkeypatch):
+    """Ctrl-C at step 3 of 6: result.json and deployment.csv list the two finished steps (they were
+    once empty: the deployment's own result never came back)."""
+    import xshells.deploy.run as run
+
+    real = run.deploy
+
+    def stopped_at_step_3(L, angle, options, callback=None, **kw):
+        def on_step(rec):
+            if rec.step == 3:
+                raise KeyboardInterrupt
+            return callback(rec)
+        return real(L, angle, options, callback=on_step, **kw)
+
+    monkeypatch.setattr(run, "deploy", stopped_at_step_3)
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, warped_grid(4))
+    out = tmp_path / "out"
+    assert main(["deploy", str(design), "--angle", "70", "--steps", "6", "--subdivision", "4", "--out", str(out),
+                 "--no-progress"]) == 130
+    result = json.loads((out / "result.json").read_text())
+    assert result["status"] == "interrupted" and [s["step"] for s in result["steps"]] == [1, 2]
+    assert result["newton_iterations"] == sum(s["iterations"] for s in result["steps"]) > 0
+    rows = (out / "deployment.csv").read_text().splitlines()
+    assert rows[0].startswith("step,") and len(rows) == 3
 
 
 def test_cli_deploy_case_file(tmp_path):

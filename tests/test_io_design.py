@@ -105,6 +105,8 @@ BAD_OBJ = [
     (TRIANGLE + "l 1 2\nl 2 1\n", 5, "duplicate edge"),
     (TRIANGLE + "l 2 3\nl 2 2\n", 5, "self-loop"),
     ("v 0 0 0\nv 1 0 0\nv 1 0 0\nl 1 2\nl 2 3\n", 5, "zero-length"),
+    # 1e-9 beside segments of 1: a deployment of such a design once reported success without moving
+    ("v 0 0 0\nv 1 0 0\nv 1.000000001 0 0\nv 2 0 0\nl 1 2\nl 2 3\nl 3 4\n", 6, "too short to simulate"),
     (TRIANGLE + "f 1 2 3\n", 4, "face record"),
     (TRIANGLE + "curv 0 1 1 2\n", 4, "unknown OBJ record"),
 ]

@@ -228,7 +228,7 @@ are indistinguishable from zero in a Hessian assembled in double precision."""
 def _largest_eigenvalue(A: sp.spmatrix) -> float:
     try:
         return float(spla.eigsh(A, k=1, which="LA", tol=1e-2, return_eigenvectors=False, maxiter=200, v0=np.ones(A.shape[0]))[0])
-    except (spla.ArpackNoConvergence, ValueError):
+    except (spla.ArpackError, ValueError):
         return float(np.max(np.abs(A).sum(axis=1)))  # Gershgorin bound
 
 
@@ -743,7 +743,7 @@ def _most_negative_direction(H, M, chol: SparseCholesky, sigma: float, spare: Sp
     try:
         lam, vecs = spla.eigsh(H, k=1, M=M, sigma=-s, which="LM", OPinv=op, tol=1e-6, maxiter=500, v0=np.ones(n),
                                ncv=_lanczos_vectors(n, 1))
-    except (spla.ArpackNoConvergence, ValueError):
+    except (spla.ArpackError, ValueError):  # no convergence, or ARPACK's own errors (a zero start vector: -9)
         return None, s
     if lam[0] >= 0:
         return None, s
