@@ -79,6 +79,27 @@ def test_a_trial_design_that_folds_a_flat_joint_is_rejected(monkeypatch):
     assert "trial designs rejected" in res.message
 
 
+def test_an_interrupt_is_flagged_whatever_the_message_says(monkeypatch):
+    """Ctrl-C after rejected trials: the message gains "(N trial designs rejected)", and
+    ``xshells optimize`` once compared the message and reported the run complete."""
+    import xshells.design.optimize as opt
+
+    prob = banana_problem()
+    q0 = prob._q.copy()
+    calls = []
+
+    def folded(L):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return "" if np.array_equal(prob._q, q0) else "joint 3 folds"
+
+    monkeypatch.setattr(opt, "folded_joint", folded)
+    res = optimize(prob, OptimizeOptions(min_angle=np.radians(-30.0), max_iterations=5))
+    assert res.interrupted and not res.stopped
+    assert res.message.startswith("interrupted by the user") and "trial designs rejected" in res.message
+
+
 def test_the_rest_lengths_of_segments_to_free_ends_are_the_held_parameters():
     from types import SimpleNamespace
 

@@ -148,6 +148,9 @@ class OptimizeResult:
     message: str = ""
     time_s: float = 0.0
     success: bool = False
+    # how it ended, for callers (the message gains suffixes: rejected trials, an invalid state)
+    interrupted: bool = False  # Ctrl-C or SIGTERM
+    stopped: bool = False  # the callback asked to stop
 
 
 _log = logging.getLogger(__name__)
@@ -207,6 +210,7 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
 
     failures: list[str] = []
     message, success = "", False
+    interrupted = stopped = False
     try:
         record(q0, 0)
         if options.method == "trust-constr":
@@ -214,9 +218,9 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
         else:
             message, success = _trust_region(problem, q0, options, eps, record, failures)
     except _Stop:
-        message = "stopped by request"
+        message, stopped = "stopped by request", True
     except KeyboardInterrupt:
-        message = "interrupted by the user"
+        message, interrupted = "interrupted by the user", True
     except ArithmeticError as exc:
         message = f"stopped: an equilibrium solve failed ({exc})"
     if best["states"] is not None:
@@ -229,7 +233,8 @@ def optimize(problem, options: OptimizeOptions = OptimizeOptions(), q0=None, cal
     if failures:
         message += f" ({len(failures)} trial designs rejected)"
     return OptimizeResult(q=best["q"], rest_lengths=best["q"] * problem.p0, history=history, iterations=len(history) - 1,
-                          message=message, time_s=time.perf_counter() - start, success=success)
+                          message=message, time_s=time.perf_counter() - start, success=success,
+                          interrupted=interrupted, stopped=stopped)
 
 
 def _trust_region(problem, q0, options, eps, record, failures):

@@ -185,7 +185,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     finally:
         if bar is not None:
             bar.close()
-    interrupted = res.message == "interrupted by the user"
+    interrupted = res.interrupted
     final = _summary(problem, res.q)
     p = res.rest_lengths
     atomic_write_text(os.path.join(out_dir, "design_parameters.txt"), "".join(f"{v:.17g}\n" for v in p))

@@ -238,8 +238,8 @@ def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOption
                                   time.perf_counter() - t0))
         if after_stage is not None:
             after_stage(mu)
-        if res.message in ("interrupted by the user", "stopped by request"):
-            if res.message == "interrupted by the user":
+        if res.interrupted or res.stopped:
+            if res.interrupted:
                 raise KeyboardInterrupt
             return stages
     if options.polish > 0 and mu_now == 0.0:
@@ -262,6 +262,6 @@ def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOption
                                   f"polish, beta x{options.polish:g}: {res.message}", time.perf_counter() - t0))
         if after_stage is not None:
             after_stage(0.0)
-        if res.message == "interrupted by the user":
+        if res.interrupted:
             raise KeyboardInterrupt
     return stages
