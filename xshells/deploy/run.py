@@ -7,7 +7,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, fields
 
 import numpy as np
 
@@ -16,7 +16,7 @@ from ..io import read_design, read_rest_lengths
 from ..io.export import atomic_write_text
 from ..linkage.export import scalar_fields, swept_mesh, write_centerlines
 from ..linkage.linkage import Linkage
-from .simulate import DeployOptions, deploy, rest_length_solve
+from .simulate import DeployOptions, StepRecord, deploy, rest_length_solve
 
 
 def _state_summary(linkage: Linkage) -> dict:
@@ -223,7 +223,10 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     strength = check_strength(strength)
     stress_rows = []
 
+    done_steps = []  # the steps finished so far: what an interrupted run keeps
+
     def on_step(rec):
+        done_steps.append(rec)
         STOP.check()
         if strength is not None:  # the utilization along the way; without a strength, the final state's stresses only
             stress_rows.append(_stress_row(linkage, strength))
@@ -262,7 +265,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
             states["deployed"] = linkage
         result = _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, {
             "name": name, "flat": flat, "target_angle_deg": float(np.degrees(target_angle)), "warnings": warnings,
-            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}}, t0, writer)
+            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}, "steps": done_steps}, t0, writer)
         writer = None
     finally:
         if writer is not None:  # an error on the way: the writer still ends before the command
@@ -291,7 +294,7 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
         _write_deployed_outputs(out_dir, linkage, design, flat_angles, writer, head["warnings"])
     except KeyboardInterrupt:
         interrupted = True
-    steps_out = [asdict(s) for s in (res.steps if res is not None else [])]
+    steps_out = [asdict(s) for s in (res.steps if res is not None else head.get("steps", []))]
     for row, extra in zip(steps_out, stress_rows):
         row.update({k: v for k, v in extra.items() if k in ("max_von_mises", "utilization_max")})
     stress = _stress_summary(steps_out, stress_rows, strength, linkage)
@@ -311,7 +314,7 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
         "message": "interrupted by the user" if interrupted else res.message,
         "steps": steps_out,
         "timings_s": {**head["timings_s"], "total": time.perf_counter() - t0},
-        "newton_iterations": res.newton_iterations if res is not None else 0,
+        "newton_iterations": res.newton_iterations if res is not None else sum(s["iterations"] for s in steps_out),
         "stress": stress,
         "utilization_max": stress["utilization_max"],
         "warnings": head["warnings"],
@@ -320,10 +323,9 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
         # how the assembly state was held when it first relaxed (see DeployOptions.start)
         result["start"] = {"mode": res.start, "average_angle_deg": res.start_angle_deg, "note": res.start_note}
     buf = io.StringIO()
-    if steps_out:
-        w = csv.DictWriter(buf, fieldnames=list(steps_out[0].keys()))
-        w.writeheader()
-        w.writerows(steps_out)
+    w = csv.DictWriter(buf, fieldnames=list(steps_out[0].keys()) if steps_out else [f.name for f in fields(StepRecord)])
+    w.writeheader()  # a header even before the first step ends: a table with no rows, not an empty file
+    w.writerows(steps_out)
     atomic_write_text(os.path.join(out_dir, "deployment.csv"), buf.getvalue())
     from ..viz.render import plot_deployment
 
