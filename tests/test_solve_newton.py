@@ -49,6 +49,18 @@ def test_linear_constraint_matches_kkt_solution():
     assert np.isclose(a @ P.x, target, atol=1e-12)
 
 
+def test_a_constraint_holds_whatever_the_gradient_tolerance():
+    """The residual of ``a·x = target`` is judged in its own unit: with a gradient tolerance far above the
+    gradient (a stiffness the arithmetic cannot resolve swamps it), a start 0.35 off the target was
+    once accepted as it was."""
+    n = 4
+    P = Quadratic(np.eye(n), np.zeros(n))
+    a = np.full(n, 1.0 / n)
+    report = minimize(P, constraint=(a, 0.35), options=NewtonOptions(gradient_tolerance=1e3))
+    assert report.converged and report.iterations >= 1
+    assert abs(a @ P.x - 0.35) < 1e-12
+
+
 def test_fixed_variables_stay_put():
     A = np.diag([1.0, 2.0, 3.0])
     P = Quadratic(A, np.array([1.0, 1.0, 1.0]), x0=np.array([5.0, 0.0, 0.0]))

@@ -220,6 +220,10 @@ SLOPE_ROUND_OFF = 1e-10
 """A Newton step whose predicted decrease ``−g·d`` is below this fraction of ``|E|``
 may be judged by the gradient instead of the energy (see :func:`minimize`)."""
 
+CONSTRAINT_ROUND_OFF = 1e-12
+"""A linear constraint ``a·x = target`` holds when its residual is below this fraction of ``Σ|a_i x_i|``
+(the size of the terms it sums), or of ``|target|`` or 1, whichever is largest."""
+
 ROUND_OFF_CURVATURE = 1e3 * np.finfo(float).eps
 """Generalized eigenvalues of ``H d = λ M d`` above ``−ROUND_OFF_CURVATURE·λmax``
 are indistinguishable from zero in a Hessian assembled in double precision."""
@@ -311,6 +315,10 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         target = float(constraint[1])
         a = a_full[free_idx]
         aa = float(a @ a)
+        # The constraint's residual in its own unit (a deployment's: radians), to round-off: a Newton step
+        # restores it exactly. (It was the gradient tolerance times |a|, a force: where stiff, tiny
+        # segments swamped the gradient's scale, a step 20° off its angle counted as feasible.)
+        constraint_tolerance = CONSTRAINT_ROUND_OFF * max(1.0, abs(target), float(np.abs(a_full) @ np.abs(problem.get_vars())))
         a_outer, a_outer_tril = _outer_product(ws, a)
         a_outer_part = a_outer_tril if lower else a_outer
         aug = None  # ρ of the augmented Hessian H + ρ a aᵀ, set from the first Hessian
@@ -426,7 +434,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         if constraint is not None:
             residual = target - float(a_full @ problem.get_vars())
             report.multiplier = lam
-            feasible = abs(residual) <= options.gradient_tolerance * np.sqrt(aa)
+            feasible = abs(residual) <= constraint_tolerance
         else:
             residual, feasible = 0.0, True
         report.energy.append(objective())
@@ -536,7 +544,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
         # When the predicted decrease is below the energy's round-off, the
         # energy cannot judge the step: take it and let the gradient decide.
         resolvable = -slope > 1e-13 * max(abs(e0), 1e-300)
-        if constraint is not None and abs(residual) > options.gradient_tolerance * np.sqrt(aa):
+        if constraint is not None and abs(residual) > constraint_tolerance:
             resolvable = False  # a step restoring the constraint is taken in full
         # A decrease this small is within a few hundred roundings of the energy (its terms'
         # sum carries ~1e-13 relative error: the wiggly banana's full Newton steps measured
