@@ -66,6 +66,8 @@ def test_the_published_schema_validates_the_docs_examples(name, data):
     ({"file": "a.obj", "material": {"type": "contour"}}, "needs contour_file"),
     ({"file": "a.obj", "material": {"params": [10, -7]}}, "positive finite lengths"),
     ({"file": "a.obj", "material": {"nu": 0.7}}, "less than 0.5"),
+    ({"file": "a.obj", "material": {"type": "ellipse"}}, "type 'ellipse' needs its dimensions in 'params'"),
+    ({"file": "a.obj", "material": {"type": "CONTOUR"}}, "needs contour_file"),
     ({"angle_deg": 60}, "missing key 'file'"),
     ([1, 2], "a case is a JSON object"),
 ])
@@ -74,6 +76,21 @@ def test_bad_case_objects_get_one_line_naming_the_key(data, match):
         validate_case(data, "case.json")
     msg = str(e.value)
     assert msg.startswith("case.json: ") and match in msg and "\n" not in msg, msg
+
+
+def test_a_material_without_dimensions_is_the_default_rectangle_and_contour_is_case_insensitive(tmp_path):
+    """docs/case.md: the default material is a rectangle 10 × 7, and a grade's values are overridden by
+    the keys given: a grade alone (or an E alone) once failed with "rectangle takes 2 parameters, got 0"."""
+    from xshells.deploy.case import material_from_spec
+
+    plain = material_from_spec({"type": "rectangle", "params": [10, 7], "E": 30000})
+    for spec in ({"E": 30000}, {"type": "Rect", "E": 30000}):
+        m = material_from_spec(validate_case({"file": "a.obj", "material": spec}, "case.json").material.model_dump(exclude_none=True))
+        assert m.section.area == plain.section.area and m.E == plain.E
+    contour = tmp_path / "square.obj"
+    contour.write_text("v 0 0 0\nv 4 0 0\nv 4 2 0\nv 0 2 0\nl 1 2\nl 2 3\nl 3 4\nl 4 1\n")
+    m = material_from_spec({"type": "Contour", "contour_file": str(contour), "E": 2000})
+    assert abs(m.section.area - 8.0) < 1e-6
 
 
 def test_a_good_case_keeps_its_values():

@@ -162,7 +162,9 @@ def material_from_spec(spec: dict):
 
     spec = resolve_grade(spec)
     density = float(spec.get("density", 1.0)) if spec.get("density") is not None else 1.0
-    kind = spec.get("type", "rectangle")
+    kind = str(spec.get("type", "rectangle")).strip()
+    if kind.lower() == "contour":  # case-insensitive, as the other types
+        kind = "contour"
     axis = spec.get("stiff_axis")
     if kind == "contour" and str(spec["contour_file"]).endswith(".json"):  # E and ν from the file unless given
         return Material.from_file(spec["contour_file"], young=spec.get("E"), poisson=spec.get("nu"), stiff_axis=axis,
@@ -170,7 +172,11 @@ def material_from_spec(spec: dict):
     E, nu = float(spec.get("E", 20000.0)), float(spec.get("nu", 0.3))
     if kind == "contour":
         return Material.from_file(spec["contour_file"], young=E, poisson=nu, stiff_axis=axis, density=density)
-    return Material.uniform(kind, spec.get("params", []), E=E, nu=nu, stiff_axis=axis, density=density)
+    from ..section.profiles import canonical_type
+
+    # a rectangle given without dimensions is the default one (docs/case.md: rectangle 10 × 7)
+    params = spec.get("params") or ([10.0, 7.0] if canonical_type(kind) == "rectangle" else [])
+    return Material.uniform(kind, params, E=E, nu=nu, stiff_axis=axis, density=density)
 
 
 def target_angle(case: Case, linkage, angle_deg=None) -> float:

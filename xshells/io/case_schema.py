@@ -45,7 +45,8 @@ class MaterialSpec(_Strict):
     nu: Optional[float] = Field(None, gt=-1, lt=0.5, allow_inf_nan=False,
                                 description="Poisson's ratio (dimensionless); default 0.3, or the section file's")
     params: list[float] = Field(default_factory=list, max_length=16,
-                                description="the type's dimensions in the design's length unit: rectangle width, height; "
+                                description="the type's dimensions in the design's length unit: rectangle width, height "
+                                            "(default 10, 7); "
                                             "ellipse a, b; I w1, w2, w3, h1, h2, h3; L and + a, b, t1, t2")
     contour_file: Optional[str] = Field(None, min_length=1,
                                         description="for type 'contour': a cross-section file (.obj, .msh or .json), relative to the case file")
@@ -68,13 +69,16 @@ class MaterialSpec(_Strict):
 
             named_material(self.grade)  # one line naming the known grades
 
-        if self.type.strip().lower() not in set(TYPE_ALIASES) | {"contour"}:
+        kind = self.type.strip().lower()
+        if kind not in set(TYPE_ALIASES) | {"contour"}:
             known = ", ".join(sorted(set(TYPE_ALIASES.values()), key=str.lower))
             raise ValueError(f"unknown cross-section type {self.type!r} (known: {known}, contour)")
-        if self.type == "contour" and not self.contour_file:
+        if kind == "contour" and not self.contour_file:
             raise ValueError("type 'contour' needs contour_file")
-        if self.type != "contour" and self.contour_file:
+        if kind != "contour" and self.contour_file:
             raise ValueError(f"contour_file is only read with type 'contour' (type is {self.type!r})")
+        if kind != "contour" and not self.params and TYPE_ALIASES[kind] != "rectangle":
+            raise ValueError(f"type {self.type!r} needs its dimensions in 'params' (only a rectangle defaults to 10 × 7)")
         if any(not (math.isfinite(v) and v > 0) for v in self.params):
             raise ValueError(f"params must be positive finite lengths, got {self.params}")
         return self
