@@ -174,6 +174,12 @@ def test_unchanged_inputs_come_from_the_cache(server, deployed):
     ({"pointer": "/deploy", "values": [{"ParamName": "Lines"}], "modelunits": "Parsecs"}, "units 'Parsecs'"),
     ({"pointer": "/deploy", "values": [{"ParamName": "Bogus", "InnerTree": {}}]}, "unknown input 'Bogus'"),
     ({"pointer": "/deploy", "values": []}, "input 'Lines' is empty"),
+    # a re-check's payloads: no reply at all (RecursionError), internal errors (TypeError), silently accepted
+    (b"[" * 100000 + b"]" * 100000, "nested too deeply"),
+    ({"pointer": "/deploy", "values": [{"ParamName": "Lines"}], "modelunits": ["Meters"]}, "units ['Meters']"),
+    ({"pointer": "/deploy", "values": [{"ParamName": [5], "InnerTree": {}}]}, "'ParamName' (a name)"),
+    ({"pointer": "/deploy", "values": [{"ParamName": "Lines"}], "absolutetolerance": -1}, "not a positive length"),
+    ({"pointer": "/deploy", "values": [{"ParamName": "Lines"}], "absolutetolerance": "nan"}, "not a positive length"),
 ])
 def test_malformed_payloads_get_one_line(server, body, words):
     url, _, _ = server

@@ -177,8 +177,9 @@ def decode_inputs(payload: dict, component: Component) -> dict:
         raise InputError("malformed Hops payload: no list of 'values'")
     by_name = {}
     for tree in values:
-        if not isinstance(tree, dict) or "ParamName" not in tree or not isinstance(tree.get("InnerTree", {}), dict):
-            raise InputError("malformed Hops payload: each value needs a 'ParamName' and an 'InnerTree'")
+        if (not isinstance(tree, dict) or not isinstance(tree.get("ParamName"), str)
+                or not isinstance(tree.get("InnerTree", {}), dict)):
+            raise InputError("malformed Hops payload: each value needs a 'ParamName' (a name) and an 'InnerTree'")
         by_name[tree["ParamName"]] = tree
     known = {p.name for p in component.inputs}
     unknown = sorted(set(by_name) - known)
@@ -254,6 +255,8 @@ class HopsService:
                 raise ValueError("not an object")
         except (ValueError, UnicodeDecodeError) as exc:
             return self._error(f"malformed Hops payload: not JSON ({exc})")
+        except RecursionError:
+            return self._error("malformed Hops payload: JSON nested too deeply")
         path = "/" + path.strip("/")
         pointer = payload.get("pointer") if path == "/solve" else path
         if not isinstance(pointer, str):
@@ -275,13 +278,15 @@ class HopsService:
             try:
                 from .read import RHINO_UNITS_TO_MM
 
-                if units not in RHINO_UNITS_TO_MM:
+                if not isinstance(units, str) or units not in RHINO_UNITS_TO_MM:
                     raise InputError(f"the Grasshopper document's units {units!r} are not supported "
                                      f"(supported: {', '.join(RHINO_UNITS_TO_MM)})")
                 try:
                     tol = float(tol)
                 except (TypeError, ValueError):
                     raise InputError(f"malformed Hops payload: absolutetolerance {tol!r} is not a number") from None
+                if not (math.isfinite(tol) and tol > 0):
+                    raise InputError(f"malformed Hops payload: absolutetolerance {tol!r} is not a positive length")
                 inputs = decode_inputs(payload, comp)
                 self.log(f"{comp.name}: solving")
                 outputs = comp.solve(inputs, Context(units=units, tolerance=tol))
