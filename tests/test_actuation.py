@@ -173,7 +173,10 @@ def test_cli_takes_a_bare_design_with_its_options(tmp_path):
     out = tmp_path / "out"
     assert main(["sparsify", str(tmp_path / "grid.obj"), "--material", "rectangle:4,1.5", "--young", "2000",
                  "--subdivision", "3", "--steps", "4", "--angle", "60", "--eta", "1e-3", "--out", str(out), "--no-progress"]) == 0
-    assert json.loads((out / "case.json").read_text())["material"]["params"] == [4.0, 1.5]
+    case = json.loads((out / "case.json").read_text())
+    assert case["material"]["params"] == [4.0, 1.5]
+    assert case["angle_deg"] == 60.0  # re-run from the case, it deploys where this run did (it once opened 60°)
     r = json.loads((out / "result.json").read_text())
     assert r["num_actuators"] >= 1 and "not valid" not in r["message"] and r["warnings"] == []
+    assert r["target_angle_deg"] == pytest.approx(60.0)
     assert main(["sparsify", str(tmp_path / "grid.txt"), "--out", str(out)]) == 2

@@ -40,6 +40,7 @@ class DenseDeployment:
     time_s: float
     name: str
     warnings: list = field(default_factory=list)
+    target_angle_deg: float = float("nan")  # the average angle deployed to
 
 
 def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeployment:
@@ -74,7 +75,7 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
     if not res.torque > 0:
         raise InputError(f"{case_path}: the dense deployment needs a closing torque ({res.torque:.4g}); sparse actuation assumes opening torques")
     return DenseDeployment(L, snapshot(L), float(res.torque), float(flat_energy), float(L.energy()),
-                           time.perf_counter() - t0, case.name, warnings)
+                           time.perf_counter() - t0, case.name, warnings, float(np.degrees(target)))
 
 
 def _allowed_from_vertices(L: Linkage, candidates) -> np.ndarray | None:
@@ -103,6 +104,7 @@ def _result_dict(dense: DenseDeployment, res, method: dict) -> dict:
     jv = np.asarray(L.graph.joint_vertex)
     out = {
         "name": dense.name,
+        "target_angle_deg": dense.target_angle_deg,
         **method,
         "actuated_joints": [int(jv[j]) for j in res.actuated],
         "torques": [float(res.torques[j]) for j in res.actuated],

@@ -234,9 +234,10 @@ def case_path_from_args(args, command: str, steps_default: int) -> str:
     from ..io.export import atomic_write_text
 
     check_counts(args.subdivision, args.steps)
+    # the case records the run's angle too: re-run from OUT/case.json, it deploys where this run did
     case = case_for_design(path, material_spec_from_option(args.material, args.young, args.poisson),
                            subdivision=10 if args.subdivision is None else args.subdivision,
-                           steps=steps_default if args.steps is None else args.steps)
+                           steps=steps_default if args.steps is None else args.steps, angle_deg=getattr(args, "angle", None))
     os.makedirs(args.out, exist_ok=True)
     out = os.path.join(args.out, "case.json")
     atomic_write_text(out, json.dumps(case, indent=1))
