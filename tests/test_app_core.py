@@ -106,6 +106,13 @@ def test_uploads_are_parsed_and_limited():
     assert p.layout.num_segments == 4 and p.name == "quad"
     case = store.open_upload("case.json", json.dumps({"file": "quad.obj", "angle_deg": 70, "subdivision": 5}).encode())
     assert case.target_angle_deg == 70 and case.subdivision == 5 and case.layout.num_segments == 4
+    assert case.direction == "up"
+    # the case's direction is kept (it was dropped: an uploaded "down" case buckled up), and open_by_deg,
+    # which the app cannot follow, is refused rather than ignored
+    down = store.open_upload("case.json", json.dumps({"file": "quad.obj", "angle_deg": 70, "direction": "down"}).encode())
+    assert down.direction == "down"
+    with pytest.raises(InputError, match="give angle_deg instead of open_by_deg"):
+        store.open_upload("case.json", json.dumps({"file": "quad.obj", "open_by_deg": 30}).encode())
     bad = [("big.obj", b"v 0 0 0\n" * (MAX_UPLOAD_BYTES // 8 + 1), "upload limit"),
            ("x.obj", b"v 0 0 0\nl 1 9\n", "out of range"),
            ("x.msh", b"\x00garbage\xff", "x.msh"),

@@ -62,6 +62,8 @@ def open_path(path: str) -> Project:
         from ..deploy.case import load_case
 
         case = load_case(path)
+        if case.open_by_rad is not None:
+            raise InputError(f"{path}: the app deploys to an angle, not by one: give angle_deg instead of open_by_deg")
         design = read_design(case.design_path)
         p = read_rest_lengths(case.rest_lengths_path, design.num_segments, design) if case.rest_lengths_path else None
         angle = np.degrees(case.angle_rad) if case.angle_rad is not None else None
@@ -152,11 +154,14 @@ class UploadStore:
             raise InputError(f"{name}: uploaded cases support parametric materials only (type, params, E, nu)")
         if case.rest_lengths:
             raise InputError(f"{name}: rest-length files are not read from uploads; remove 'rest_lengths'")
+        if case.open_by_deg is not None:
+            raise InputError(f"{name}: the app deploys to an angle, not by one: give angle_deg instead of open_by_deg")
         angle = case.angle_deg if case.angle_deg is not None else (
             float(np.degrees(case.angle_rad)) if case.angle_rad is not None else None)
         # an uploaded case without a subdivision keeps the app's own default (8), not the case files' (10)
         sub = case.subdivision if "subdivision" in spec else 8
-        return Project(case.name or os.path.splitext(name)[0], layout_from_design(design), material, sub, angle)
+        return Project(case.name or os.path.splitext(name)[0], layout_from_design(design), material, sub, angle,
+                       direction=case.direction or "up")
 
 
 def grid_project(nx: int, ny: int, angle_deg: float = 90.0, spacing: float = 100.0) -> Project:
