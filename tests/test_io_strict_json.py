@@ -33,3 +33,20 @@ def test_case_files_and_sweep_files_refuse_a_repeated_key(tmp_path):
     sweep.write_text(f"task: deploy\nbase:\n  file: {EXAMPLES / 'quad.obj'}\n  steps: 3\n  steps: 4\naxes:\n  angle_deg: [100]\n")
     with pytest.raises(InputError, match=r"s.yaml:5: .*key 'steps' is given twice"):
         load_spec(sweep)
+
+
+def test_an_integer_beyond_pythons_conversion_limit_and_a_binary_sweep_file_are_input_errors(tmp_path):
+    """Both were internal errors (exit 3): Python refuses to convert an integer of more than 4300 digits,
+    and a sweep file in UTF-16 failed to decode."""
+    from xshells.sweeps.spec import load_spec
+
+    with pytest.raises(InputError, match=r"^f.json: not valid JSON \(Exceeds the limit"):
+        loads('{"steps": ' + "9" * 5000 + "}", "f.json")
+    big = tmp_path / "big.yaml"
+    big.write_text("task: deploy\nbase:\n  steps: " + "9" * 5000 + "\n")
+    with pytest.raises(InputError, match=r"big.yaml: not valid YAML \(Exceeds the limit"):
+        load_spec(big)
+    binary = tmp_path / "bin.yaml"
+    binary.write_bytes(b"\xff\xfe\x00\x01")
+    with pytest.raises(InputError, match=r"bin.yaml: not a text file"):
+        load_spec(binary)

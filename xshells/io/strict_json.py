@@ -44,3 +44,5 @@ def loads(text: str, where: str):
         raise InputError(f"{where}:{exc.lineno}: not valid JSON ({exc.msg})") from None
     except RecursionError:  # [[[[…]]]] deeper than the parser's stack
         raise InputError(f"{where}: not valid JSON (nested too deeply)") from None
+    except ValueError as exc:  # an integer of more than 4300 digits (Python's limit on converting one)
+        raise InputError(f"{where}: not valid JSON ({str(exc).split(';')[0]})") from None

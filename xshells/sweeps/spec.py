@@ -94,6 +94,8 @@ def load_spec(path) -> SweepSpec:
             raw = fh.read()
     except OSError as exc:
         raise InputError(f"{path}: cannot read sweep file ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file (a sweep file is YAML or JSON in UTF-8)") from None
     if path.endswith((".yaml", ".yml")):
         import yaml
 
@@ -103,6 +105,8 @@ def load_spec(path) -> SweepSpec:
             mark = getattr(exc, "problem_mark", None)
             where = f":{mark.line + 1}" if mark is not None else ""
             raise InputError(f"{path}{where}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
+        except ValueError as exc:  # an integer of more than 4300 digits (Python's limit on converting one)
+            raise InputError(f"{path}: not valid YAML ({str(exc).split(';')[0]})") from None
     else:
         from ..io.strict_json import loads
 
