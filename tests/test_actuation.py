@@ -180,3 +180,21 @@ def test_cli_takes_a_bare_design_with_its_options(tmp_path):
     assert r["num_actuators"] >= 1 and "not valid" not in r["message"] and r["warnings"] == []
     assert r["target_angle_deg"] == pytest.approx(60.0)
     assert main(["sparsify", str(tmp_path / "grid.txt"), "--out", str(out)]) == 2
+
+
+def test_an_interrupted_sparsification_exits_as_interrupted(tmp_path, monkeypatch, capsys):
+    """It kept its best answer (status 'interrupted' in result.json) but exited 1 with no word of the stop;
+    `xshells deploy` exits 130 and says 'interrupted'."""
+    import xshells.actuation.run as run
+    from xshells.io.export import write_design_obj
+
+    def interrupted(case_path, out, opts, **kw):
+        return {"name": "grid", "num_actuators": 2, "actuated_joints": [1, 2], "torques": [1.0, 2.0], "dense_torque": 0.5,
+                "fit_mean": 0.02, "fit_max": 0.05, "work": 1.0, "dense_work": 1.0, "time_s": 1.0, "dense_deployment_time_s": 1.0,
+                "converged": False, "status": "interrupted", "message": "interrupted by the user", "warnings": []}
+
+    monkeypatch.setattr(run, "run_selection", interrupted)
+    write_design_obj(tmp_path / "grid.obj", warped_grid(3))
+    code = main(["sparsify", str(tmp_path / "grid.obj"), "--material", "rectangle:4,1.5", "--subdivision", "3",
+                 "--steps", "3", "--out", str(tmp_path / "out"), "--no-progress"])
+    assert code == 130 and "interrupted" in capsys.readouterr().err

@@ -115,6 +115,8 @@ def _run(args, case_path) -> int:
         opts = SelectionOptions(max_fit=max_fit, actuators=args.actuators, tau_max=args.tau_max, full_curve=args.sweep)
         r = run_selection(case_path, args.out, opts, candidates=candidates, angle_deg=args.angle, progress=not args.no_progress)
     _summary(r, args.out)
+    if r.get("status") == "interrupted":  # the best answer so far is written; the exit says it was cut short
+        raise KeyboardInterrupt
     return 0 if r["converged"] else 1  # as `xshells deploy` does for a run that stops short
 
 
