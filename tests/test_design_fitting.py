@@ -168,6 +168,8 @@ def test_read_surface(tmp_path):
     (None, "cannot read"),
     ("solid garbage\n this is not an stl file \x00\x01", "cannot read"),
     ("v 0 0 0\nv 1 0 0\nl 1 2\n", "no triangles"),
+    # squares overflow: `optimize` ended in an IndexError, `inverse` called it a zero-area triangle
+    ("v 0 0 0\nv 3e300 0 0\nv 0 1 0\nf 1 2 3\n", "vertex 2 has a coordinate of 3e+300: too large"),
 ])
 def test_bad_surface_file_is_one_line_naming_it(tmp_path, content, reason):
     path = tmp_path / ("missing.obj" if content is None else ("bad.stl" if "solid" in content else "lines.obj"))

@@ -271,8 +271,24 @@ def read_surface(path) -> tuple[np.ndarray, np.ndarray]:
 _SURFACE_CELLS = {"triangle": 3, "triangle6": 3, "triangle7": 3, "quad": 4, "quad8": 4, "quad9": 4, "polygon": None}
 
 
+_MAX_COORDINATE = 1e100
+"""A surface with a coordinate beyond this cannot be computed with: its areas and distances square it past
+double precision (one at 3e300 ended ``xshells optimize`` in an IndexError and was called 'zero area')."""
+
+
 def read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """:func:`read_surface`, with the file face each triangle comes from.
+    """:func:`read_surface`, with the file face each triangle comes from (its coordinates checked for size)."""
+    V, F, face = _read_surface_faces(path)
+    big = np.flatnonzero(np.abs(np.where(np.isfinite(V), V, 0.0)).max(axis=1, initial=0.0) > _MAX_COORDINATE) if len(V) else []
+    if len(big):
+        v = int(big[0])
+        raise InputError(f"{path}: vertex {v + 1} has a coordinate of {np.abs(V[v]).max():.3g}: too large to compute with "
+                         f"(is the surface in the design's units?)")
+    return V, F, face
+
+
+def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """:func:`read_surface_faces` before the size check.
 
     Returns
     -------
