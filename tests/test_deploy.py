@@ -115,6 +115,15 @@ def test_an_interrupted_deploy_keeps_the_steps_it_finished(tmp_path, monkeypatch
     assert rows[0].startswith("step,") and len(rows) == 3
 
 
+def test_an_opening_past_180_names_the_case_key_not_only_the_sum(tmp_path, capsys):
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, rhombic_grid(3, 3, spacing=100.0))  # drawn at 90°
+    (tmp_path / "case.json").write_text(json.dumps({"file": "grid.obj", "open_by_deg": 170, "subdivision": 3, "steps": 2}))
+    assert main(["deploy", str(tmp_path / "case.json"), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "open_by_deg 170" in err and "opened by 170° is 260°" in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_cli_deploy_case_file(tmp_path):
     design = tmp_path / "grid.obj"
     write_design_obj(design, warped_grid(4))

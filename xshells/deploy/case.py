@@ -186,7 +186,20 @@ def target_angle(case: Case, linkage, angle_deg=None) -> float:
         return float(np.radians(angle_deg))
     if case.angle_rad is not None:
         return float(case.angle_rad)
-    return linkage.average_angle() + (case.open_by_rad if case.open_by_rad is not None else np.radians(60.0))
+    return opened_angle(linkage, case.open_by_rad, case.name)
+
+
+def opened_angle(linkage, open_by: float | None, name: str | None) -> float:
+    """The linkage's current average angle opened by ``open_by`` radians (default 60°); one line naming
+    both numbers where the sum leaves (0°, 180°) (the deployment alone would name only the sum)."""
+    drawn = linkage.average_angle()
+    by = open_by if open_by is not None else np.radians(60.0)
+    if not 0.0 < drawn + by < np.pi:
+        key = f"open_by_deg {np.degrees(by):.4g}" if open_by is not None else "the default opening of 60°"
+        raise InputError(f"{name or 'the design'}: {key}: the drawn average angle {np.degrees(drawn):.4g}° opened by "
+                         f"{np.degrees(by):.4g}° is {np.degrees(drawn + by):.4g}°, outside (0°, 180°); "
+                         f"give a smaller open_by_deg or an angle_deg")
+    return drawn + by
 
 
 MATERIAL_OPTIONS = ("material", "young", "poisson")

@@ -16,6 +16,7 @@ from ..io import read_design, read_rest_lengths
 from ..io.export import atomic_write_text
 from ..linkage.export import scalar_fields, swept_mesh, write_centerlines
 from ..linkage.linkage import Linkage
+from .case import opened_angle
 from .simulate import DeployOptions, StepRecord, deploy, rest_length_solve
 
 
@@ -210,7 +211,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
 
         states["flat"] = copy.deepcopy(linkage)
     if target_angle is None:
-        target_angle = linkage.average_angle() + (open_by if open_by is not None else np.radians(60.0))
+        target_angle = opened_angle(linkage, open_by, name)
 
     bar = None
     if progress:
