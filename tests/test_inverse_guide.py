@@ -67,8 +67,10 @@ def _fake_optimize(monkeypatch, seen):
             history.append(rec)
             seen.append(it)
             if callback is not None and callback(rec):
-                return types.SimpleNamespace(iterations=it, history=history, message="stopped by request")
-        return types.SimpleNamespace(iterations=options.max_iterations, history=history, message="reached the iteration limit")
+                return opt.OptimizeResult(q=None, rest_lengths=None, iterations=it, history=history,
+                                          message="stopped by request", stopped=True)
+        return opt.OptimizeResult(q=None, rest_lengths=None, iterations=options.max_iterations, history=history,
+                                  message="reached the iteration limit")
 
     monkeypatch.setattr(opt, "optimize", optimize)
 
