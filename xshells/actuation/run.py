@@ -24,7 +24,7 @@ from ..io.export import atomic_write_text
 from ..linkage.linkage import Linkage
 from ..linkage.state import restore, snapshot
 from ..solve import NewtonOptions, minimize
-from .selection import UNHOLDABLE, SelectionOptions, select_actuators
+from .selection import RESTRICTED, UNHOLDABLE, SelectionOptions, select_actuators
 from .sparsify import SparsifyOptions, sparsify
 
 
@@ -257,6 +257,8 @@ def suggestion(result: dict) -> str:
         return ""
     msg = result["message"]
     if result.get("method") == "elimination":
+        if RESTRICTED in msg:
+            return "allow more joints (--candidates) or a larger --tau-max"
         if UNHOLDABLE in msg:
             return ("try another --angle: one where the dense deployment's torque still rises with the angle "
                     "(xshells deploy writes it into deployment.csv)")

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -57,6 +57,9 @@ FOLD_LS_WEIGHT = 1.0
 excess costs 7.6e-3, about 150 times the fit term at a 1 % mean deviation."""
 
 UNHOLDABLE = "the dense torques do not hold the deployed shape"
+TRIAL_NEWTON_ITERATIONS = 100
+"""Newton iterations an equilibrium under a trial cut's torques may take before the cut counts as lost."""
+RESTRICTED = "the joints allowed to carry an actuator cannot hold the deployed shape"
 
 
 @dataclass(frozen=True)
@@ -317,6 +320,110 @@ def _proposals(J, r, t_active, ub_active, batch: int, candidates: int):
         yield [int(i)], np.clip(_drop(x0, Ginv, i), 0.0, ub_active)
 
 
+def _restriction(allowed, tau_max, tau_ref) -> str:
+    """How the actuators are restricted, in words for a message ('' where they are not)."""
+    parts = []
+    if allowed is not None and not allowed.all():
+        parts.append(f"with only {int(allowed.sum())} of {len(allowed)} joints allowed (--candidates)")
+    if tau_max is not None and tau_max < tau_ref:
+        parts.append(f"with torques capped at {tau_max:g} (--tau-max; the dense torque is {tau_ref:.4g})")
+    return " and ".join(parts)
+
+
+def _set_fits(G, c, sets, ridge):
+    """Linear-model torques and fit gains of actuator sets.
+
+    With ``b`` the linearized residual at zero torque, the set ``S`` fits
+    ``x = G_SS⁻¹ c_S`` (``G = JᵀJ``, ``c = −Jᵀb``) and lowers ``|b|²`` by
+    ``c_Sᵀ x``. ``sets`` (m, s) indices into the columns; returns ``x``
+    (m, s) and the gains (m,); a set that needs a negative torque (which no
+    motor gives) gains ``−inf``.
+    """
+    Gs = G[sets[:, :, None], sets[:, None, :]] + ridge * np.eye(sets.shape[1])
+    x = np.linalg.solve(Gs, c[sets][..., None])[..., 0]
+    gain = (c[sets] * x).sum(axis=1)
+    return x, np.where((x > 0).all(axis=1), gain, -np.inf)
+
+
+def _exchange_sets(J, b, active, size, count, sweeps: int = 20):
+    """The linear model's best sets of ``size`` actuators reached from ``active`` by dropping and exchanging.
+
+    Greedy elimination never revisits a cut; where it stalls, a smaller set
+    that keeps the fit may still exist with a joint cut earlier back in it.
+    From each ``active`` minus enough of its own actuators (every single
+    drop, cheapest first), a local search swaps one actuator of the set for
+    one outside it while that raises the fit's gain. ``J`` (rows, n) holds
+    the columns of every joint that may carry an actuator; ``active`` and
+    the returned sets index into them. Returns up to ``count`` distinct sets
+    (best first) with their linear-model torques.
+    """
+    n = J.shape[1]
+    G = J.T @ J
+    c = -(J.T @ b)
+    ridge = 1e-10 * np.trace(G) / n + 1e-300
+    starts = []
+    for i in range(len(active)):
+        rest = np.delete(active, i)
+        if len(rest) > size:  # more than one to drop: keep the largest linear torques
+            x, _ = _set_fits(G, c, rest[None, :], ridge)
+            rest = rest[np.argsort(-x[0])[:size]]
+        starts.append(np.sort(rest))
+    found = {}
+    for S in starts:
+        x, gain = _set_fits(G, c, S[None, :], ridge)
+        best_gain = gain[0]
+        x = x[0]
+        for _ in range(sweeps):
+            outside = np.setdiff1d(np.arange(n), S)
+            if not len(outside):
+                break
+            # every swap of one member for one outsider: (size × outside) sets
+            swaps = np.repeat(S[None, :], len(S) * len(outside), axis=0)
+            swaps[np.arange(len(swaps)), np.repeat(np.arange(len(S)), len(outside))] = np.tile(outside, len(S))
+            sx, sg = _set_fits(G, c, swaps, ridge)
+            k = int(np.argmax(sg))
+            if not sg[k] > best_gain + 1e-12 * abs(best_gain):
+                break
+            S, x, best_gain = swaps[k], sx[k], sg[k]
+        if np.isfinite(best_gain):
+            order = np.argsort(S)
+            found[tuple(S[order])] = (best_gain, x[order])
+    ranked = sorted(found.items(), key=lambda kv: -kv[1][0])[:count]
+    return [(np.array(S), xs) for S, (_, xs) in ranked]
+
+
+def _cuts_to_try(refit: _Refit, r, t, active, ub, batch: int, candidates: int, give_up_above: float):
+    """Trial sets, best first: ``(active joints, torques (n,), give-up level of the re-fit)``.
+
+    First the linear model's cuts of :func:`_proposals`; where none of those
+    passes, ``candidates`` sets one smaller found by :func:`_exchange_sets`
+    over every joint that may carry an actuator, re-fitted without giving up
+    early (the last resort before the elimination stops). Lazy: each set is
+    made at the state the previous trial was undone to.
+    """
+    n, k = len(t), len(active)
+    J = refit.jacobian(active)
+    fully_refitted = set()  # sets whose re-fit could not give up early: no second try
+    for dropped, x in _proposals(J, r, t[active], ub[active], batch, candidates):
+        trial_active = np.delete(active, dropped)
+        trial = np.zeros(n)
+        trial[trial_active] = x[np.setdiff1d(np.arange(k), dropped)]
+        if give_up_above == np.inf:
+            fully_refitted.add(tuple(trial_active))
+        yield trial_active, trial, give_up_above
+    if k < 2:
+        return
+    allowed = np.flatnonzero(ub > 0)
+    J_all = refit.jacobian(allowed)
+    b = r - J_all[:, np.searchsorted(allowed, active)] @ t[active]
+    for S, x in _exchange_sets(J_all, b, np.searchsorted(allowed, active), k - 1, candidates):
+        if tuple(allowed[S]) in fully_refitted:
+            continue
+        trial = np.zeros(n)
+        trial[allowed[S]] = np.clip(x, 0.0, ub[allowed[S]])
+        yield allowed[S], trial, np.inf
+
+
 def _refit_cut(refit: _Refit, trial, trial_active, iterations, good_enough, give_up_above):
     """Equilibrium and nonlinear re-fit after a cut: (ok, t, r, fit_mean); ok is False where the equilibrium is lost."""
     start = time.perf_counter()
@@ -374,11 +481,19 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
         raise InputError(f"--actuators {target_count}: only {int(np.count_nonzero(ub > 0))} joints may carry one")
     fit.predictor_limit = 0.2
     refit = _Refit(fit, ub)
+    restricted = _restriction(allowed, o.tau_max, tau_ref)
     try:
-        r, fit_mean = refit.evaluate(t)
+        r, fit_mean = refit.evaluate(np.ones(n))
     except ArithmeticError as exc:
         raise InputError(f"{exc} at the dense torques themselves: the deployed shape is not a stable equilibrium "
                          f"under torque control, so no set of torques holds it; try another --angle") from None
+    dense_holds = fit_mean <= o.max_fit
+    if restricted:
+        try:
+            r, fit_mean = refit.evaluate(t)
+        except ArithmeticError as exc:
+            raise InputError(f"{exc} under the dense torques {restricted}: {RESTRICTED}; allow more joints "
+                             f"(--candidates) or a larger --tau-max") from None
     active = np.flatnonzero(ub > 0)
     # Fit first where the dense torques are not all available, or where they do not hold the dense shape
     # (a deployment unstable under torque control snaps to another equilibrium: the boat at 62°).
@@ -402,6 +517,10 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
     good_enough = 0.5 * (0.02 * o.max_fit) ** 2
     give_up_above = np.inf if (o.full_curve or target_count is not None) else 1.5 * o.max_fit
     point = record()
+    # A cut's equilibrium settles within about 40 Newton iterations where it holds (measured on the wiggly
+    # banana: every accepted trial took ≤ 40); one that will not settle used the whole 300 of the dense
+    # solve, and those were half the run's time.
+    fit.newton = replace(fit.newton, max_iterations=TRIAL_NEWTON_ITERATIONS)
     best = (t.copy(), snapshot(linkage), point) if meets(fit_mean) and not folded_joint(linkage) else None
     state = snapshot(linkage)
     message, converged, rounds = "", False, 0
@@ -418,12 +537,8 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
             if target_count is not None:
                 batch = min(batch, k - target_count)
             accepted = False
-            for number, (dropped, x) in enumerate(_proposals(J, r, t[active], ub[active], batch, o.candidates)):
-                trial_active = np.delete(active, dropped)
-                trial = np.zeros(n)
-                trial[trial_active] = x[np.setdiff1d(np.arange(k), dropped)]
-                ok, trial, r_new, fm_new = _refit_cut(refit, trial, trial_active, o.refit_iterations, good_enough,
-                                                      give_up_above)
+            for trial_active, trial, give_up in _cuts_to_try(refit, r, t, active, ub, batch, o.candidates, give_up_above):
+                ok, trial, r_new, fm_new = _refit_cut(refit, trial, trial_active, o.refit_iterations, good_enough, give_up)
                 trial_active = trial_active[trial[trial_active] > 0]  # the re-fit may switch off more actuators
                 if ok and not folded_joint(linkage) and (meets(fm_new) or o.full_curve):
                     accepted = True
@@ -442,17 +557,25 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
                 message = "stopped by request"
                 break
             if not accepted:
-                if target_count is not None:
-                    message = f"no cut below {len(active)} actuators keeps a valid equilibrium"
+                if target_count is not None or o.full_curve:  # there a cut needs only a valid equilibrium
+                    message = (f"no cut below {len(active)} actuators keeps a valid equilibrium (every one "
+                               f"tried loses it or folds a joint)")
+                    if o.full_curve:
+                        message = f"the curve ends at {len(active)} actuators: {message}"
                 else:
-                    message = (f"no single cut of the {min(o.candidates, len(active))} cheapest actuators keeps the mean "
-                               f"deviation within {100 * o.max_fit:g}% of the span")
+                    c = min(o.candidates, len(active))
+                    message = (f"neither a single cut of the {c} cheapest actuators nor the {c} best exchanges "
+                               f"keep the mean deviation within {100 * o.max_fit:g}% of the span")
                 break
             if not o.full_curve and not meets(fit_mean):
                 break
         else:
             message = f"reached {len(active)} actuator{'s' if len(active) != 1 else ''}"
-        if unholdable:
+        if unholdable and restricted and dense_holds:
+            message = (f"{RESTRICTED}: {restricted}, with their torques re-fitted, the mean deviation is "
+                       f"{100 * fit_mean:.2f}% (limit {100 * o.max_fit:g}%), while every joint at the dense torque "
+                       f"holds it")
+        elif unholdable:
             message = (f"{UNHOLDABLE}: under torque control it moves to another equilibrium (mean deviation "
                        f"{100 * fit_mean:.2f}% with all {len(active)} joints actuated and their torques re-fitted), so it is "
                        f"not stable under torque control at this angle (typically where the deployment torque falls as "
