@@ -233,6 +233,15 @@ def test_a_run_that_stops_early_says_so_and_suggests_what_to_try(tmp_path, capsy
     assert r["suggestion"]
 
 
+def test_cli_names_the_restriction_and_suggests_lifting_it(tmp_path, capsys):
+    case = _small_case(tmp_path)
+    out = tmp_path / "out"
+    assert main(["sparsify", str(case), "--candidates", "0", "--max-fit", "0.01%", "--out", str(out), "--no-progress"]) == 1
+    text = capsys.readouterr().out
+    assert "allowed to carry an actuator cannot hold" in text
+    assert "suggestion: allow more joints (--candidates)" in text and "--tau-max" not in text.split("suggestion:")[1]
+
+
 # ------------------------------------------------------------------ the real designs (issue 25)
 def _sparsify_default(case, out):
     assert main(["sparsify", str(case), "--out", str(out), "--no-progress"]) == 0

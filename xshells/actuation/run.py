@@ -258,7 +258,9 @@ def suggestion(result: dict) -> str:
     msg = result["message"]
     if result.get("method") == "elimination":
         if RESTRICTED in msg:
-            return "allow more joints (--candidates) or a larger --tau-max"
+            ways = [w for flag, w in (("--candidates", "allow more joints (--candidates)"),
+                                      ("--tau-max", "allow larger torques (--tau-max)")) if flag in msg]
+            return " or ".join(ways)
         if UNHOLDABLE in msg:
             return ("try another --angle: one where the dense deployment's torque still rises with the angle "
                     "(xshells deploy writes it into deployment.csv)")
