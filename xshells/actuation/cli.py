@@ -125,7 +125,8 @@ def _summary(r: dict, out: str) -> None:
         text = ", ".join(fmt(v) for v in values[:12])
         return f"[{text}{', … (all in result.json)' if len(values) > 12 else ''}]"
 
-    print(f"{r['name']}: {r['num_actuators']} actuators at joints {listed(r['actuated_joints'], str)}")
+    k = r['num_actuators']
+    print(f"{r['name']}: {k} actuator{'' if k == 1 else 's'} at joint{'' if k == 1 else 's'} {listed(r['actuated_joints'], str)}")
     print(f"  torques {listed(r['torques'], lambda t: f'{t:.4g}')} (dense: {r['dense_torque']:.4g} at every joint)")
     limit = f" (limit {100 * r['max_fit']:g}%)" if r.get("method") == "elimination" and not r.get("actuators_requested") else ""
     print(f"  distance to the dense deployment: mean {100 * r['fit_mean']:.3f}%{limit}, max {100 * r['fit_max']:.3f}% of the span")

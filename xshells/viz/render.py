@@ -195,7 +195,7 @@ def plot_actuation_curve(path, rows, *, max_fit=None, chosen=None, title: str = 
     if chosen is not None:
         r = min(sel, key=lambda r: abs(r["num_actuators"] - chosen))
         ax.plot([r["num_actuators"]], [100 * r["fit_mean"]], "*", ms=14, color="C3", zorder=5,
-                label=f"answer: {r['num_actuators']} actuators")
+                label=f"answer: {r['num_actuators']} actuator{'' if r['num_actuators'] == 1 else 's'}")
     ax.set_xscale("log")
     if all(r["fit_mean"] > 0 for r in sel):
         ax.set_yscale("log")
