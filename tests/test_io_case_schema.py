@@ -182,6 +182,51 @@ def test_a_deploy_killed_with_sigterm_leaves_only_complete_files(tmp_path):
 
 
 # ------------------------------------------------------------------ fuzz: a clean error or a valid result, nothing else
+def _accepted(data) -> tuple[bool, bool]:
+    """(validate_case accepts, the published schema accepts)."""
+    try:
+        validate_case(data, "case.json")
+        ours = True
+    except InputError:
+        ours = False
+    return ours, jsonschema.Draft202012Validator(json_schema()).is_valid(data)
+
+
+material_values = st.fixed_dictionaries({}, optional={
+    "type": st.sampled_from(["rectangle", "RECT", " ellipse ", "I", "i-beam", "L", "+", "plus", "contour", "Contour",
+                             "hexagon", "", "circle"]),
+    "params": st.lists(st.sampled_from([10.0, 7.0, 0.5, 0.0, -3.0]), max_size=4),
+    "contour_file": st.sampled_from(["sec.json", None]),
+    "grade": st.sampled_from(["softwood-c24", "GFRP-E23", " birch-plywood", "oak", None]),
+    "E": st.sampled_from([20000.0, -1.0, None]),
+})
+angle_values = st.fixed_dictionaries({"file": st.just("a.obj")}, optional={
+    "angle_deg": st.sampled_from([60.0, None, 200.0]), "angle_rad": st.sampled_from([1.2, None]),
+    "open_by_deg": st.sampled_from([30.0, None]), "material": material_values})
+
+
+@settings(max_examples=300, deadline=None)
+@given(angle_values)
+def test_the_published_schema_accepts_exactly_what_the_validator_accepts(data):
+    """Cross-key rules (one angle key, contour_file with contour only, dimensions for all but the
+    rectangle, known types and grades, positive lengths) hold in the published schema too."""
+    ours, published = _accepted(data)
+    assert ours == published, (data, ours, published)
+
+
+@pytest.mark.parametrize("data", [
+    {"file": "a.obj", "angle_deg": 60, "open_by_deg": 10},
+    {"file": "a.obj", "material": {"type": "contour"}},
+    {"file": "a.obj", "material": {"type": "rectangle", "contour_file": "s.json"}},
+    {"file": "a.obj", "material": {"type": "ellipse"}},
+    {"file": "a.obj", "material": {"type": "hexagon", "params": [1, 2]}},
+    {"file": "a.obj", "material": {"params": [10, -7]}},
+    {"file": "a.obj", "material": {"grade": "oak"}},
+])
+def test_the_published_schema_refuses_the_cross_key_mistakes(data):
+    assert _accepted(data) == (False, False)
+
+
 KEYS = list(CaseFile.model_fields) + ["angle_dg", "materials", "E", ""]
 json_values = st.recursive(st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(allow_nan=True)
                            | st.text(max_size=8), lambda inner: st.lists(inner, max_size=3)

@@ -183,9 +183,52 @@ def field_check(name: str):
     return check
 
 
+ANGLE_KEYS = ("angle_deg", "angle_rad", "open_by_deg")
+
+
+def _given(key: str) -> dict:
+    """JSON Schema: ``key`` is present and not null (pydantic reads null as not given)."""
+    return {"required": [key], "properties": {key: {"not": {"type": "null"}}}}
+
+
+def _words(words) -> str:
+    """An ECMA-262 pattern matching any of ``words`` case-insensitively, with surrounding blanks (as ``strip().lower()``)."""
+    def one(w):
+        return "".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else ("\\" + c if c in "+." else c) for c in w)
+    return "^\\s*(" + "|".join(one(w) for w in sorted(words)) + ")\\s*$"
+
+
+def _cross_key_rules(schema: dict) -> None:
+    """The validators' rules across keys, in JSON Schema, so that the published schema refuses what
+    :func:`validate_case` refuses (tested against each other): one angle key at most; a known
+    cross-section type and grade; contour_file exactly with type contour; dimensions for every type
+    but the rectangle; positive lengths."""
+    from itertools import combinations
+
+    from ..analysis.materials import LIBRARY
+    from ..section.profiles import TYPE_ALIASES
+
+    schema["not"] = {"anyOf": [{"allOf": [_given(a), _given(b)]} for a, b in combinations(ANGLE_KEYS, 2)]}
+    mat = schema["$defs"]["MaterialSpec"]
+    props = mat["properties"]
+    props["type"]["pattern"] = _words(list(TYPE_ALIASES) + ["contour"])
+    props["grade"]["anyOf"][0]["pattern"] = _words(LIBRARY)
+    props["params"]["items"]["exclusiveMinimum"] = 0
+    is_type = lambda words: {"properties": {"type": {"pattern": _words(words)}}}  # noqa: E731
+    sized = [k for k, v in TYPE_ALIASES.items() if v != "rectangle"]
+    mat["allOf"] = [
+        # type defaults to rectangle, so only a given type can be contour
+        {"if": {"required": ["type"], **is_type(["contour"])}, "then": _given("contour_file"),
+         "else": {"not": _given("contour_file")}},
+        {"if": {"required": ["type"], **is_type(sized)},
+         "then": {"required": ["params"], "properties": {"params": {"minItems": 1}}}},
+    ]
+
+
 def json_schema() -> dict:
     """The published JSON Schema of a case file."""
     schema = CaseFile.model_json_schema()
+    _cross_key_rules(schema)
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "xshells case file"
     schema["description"] = ("An X-shell case: a design, its material and how far to deploy it. Units follow the "
@@ -248,7 +291,10 @@ def markdown() -> str:
 
     table("Keys", schema)
     table("`material`", defs["MaterialSpec"])
-    out.append("One of `angle_deg`, `angle_rad` and `open_by_deg` at most.")
+    out.append("One of `angle_deg`, `angle_rad` and `open_by_deg` at most. In `material`: `contour_file` "
+               "with type `contour` and only then; `params` for every type but the rectangle (which defaults "
+               "to 10 × 7); types and grades are case-insensitive. The published schema states these rules "
+               "too (`not`, `allOf` with `if`/`then`, case-insensitive patterns).")
     return "\n".join(out) + "\n"
 
 
