@@ -133,6 +133,21 @@ def test_actuators_gives_exactly_that_many(dense):
         assert np.count_nonzero(r.torques) == n
 
 
+def test_actuators_and_the_full_curve_answer_as_well_as_the_default(dense):
+    """--actuators N and --sweep cut within the limit while they can: at the default's count they
+    find its set (they took the first valid cut and could end far above the limit)."""
+    L, tau, state, _ = dense
+    restore(L, state)
+    default = select_actuators(L, tau, SelectionOptions(max_fit=0.003))
+    k = len(default.actuated)
+    restore(L, state)
+    exact = select_actuators(L, tau, SelectionOptions(max_fit=0.003, actuators=k))
+    restore(L, state)
+    curve = select_actuators(L, tau, SelectionOptions(max_fit=0.003, full_curve=True))
+    for r in (exact, curve):
+        assert list(r.actuated) == list(default.actuated) and r.fit_mean == pytest.approx(default.fit_mean, rel=1e-6)
+
+
 def test_full_curve_goes_down_to_few_and_keeps_the_answer_within_the_limit(dense):
     L, tau, state, _ = dense
     restore(L, state)

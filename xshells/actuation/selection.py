@@ -515,7 +515,10 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
 
     # a re-fit far inside the limit needs no polish; one still far outside after two iterations will not pass
     good_enough = 0.5 * (0.02 * o.max_fit) ** 2
-    give_up_above = np.inf if (o.full_curve or target_count is not None) else 1.5 * o.max_fit
+    # While it can, every mode cuts within the limit (with exchanges where plain cuts fail): --actuators N
+    # and --sweep then follow the default's path down to its answer. Past that point they take the
+    # first valid cut, re-fitted in full.
+    strict = True
     point = record()
     # A cut's equilibrium settles within about 40 Newton iterations where it holds (measured on the wiggly
     # banana: every accepted trial took ≤ 40); one that will not settle used the whole 300 of the dense
@@ -537,10 +540,11 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
             if target_count is not None:
                 batch = min(batch, k - target_count)
             accepted = False
+            give_up_above = 1.5 * o.max_fit if strict else np.inf
             for trial_active, trial, give_up in _cuts_to_try(refit, r, t, active, ub, batch, o.candidates, give_up_above):
                 ok, trial, r_new, fm_new = _refit_cut(refit, trial, trial_active, o.refit_iterations, good_enough, give_up)
                 trial_active = trial_active[trial[trial_active] > 0]  # the re-fit may switch off more actuators
-                if ok and not folded_joint(linkage) and (meets(fm_new) or o.full_curve):
+                if ok and not folded_joint(linkage) and (fm_new <= o.max_fit or not strict):
                     accepted = True
                     t, r, fit_mean, active = trial, r_new, fm_new, trial_active
                     state = snapshot(linkage)
@@ -556,6 +560,9 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
             if stopped:
                 message = "stopped by request"
                 break
+            if not accepted and strict and (o.full_curve or target_count is not None):
+                strict = False  # no cut keeps the limit any more: from here on the first valid cut
+                continue
             if not accepted:
                 if target_count is not None or o.full_curve:  # there a cut needs only a valid equilibrium
                     message = (f"no cut below {len(active)} actuators keeps a valid equilibrium (every one "
