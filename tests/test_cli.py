@@ -58,3 +58,71 @@ def test_an_option_of_the_wrong_type_gets_one_line(capsys):
         main(["deploy", "x.obj", "--steps", "2.5"])
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and "--steps: invalid int value: '2.5'" in err and "\n" not in err
+
+
+def test_ctrl_c_while_the_subcommands_import_is_one_line(capsys, monkeypatch):
+    # the signal handler was installed after the parser imported the subcommands: Ctrl-C in the
+    # first second printed the traceback of whatever module was loading
+    import pytest
+
+    import xshells.cli as cli
+
+    def interrupted_import(name):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli.importlib, "import_module", interrupted_import)
+    try:
+        rc = main(["deploy", "x.obj"])
+    except KeyboardInterrupt:
+        pytest.fail("the interrupt escaped main")
+    assert rc == 130
+    assert capsys.readouterr().err == "xshells deploy: interrupted\n"
+
+
+def test_a_stop_during_an_import_lands_when_the_import_has_ended(tmp_path, monkeypatch):
+    # raised inside the import, it left the module half-initialised in sys.modules (an interrupted
+    # deploy then failed on "module 'matplotlib' has no attribute 'get_data_path'")
+    import signal
+    import sys
+    import time
+
+    import pytest
+
+    from xshells.errors import STOP
+
+    (tmp_path / "slow_module_19.py").write_text(
+        "import signal, sys\nfrom xshells.errors import STOP\n"
+        "STOP.request(sys._getframe(), signal.SIGINT)  # as the handler would, mid-import\nDONE = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(STOP, "requested", False)
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: STOP.request(frame, signum))
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            import slow_module_19  # noqa: F401
+
+            time.sleep(5)  # the stop arrives here, once the import is over
+        assert sys.modules["slow_module_19"].DONE
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        sys.modules.pop("slow_module_19", None)
+
+
+def test_an_early_ctrl_c_exits_quietly(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from data_paths import EXAMPLES, REPO
+
+    for delay in (0.15, 0.3, 0.5):  # while the subcommand, NumPy and the solver import
+        out = tmp_path / f"out{delay}"
+        env = dict(os.environ, PYTHONPATH=str(REPO))
+        proc = subprocess.Popen([sys.executable, "-m", "xshells.cli", "deploy", str(EXAMPLES / "quad.obj"), "--out",
+                                 str(out), "--no-progress"], stderr=subprocess.PIPE, text=True, env=env)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        err = proc.communicate(timeout=120)[1]
+        assert "Traceback" not in err and not (out / "error.log").exists(), err
+        assert (proc.returncode, err) in ((130, "xshells deploy: interrupted\n"), (0, "")), (proc.returncode, err)
