@@ -126,3 +126,41 @@ def test_an_early_ctrl_c_exits_quietly(tmp_path):
         err = proc.communicate(timeout=120)[1]
         assert "Traceback" not in err and not (out / "error.log").exists(), err
         assert (proc.returncode, err) in ((130, "xshells deploy: interrupted\n"), (0, "")), (proc.returncode, err)
+
+
+SPECIAL_FILES_SCRIPT = r"""
+import resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))  # reading /dev/zero whole must fail, not fill the machine
+from xshells.cli import main
+d = sys.argv[1]
+for args in (["deploy", d + "/pipe.obj"], ["deploy", d + "/pipe.json"], ["deploy", d + "/folder.msh"],
+             ["deploy", d + "/zero.obj"], ["sweep", d + "/pipe.yaml"], ["inverse", d + "/pipe.obj"]):
+    main([*args, "--out", d + "/out"])
+"""
+
+
+def test_a_named_pipe_a_folder_or_a_device_is_refused_before_it_is_opened(tmp_path):
+    # a named pipe blocked the command for ever, /dev/zero was read until the memory ran out, and a
+    # named pipe given as a .msh was "no such file"
+    import os
+    import subprocess
+    import sys
+
+    from data_paths import REPO
+
+    os.mkfifo(tmp_path / "pipe.obj")
+    os.mkfifo(tmp_path / "pipe.json")
+    os.mkfifo(tmp_path / "pipe.yaml")
+    (tmp_path / "folder.msh").mkdir()
+    (tmp_path / "zero.obj").symlink_to("/dev/zero")
+    p = subprocess.run([sys.executable, "-c", SPECIAL_FILES_SCRIPT, str(tmp_path)], capture_output=True, text=True,
+                       timeout=60, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    d = str(tmp_path)
+    assert p.stderr.splitlines() == [
+        f"xshells deploy: error: {d}/pipe.obj: cannot read file (a named pipe, not a regular file)",
+        f"xshells deploy: error: {d}/pipe.json: cannot read case file (a named pipe, not a regular file)",
+        f"xshells deploy: error: {d}/folder.msh: cannot read file (a folder, not a regular file)",
+        f"xshells deploy: error: {d}/zero.obj: cannot read file (a device, not a regular file)",
+        f"xshells sweep: error: {d}/pipe.yaml: cannot read sweep file (a named pipe, not a regular file)",
+        f"xshells inverse: error: {d}/pipe.obj: cannot read the target surface (a named pipe, not a regular file)",
+    ]

@@ -15,6 +15,29 @@ class InvalidState(InputError):
     """
 
 
+_SPECIAL_FILES = (("S_ISDIR", "a folder"), ("S_ISFIFO", "a named pipe"), ("S_ISCHR", "a device"),
+                  ("S_ISBLK", "a device"), ("S_ISSOCK", "a socket"))
+
+
+def check_input_file(path, what: str = "file") -> None:
+    """Refuse ``path`` in one line if it exists but is not a regular file (a folder, a named pipe, a device).
+
+    Readers call this before they open a file: a named pipe blocks until something writes to it, and
+    /dev/zero reads until the memory runs out. A path that does not exist is left to the reader's own
+    message.
+    """
+    import os
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):  # missing, unreadable, a name the system refuses: the reader says which
+        return
+    if not stat.S_ISREG(mode):
+        kind = next((k for test, k in _SPECIAL_FILES if getattr(stat, test)(mode)), "a special file")
+        raise InputError(f"{path}: cannot read {what} ({kind}, not a regular file)")
+
+
 class _StopRequest:
     """Whether the user asked to stop (SIGTERM, or Ctrl-C as the command line sees it).
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import os
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 
 
 def register(subparsers) -> None:
@@ -45,6 +45,8 @@ def start(input_path: str | None = None, *, host: str = "127.0.0.1", port: int =
 def _app(args) -> int:
     import time
 
+    if args.input:
+        check_input_file(args.input)
     if args.input and not os.path.isfile(args.input):
         raise InputError(f"{args.input}: no such file")
     project = None

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from xshells.errors import InputError
+from xshells.errors import InputError, check_input_file
 
 __all__ = [
     "Design",
@@ -276,6 +276,7 @@ def read_design(path: str | os.PathLike) -> Design:
 
 
 def _read_text(path: str | os.PathLike) -> str:
+    check_input_file(path)
     try:
         with open(path, encoding="utf-8") as f:
             return f.read()
@@ -367,6 +368,7 @@ def read_msh_design(path: str | os.PathLike) -> Design:
     import meshio  # deferred: meshio is slow to import and only needed here
 
     label = str(path)
+    check_input_file(path)
     if not os.path.isfile(path):
         raise InputError(f"{label}: cannot read file (no such file)")
     chatter = io.StringIO()

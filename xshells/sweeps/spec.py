@@ -34,7 +34,7 @@ import json
 import os
 from dataclasses import dataclass
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 from ..io.case_schema import field_check, validate_case
 from . import tasks as T
 
@@ -89,6 +89,7 @@ class SweepSpec:
 def load_spec(path) -> SweepSpec:
     """Read and check a sweep file (``.yaml``, ``.yml`` or ``.json``); one-line InputError on any problem."""
     path = os.fspath(path)
+    check_input_file(path, "sweep file")
     try:
         with open(path, encoding="utf-8") as fh:
             raw = fh.read()
@@ -278,6 +279,10 @@ def _check(key: str, value, where: str, allowed: dict, base_dir: str):
         raise InputError(f"{where}: {exc}") from None
     if key in PATH_KEYS and value is not None:
         path = value if os.path.isabs(value) else os.path.normpath(os.path.join(base_dir, value))
+        try:  # a named pipe would block the id's hash (and the task), a folder fail it
+            check_input_file(path)
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
         if not os.path.isfile(path):
             raise InputError(f"{where}: no such file {value!r}")
         value = path
