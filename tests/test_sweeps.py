@@ -314,3 +314,23 @@ def test_a_sparsify_spec_mixing_the_two_methods_is_refused_before_anything_runs(
     with pytest.raises(InputError, match=r"^sweep task 0: .*not both"):
         spec_from_dict({"task": "sparsify", "base": {"file": "grid.obj", "subdivision": 3, "steps": 4, "angle_deg": 60,
                                                      "eta": 1e-3, "max_fit": 0.01}}, str(tmp_path))
+
+
+def test_a_sweep_of_more_tasks_than_the_limit_is_refused_before_it_is_expanded(tmp_path, capsys):
+    # 1.58 million tasks were expanded and checked (minutes, gigabytes) before the first one ran
+    import time
+
+    from xshells.sweeps.spec import MAX_TASKS
+
+    spec = tmp_path / "huge.yaml"
+    spec.write_text(f"task: noop\naxes:\n  sleep_s: {[i / 1000 for i in range(400)]}\ncases: {[{}] * 251}\n")
+    t0 = time.perf_counter()
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "out"), "--workers", "0", "--no-progress"]) == 2
+    assert time.perf_counter() - t0 < 5
+    assert capsys.readouterr().err == ("xshells sweep: error: axes: 251 cases × sleep_s 400 make 100,400 tasks, more "
+                                       f"than the limit of {MAX_TASKS:,}: give fewer values, or --force to run them all\n")
+    assert not (tmp_path / "out").exists()
+    data = {"task": "noop", "axes": {"sleep_s": [0, 1]}, "cases": [{}, {"fail": True}]}
+    with pytest.raises(InputError, match=r"^axes: 2 cases × sleep_s 2 make 4 tasks, more than the limit of 3: "):
+        spec_from_dict(data, str(tmp_path), max_tasks=3)
+    assert len(spec_from_dict(data, str(tmp_path), max_tasks=None).tasks) == 4  # what --force passes
