@@ -138,6 +138,36 @@ def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
     assert run_sweep(spec, str(tmp_path), SweepSettings(workers=0)).ran == 0
 
 
+def test_ctrl_c_on_a_local_cluster_is_one_line_and_keeps_the_finished_tasks(tmp_path):
+    # The terminal sends Ctrl-C to the whole process group: each Dask worker printed its traceback
+    # (asyncio's CancelledError, then KeyboardInterrupt) before the sweep's own line.
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from data_paths import REPO
+
+    (tmp_path / "s.yaml").write_text("task: noop\naxes:\n  sleep_s: [0.5, 2, 2.1, 2.2, 2.3]\n")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "xshells.cli", "sweep", str(tmp_path / "s.yaml"), "--out", str(out),
+                             "--workers", "1", "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    try:
+        deadline = time.time() + 60
+        while not list(out.glob("tasks/*/task.json")):
+            assert proc.poll() is None and time.time() < deadline, proc.communicate()
+            time.sleep(0.05)
+        time.sleep(0.2)  # the next task is running
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)  # as the terminal does
+        err = proc.communicate(timeout=60)[1]
+    assert (proc.returncode, err) == (130, "xshells sweep: interrupted\n")
+    with open(out / "results.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["sleep_s"] for r in rows] == ["0.5"] and rows[0]["status"] == "ok"
+
+
 def test_an_output_folder_of_another_sweep_is_refused_and_the_same_one_extended(tmp_path):
     a = spec_from_dict({"name": "a", "task": "noop", "axes": {"sleep_s": [0.0, 0.001]}}, str(tmp_path))
     assert run_sweep(a, str(tmp_path / "out"), SweepSettings(workers=0)).ran == 2
