@@ -75,7 +75,7 @@ class _StopRequest:
         raise KeyboardInterrupt
 
     def _redeliver_after_import(self, signum) -> None:
-        """Deliver ``signum`` to the main thread again (to its handler, :meth:`request`) when it has left its imports."""
+        """Deliver ``signum`` again to the main thread (its handler: :meth:`request`) once its imports are over."""
         if self._pending is not None:  # one is on its way already
             return
         import _thread
@@ -118,7 +118,7 @@ def _importing(frame) -> bool:
     """Whether ``frame`` runs inside an import: importlib's own frames are among its callers."""
     while frame is not None:
         name = frame.f_code.co_filename
-        if "importlib._bootstrap" in name or name.endswith(("importlib/_bootstrap.py", "importlib/_bootstrap_external.py")):
+        if "importlib._bootstrap" in name or name.endswith(("/_bootstrap.py", "/_bootstrap_external.py")):
             return True
         frame = frame.f_back
     return False
