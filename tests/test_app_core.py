@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import threading
 import time
 import xml.etree.ElementTree as ET
@@ -519,3 +520,23 @@ def test_a_bad_design_gets_its_line_before_any_server_starts(tmp_path, capsys):
     assert main(["app", str(bad), "--out", str(tmp_path / "o")]) == 2
     out, err = capsys.readouterr()
     assert out == "" and "bad.obj: line 3" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("host, message", [  # the system's own words in brackets differ between systems
+    ("some.unresolvable.name.invalid", r"--host some\.unresolvable\.name\.invalid: cannot resolve it \(.+\)"),
+    ("192.0.2.1", r"--host 192\.0\.2\.1: cannot listen there \(.+\): give an address of this machine, such as "
+                  r"127\.0\.0\.1 or 0\.0\.0\.0"),  # TEST-NET-1: never this machine's
+    ("a..b", r"--host a\.\.b: cannot resolve it \(not a host name: a part between dots is empty or longer than 63 "
+             r"characters\)"),
+])
+def test_a_host_that_cannot_be_served_on_is_one_line_at_once(tmp_path, capsys, host, message):
+    # viser tried a thousand ports on it, each with a name lookup, then waited for ever
+    from xshells.cli import main
+
+    codes = []  # in a thread, so that a command that waits for ever fails the test instead
+    command = threading.Thread(target=lambda: codes.append(main(["app", "--host", host, "--out", str(tmp_path / "o")])),
+                               daemon=True)
+    command.start()
+    command.join(10)
+    assert codes == [2], "no answer in 10 s"
+    assert re.fullmatch(f"xshells app: error: {message}\n", capsys.readouterr().err)

@@ -58,3 +58,109 @@ def test_an_option_of_the_wrong_type_gets_one_line(capsys):
         main(["deploy", "x.obj", "--steps", "2.5"])
     err = capsys.readouterr().err.strip()
     assert exit_.value.code == 2 and "--steps: invalid int value: '2.5'" in err and "\n" not in err
+
+
+def test_ctrl_c_while_the_subcommands_import_is_one_line(capsys, monkeypatch):
+    # the signal handler was installed after the parser imported the subcommands: Ctrl-C in the
+    # first second printed the traceback of whatever module was loading
+    import pytest
+
+    import xshells.cli as cli
+
+    def interrupted_import(name):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli.importlib, "import_module", interrupted_import)
+    try:
+        rc = main(["deploy", "x.obj"])
+    except KeyboardInterrupt:
+        pytest.fail("the interrupt escaped main")
+    assert rc == 130
+    assert capsys.readouterr().err == "xshells deploy: interrupted\n"
+
+
+def test_a_stop_during_an_import_lands_when_the_import_has_ended(tmp_path, monkeypatch):
+    # raised inside the import, it left the module half-initialised in sys.modules (an interrupted
+    # deploy then failed on "module 'matplotlib' has no attribute 'get_data_path'")
+    import signal
+    import sys
+    import time
+
+    import pytest
+
+    from xshells.errors import STOP
+
+    (tmp_path / "slow_module_19.py").write_text(
+        "import signal, sys\nfrom xshells.errors import STOP\n"
+        "STOP.request(sys._getframe(), signal.SIGINT)  # as the handler would, mid-import\nDONE = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(STOP, "requested", False)
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: STOP.request(frame, signum))
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            import slow_module_19  # noqa: F401
+
+            time.sleep(5)  # the stop arrives here, once the import is over
+        assert sys.modules["slow_module_19"].DONE
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        sys.modules.pop("slow_module_19", None)
+
+
+def test_an_early_ctrl_c_exits_quietly(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from data_paths import EXAMPLES, REPO
+
+    for delay in (0.25, 0.4, 0.6):  # while the subcommand, NumPy and the solver import (Python itself is up)
+        out = tmp_path / f"out{delay}"
+        env = dict(os.environ, PYTHONPATH=str(REPO))
+        proc = subprocess.Popen([sys.executable, "-m", "xshells.cli", "deploy", str(EXAMPLES / "quad.obj"), "--out",
+                                 str(out), "--no-progress"], stderr=subprocess.PIPE, text=True, env=env)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        err = proc.communicate(timeout=120)[1]
+        assert "Traceback" not in err and not (out / "error.log").exists(), err
+        assert (proc.returncode, err) in ((130, "xshells deploy: interrupted\n"), (0, "")), (proc.returncode, err)
+
+
+SPECIAL_FILES_SCRIPT = r"""
+import resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))  # reading /dev/zero whole must fail, not fill the machine
+from xshells.cli import main
+d = sys.argv[1]
+for args in (["deploy", d + "/pipe.obj"], ["deploy", d + "/pipe.json"], ["deploy", d + "/folder.msh"],
+             ["deploy", d + "/zero.obj"], ["sweep", d + "/pipe.yaml"], ["inverse", d + "/pipe.obj"]):
+    main([*args, "--out", d + "/out"])
+"""
+
+
+def test_a_named_pipe_a_folder_or_a_device_is_refused_before_it_is_opened(tmp_path):
+    # a named pipe blocked the command for ever, /dev/zero was read until the memory ran out, and a
+    # named pipe given as a .msh was "no such file"
+    import os
+    import subprocess
+    import sys
+
+    from data_paths import REPO
+
+    os.mkfifo(tmp_path / "pipe.obj")
+    os.mkfifo(tmp_path / "pipe.json")
+    os.mkfifo(tmp_path / "pipe.yaml")
+    (tmp_path / "folder.msh").mkdir()
+    (tmp_path / "zero.obj").symlink_to("/dev/zero")
+    p = subprocess.run([sys.executable, "-c", SPECIAL_FILES_SCRIPT, str(tmp_path)], capture_output=True, text=True,
+                       timeout=60, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    d = str(tmp_path)
+    assert p.stderr.splitlines() == [
+        f"xshells deploy: error: {d}/pipe.obj: cannot read file (a named pipe, not a regular file)",
+        f"xshells deploy: error: {d}/pipe.json: cannot read case file (a named pipe, not a regular file)",
+        f"xshells deploy: error: {d}/folder.msh: cannot read file (a folder, not a regular file)",
+        f"xshells deploy: error: {d}/zero.obj: cannot read file (a device, not a regular file)",
+        f"xshells sweep: error: {d}/pipe.yaml: cannot read sweep file (a named pipe, not a regular file)",
+        f"xshells inverse: error: {d}/pipe.obj: cannot read the target surface (a named pipe, not a regular file)",
+    ]

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 import meshio
@@ -152,18 +153,20 @@ def test_unreadable_files(tmp_path):
         read_design(tmp_path / "missing.msh")
     corrupt = tmp_path / "corrupt.msh"
     corrupt.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0\n$EndNodes\n")
-    with pytest.raises(InputError, match=r"corrupt\.msh: cannot read gmsh file") as err:
+    with pytest.raises(InputError, match=r"corrupt\.msh: line 6: node 1 of 3 \('number x y z'\): expected 4 numbers, "
+                                         r"got '1 0 0'$") as err:
         read_design(corrupt)
     assert "\n" not in str(err.value)
     corrupt.write_text("this is not gmsh at all\n")
-    with pytest.raises(InputError, match=r"corrupt\.msh: (cannot read gmsh file|the design has no line elements)"):
+    with pytest.raises(InputError, match=r"corrupt\.msh: line 1: not a gmsh file: it begins with 'this is not gmsh at "
+                                         r"all', not \$MeshFormat"):
         read_design(corrupt)
     with pytest.raises(InputError, match="unknown design file type"):
         read_design(tmp_path / "design.stl")
 
 
-def _write_msh(path, points, cells):
-    meshio.write(path, meshio.Mesh(np.asarray(points, float), cells), file_format="gmsh22", binary=False)
+def _write_msh(path, points, cells, binary=False):
+    meshio.write(path, meshio.Mesh(np.asarray(points, float), cells), file_format="gmsh22", binary=binary)
 
 
 def test_msh_reading_and_errors(tmp_path):
@@ -181,7 +184,7 @@ def test_msh_reading_and_errors(tmp_path):
     badref = tmp_path / "badref.msh"  # an element naming node 7 of 4: meshio's IndexError text alone said little
     badref.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n4\n1 0 0 0\n2 1 0 0\n3 1 1 0\n4 0 1 0\n$EndNodes\n"
                       "$Elements\n2\n1 1 2 0 0 1 2\n2 1 2 0 0 4 7\n$EndElements\n")
-    with pytest.raises(InputError, match=r"badref\.msh: cannot read gmsh file \(an element refers to a node the file does not"):
+    with pytest.raises(InputError, match=r"badref\.msh: line 14: element 2 refers to node 7, which \$Nodes does not define"):
         read_design(badref)
 
     mixed = tmp_path / "mixed.msh"  # lines and a triangle: the triangle was dropped without a word
@@ -207,8 +210,93 @@ def test_an_ascii_msh_with_node_data_reads_as_its_binary_twin(tmp_path):
     assert np.array_equal(a.edges, b.edges) and np.allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
     broken = tmp_path / "broken.msh"  # a damaged data block still fails in one line, not on the retry
     broken.write_text(ascii_copy.read_text().replace("$Elements", "$Elements\nx", 1))
-    with pytest.raises(InputError, match=r"broken\.msh: cannot read gmsh file"):
+    with pytest.raises(InputError, match=r"broken\.msh: line 165: the number of elements: expected 1 whole number, got 'x'"):
         read_design(broken)
+
+
+GOOD_MSH22 = ("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n4\n1 0 0 0\n2 1 0 0\n3 1 1 0\n4 0 1 0\n$EndNodes\n"
+              "$Elements\n3\n1 1 2 0 0 1 2\n2 1 2 0 0 2 3\n3 1 2 0 0 3 4\n$EndElements\n")
+GOOD_MSH41 = ("$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 4 1 4\n1 0 0 4\n1\n2\n3\n4\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n"
+              "$EndNodes\n$Elements\n1 3 1 3\n1 0 1 3\n1 1 2\n2 2 3\n3 3 4\n$EndElements\n")
+
+
+# Each was read by meshio: several failed with its internals ("cannot reshape array of size 10 into shape
+# (4,4)", "np.int32(-65535)", "cannot access local variable 'point_tags'"), and some gave a wrong design
+# without a word (a node numbered 0 became the last node; an element with a node too many was read from
+# its last two numbers).
+MALFORMED_MSH = {
+    "nodes cut short": (GOOD_MSH22[:GOOD_MSH22.index("3 1 1 0")],
+                        r"the file ends inside \$Nodes, before node 3 of 4 \('number x y z'\) \(a truncated file\?\)"),
+    "elements cut short": (GOOD_MSH22[:GOOD_MSH22.index("2 1 2 0 0 2 3")],
+                           r"the file ends inside \$Elements, before element 2 of 3 \('number type tag-count tags\.\.\. "
+                           r"nodes'\) \(a truncated file\?\)"),
+    "no $Nodes": (GOOD_MSH22.replace(GOOD_MSH22[GOOD_MSH22.index("$Nodes"):GOOD_MSH22.index("$Elements")], ""),
+                  r"line 4: \$Elements comes before \$Nodes"),
+    "no $Elements": (GOOD_MSH22[:GOOD_MSH22.index("$Elements")], r"the file has no \$Elements section"),
+    "a count too high": (GOOD_MSH22.replace("$Nodes\n4\n", "$Nodes\n5\n"),
+                         r"line 10: \$Nodes ends before node 5 of 5 \('number x y z'\)"),
+    "a coordinate not a number": (GOOD_MSH22.replace("2 1 0 0", "2 1,5 0 0"),
+                                  r"line 7: node 2 of 4 \('number x y z'\): expected 4 numbers, got '2 1,5 0 0'"),
+    "a node number given twice": (GOOD_MSH22.replace("4 0 1 0", "3 0 1 0"),
+                                  r"line 9: node 3 is defined twice \(first at line 8\)"),
+    "a node out of range": (GOOD_MSH22.replace("3 1 2 0 0 3 4", "3 1 2 0 0 3 9"),
+                            r"line 15: element 3 refers to node 9, which \$Nodes does not define"),
+    "node 0": (GOOD_MSH22.replace("3 1 2 0 0 3 4", "3 1 2 0 0 3 0"),
+               r"line 15: element 3 refers to node 0, which \$Nodes does not define"),
+    "a node too many": (GOOD_MSH22.replace("3 1 2 0 0 3 4", "3 1 2 0 0 3 4 1"),
+                        r"line 15: element 3: a line element with 2 tags is 7 numbers, this line has 8"),
+    "an unknown element type": (GOOD_MSH22.replace("3 1 2 0 0 3 4", "3 99 2 0 0 3 4"),
+                                r"line 15: element type 99 is not a gmsh element type"),
+    "an unsupported version": (GOOD_MSH22.replace("2.2 0 8", "7.3 0 8"),
+                               r"line 2: gmsh format version '7\.3' is not supported \(2\.2 and 4\.1 are\)"),
+    "binary garbage": (bytes(range(7, 250, 3)) * 4, r"line 1: not a gmsh file: it does not begin with \$MeshFormat"),
+    "empty": ("", r"the file is empty, not a gmsh file"),
+    "4.1 cut short": (GOOD_MSH41[:GOOD_MSH41.index("1 1 0")],
+                      r"the file ends inside \$Nodes, before the coordinates of node 3 \(a truncated file\?\)"),
+    "4.1 a node too few": (GOOD_MSH41.replace("3 3 4\n", "3 3\n"),
+                           r"line 21: a line element \('number' and 2 nodes\): expected 3 whole numbers, got '3 3'"),
+}
+
+
+@pytest.mark.parametrize("case", MALFORMED_MSH)
+def test_a_malformed_msh_is_one_line_naming_the_file_and_what_is_wrong(tmp_path, case):
+    text, message = MALFORMED_MSH[case]
+    path = tmp_path / "bad.msh"
+    (path.write_bytes if isinstance(text, bytes) else path.write_text)(text)
+    with pytest.raises(InputError) as err:
+        read_design(path)
+    assert re.fullmatch(re.escape(str(path)) + ": " + message, str(err.value)), str(err.value)
+
+
+def test_a_binary_msh_cut_short_or_damaged_is_one_line(tmp_path):
+    good = tmp_path / "good.msh"
+    _write_msh(good, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [("line", np.array([[0, 1], [1, 2], [2, 3]]))],
+               binary=True)
+    data = good.read_bytes()
+    assert read_design(good).edges.tolist() == [[0, 1], [1, 2], [2, 3]]
+    cut = tmp_path / "cut.msh"
+    cut.write_bytes(data[:data.index(b"$Nodes") + 30])
+    with pytest.raises(InputError, match=r"cut\.msh: the file ends inside \$Nodes, in its 4 nodes \(a truncated file\?\)$"):
+        read_design(cut)
+    damaged = tmp_path / "damaged.msh"  # the type of the first element block overwritten
+    at = data.index(b"$Elements\n3\n") + len(b"$Elements\n3\n")
+    damaged.write_bytes(data[:at] + b"\xff" * 4 + data[at + 4:])
+    with pytest.raises(InputError, match=r"damaged\.msh: \$Elements, the block after 0 of its 3 elements: element type -1 "
+                                         r"is not a gmsh element type$"):
+        read_design(damaged)
+
+
+def test_msh_versions_2_and_4_ascii_and_binary_read_alike(tmp_path):
+    pts = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]
+    edges = [[0, 1], [1, 2], [2, 3]]
+    for name, text in (("a22.msh", GOOD_MSH22), ("a41.msh", GOOD_MSH41)):
+        (tmp_path / name).write_text(text)
+    for fmt, binary in (("gmsh22", True), ("gmsh", False), ("gmsh", True)):
+        meshio.write(tmp_path / f"{fmt}{binary}.msh", meshio.Mesh(np.array(pts, float), [("line", np.array(edges))]),
+                     file_format=fmt, binary=binary)
+    for path in tmp_path.glob("*.msh"):
+        d = read_design(path)
+        assert d.edges.tolist() == edges and d.vertices.tolist() == pts, path.name
 
 
 def test_design_from_arrays():

@@ -138,6 +138,36 @@ def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
     assert run_sweep(spec, str(tmp_path), SweepSettings(workers=0)).ran == 0
 
 
+def test_ctrl_c_on_a_local_cluster_is_one_line_and_keeps_the_finished_tasks(tmp_path):
+    # The terminal sends Ctrl-C to the whole process group: each Dask worker printed its traceback
+    # (asyncio's CancelledError, then KeyboardInterrupt) before the sweep's own line.
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from data_paths import REPO
+
+    (tmp_path / "s.yaml").write_text("task: noop\naxes:\n  sleep_s: [0.5, 2, 2.1, 2.2, 2.3]\n")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "xshells.cli", "sweep", str(tmp_path / "s.yaml"), "--out", str(out),
+                             "--workers", "1", "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    try:
+        deadline = time.time() + 60
+        while not list(out.glob("tasks/*/task.json")):
+            assert proc.poll() is None and time.time() < deadline, proc.communicate()
+            time.sleep(0.05)
+        time.sleep(0.2)  # the next task is running
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)  # as the terminal does
+        err = proc.communicate(timeout=60)[1]
+    assert (proc.returncode, err) == (130, "xshells sweep: interrupted\n")
+    with open(out / "results.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["sleep_s"] for r in rows] == ["0.5"] and rows[0]["status"] == "ok"
+
+
 def test_an_output_folder_of_another_sweep_is_refused_and_the_same_one_extended(tmp_path):
     a = spec_from_dict({"name": "a", "task": "noop", "axes": {"sleep_s": [0.0, 0.001]}}, str(tmp_path))
     assert run_sweep(a, str(tmp_path / "out"), SweepSettings(workers=0)).ran == 2
@@ -314,3 +344,23 @@ def test_a_sparsify_spec_mixing_the_two_methods_is_refused_before_anything_runs(
     with pytest.raises(InputError, match=r"^sweep task 0: .*not both"):
         spec_from_dict({"task": "sparsify", "base": {"file": "grid.obj", "subdivision": 3, "steps": 4, "angle_deg": 60,
                                                      "eta": 1e-3, "max_fit": 0.01}}, str(tmp_path))
+
+
+def test_a_sweep_of_more_tasks_than_the_limit_is_refused_before_it_is_expanded(tmp_path, capsys):
+    # 1.58 million tasks were expanded and checked (minutes, gigabytes) before the first one ran
+    import time
+
+    from xshells.sweeps.spec import MAX_TASKS
+
+    spec = tmp_path / "huge.yaml"
+    spec.write_text(f"task: noop\naxes:\n  sleep_s: {[i / 1000 for i in range(400)]}\ncases: {[{}] * 251}\n")
+    t0 = time.perf_counter()
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "out"), "--workers", "0", "--no-progress"]) == 2
+    assert time.perf_counter() - t0 < 5
+    assert capsys.readouterr().err == ("xshells sweep: error: axes: 251 cases × sleep_s 400 make 100,400 tasks, more "
+                                       f"than the limit of {MAX_TASKS:,}: give fewer values, or --force to run them all\n")
+    assert not (tmp_path / "out").exists()
+    data = {"task": "noop", "axes": {"sleep_s": [0, 1]}, "cases": [{}, {"fail": True}]}
+    with pytest.raises(InputError, match=r"^axes: 2 cases × sleep_s 2 make 4 tasks, more than the limit of 3: "):
+        spec_from_dict(data, str(tmp_path), max_tasks=3)
+    assert len(spec_from_dict(data, str(tmp_path), max_tasks=None).tasks) == 4  # what --force passes

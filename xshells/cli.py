@@ -94,11 +94,6 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     debug = "--debug" in argv  # anywhere on the line: show tracebacks of internal errors
     argv = [a for a in argv if a != "--debug"]
-    parser = _parser_for(argv)
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
     import signal
 
     from .errors import STOP
@@ -108,8 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     def _terminate(signum, frame):  # SIGTERM and Ctrl-C: work is kept and files are complete or absent
         # The flag is checked again at the next step, should a finalizer swallow the
         # exception; inside STOP.deferred() (a run's last files) nothing is raised yet.
-        STOP.request()
+        STOP.request(frame, signum)
 
+    # Installed before the parser is built: importing a subcommand takes up to a second, and a Ctrl-C
+    # then printed Python's traceback of the import.
     previous = {}
     for name in ("SIGTERM", "SIGINT"):
         try:
@@ -117,8 +114,20 @@ def main(argv: list[str] | None = None) -> int:
         except (ValueError, AttributeError):  # not the main thread, or no such signal here
             pass
     try:
+        try:
+            parser = _parser_for(argv)
+            args = parser.parse_args(argv)
+            STOP.check()  # one that came during the imports
+        except KeyboardInterrupt:
+            command = argv[0] if argv and not argv[0].startswith("-") else None
+            print(f"xshells{f' {command}' if command else ''}: interrupted", file=sys.stderr)
+            return 130
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
         return _run(args, debug)
     finally:
+        STOP.cancel_pending()
         for name, handler in previous.items():
             signal.signal(getattr(signal, name), handler)
 
@@ -225,7 +234,11 @@ def entry() -> None:
     ordinary exit waits for it as before; under a profiler or tracer (``python -m cProfile -m
     xshells.cli``, coverage) too, as they write their results after the program returns.
     """
-    code = main()
+    try:
+        code = main()
+    except KeyboardInterrupt:  # before main installed its handler (the first hundredths of a second)
+        print("xshells: interrupted", file=sys.stderr)
+        code = 130
     import atexit
     import threading
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import os
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 
 
 def register(subparsers) -> None:
@@ -27,6 +27,7 @@ def start(input_path: str | None = None, *, host: str = "127.0.0.1", port: int =
     """
     if not 0 < port < 65536:
         raise InputError(f"--port must be 1 to 65535, got {port}")
+    check_host(host)
     from .ui import App, serve
 
     server = serve(host, port)
@@ -42,9 +43,51 @@ def start(input_path: str | None = None, *, host: str = "127.0.0.1", port: int =
         raise
 
 
+#: Seconds the name resolver may take over --host: a name it has not answered for by then is refused.
+RESOLVE_TIMEOUT_S = 5.0
+
+
+def check_host(host: str) -> None:
+    """Refuse, in one line and at once, a ``--host`` this machine cannot listen on.
+
+    viser takes any error of its server for a port in use and tries the next one, a thousand times
+    (each with its own name lookup), and then waits for ever for a server that never started: an
+    unresolvable name, or the address of another machine, hung the command.
+    """
+    import socket
+    import threading
+
+    found = {}
+
+    def resolve():  # in a thread: getaddrinfo has no timeout of its own
+        try:
+            found["address"] = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)[0]
+        except OSError as exc:
+            found["error"] = exc.strerror or str(exc)
+        except UnicodeError:  # Python's IDNA encoding of the name refused it
+            found["error"] = "not a host name: a part between dots is empty or longer than 63 characters"
+
+    lookup = threading.Thread(target=resolve, daemon=True, name="xshells-resolve")
+    lookup.start()
+    lookup.join(RESOLVE_TIMEOUT_S)
+    if lookup.is_alive():
+        raise InputError(f"--host {host}: the name resolver gave no answer in {RESOLVE_TIMEOUT_S:g} s")
+    if "error" in found:
+        raise InputError(f"--host {host}: cannot resolve it ({found['error']})")
+    family, kind, proto, _, address = found["address"]
+    with socket.socket(family, kind, proto) as probe:
+        try:
+            probe.bind(address)  # port 0: any free one; whether this machine has the address is what counts
+        except OSError as exc:
+            raise InputError(f"--host {host}: cannot listen there ({exc.strerror}): give an address of this "
+                             "machine, such as 127.0.0.1 or 0.0.0.0") from None
+
+
 def _app(args) -> int:
     import time
 
+    if args.input:
+        check_input_file(args.input)
     if args.input and not os.path.isfile(args.input):
         raise InputError(f"{args.input}: no such file")
     project = None

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 from .core import Layout, layout_from_design
 
 MAX_UPLOAD_BYTES = 5 * 1024 * 1024
@@ -56,6 +56,7 @@ def open_path(path: str) -> Project:
     from ..io import read_design, read_rest_lengths
 
     ext = os.path.splitext(path)[1].lower()
+    check_input_file(path)
     if not os.path.isfile(path):
         raise InputError(f"{path}: no such file")
     if ext == ".json":

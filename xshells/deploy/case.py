@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,7 @@ DEFAULT_MATERIAL = {"type": "rectangle", "E": 20000.0, "nu": 0.3, "params": [10.
 def load_case(path) -> Case:
     from ..io.strict_json import loads
 
+    check_input_file(path, "case file")
     try:
         with open(path) as fh:
             spec = loads(fh.read(), str(path))

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 
 __all__ = [
     "joint_edges",
@@ -301,6 +301,7 @@ def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None
     import meshio
 
     path = Path(path)
+    check_input_file(path, "the target surface")
     if path.suffix.lower() == ".3dm":  # Rhino: its meshes, or its surfaces' render meshes, in mm
         from ..rhino.read import read_3dm_surface
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..design.fitting import point_mesh_squared_distance
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 from .scissor import PoissonSolver, ScissorMap
 from .surface import TargetSurface
 
@@ -189,6 +189,7 @@ def read_net(path) -> tuple[np.ndarray, np.ndarray]:
         meet, or no segments at all: one line naming the file and line.
     """
     verts, segs = [], set()
+    check_input_file(path, "the net")
     try:
         fh = open(path, encoding="utf-8")
     except OSError as exc:

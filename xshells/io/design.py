@@ -7,27 +7,26 @@ between two of them. Two file kinds hold one:
 * line-graph OBJ (``v x y z`` and ``l i j [k ...]`` records, as Rhino and
   Blender write them);
 * gmsh ``.msh`` with ``line`` elements (the optimized designs of the
-  reference code), read with meshio.
+  reference code), versions 2.2 and 4.1, ASCII or binary.
 
 The file's vertex order and segment order are kept exactly: per-segment data
 such as ``design_parameters.txt`` (rest lengths) list one value per segment in
 that order.
 
 Every problem with the input raises :class:`xshells.errors.InputError` with a
-single line that names the file, the line (OBJ) or the element/node (gmsh,
-0-based as meshio numbers them) and what is wrong.
+single line that names the file, the line (OBJ, ASCII gmsh) or the section,
+node or element (gmsh: as the file numbers them while it is read; 0-based
+afterwards, in the design's own checks) and what is wrong.
 """
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from xshells.errors import InputError
+from xshells.errors import InputError, check_input_file
 
 __all__ = [
     "Design",
@@ -276,6 +275,7 @@ def read_design(path: str | os.PathLike) -> Design:
 
 
 def _read_text(path: str | os.PathLike) -> str:
+    check_input_file(path)
     try:
         with open(path, encoding="utf-8") as f:
             return f.read()
@@ -360,80 +360,323 @@ def _parse_obj_vertex(args: list[str], where: str) -> tuple[float, float, float]
 
 
 def read_msh_design(path: str | os.PathLike) -> Design:
-    """Read the line elements of a gmsh ``.msh`` file (all ``line`` cell blocks, in order).
+    """Read the line elements of a gmsh ``.msh`` file (versions 2.2 and 4.1, ASCII or binary), in file order.
 
-    Node indices in error messages are 0-based, as meshio numbers them.
+    Every value is checked as it is read: an error names the line (ASCII) or the section, and the
+    node and element numbers as the file writes them. Node indices in the design's own checks (a
+    duplicate edge) are 0-based, in the order of the file's nodes.
     """
-    import meshio  # deferred: meshio is slow to import and only needed here
-
     label = str(path)
-    if not os.path.isfile(path):
-        raise InputError(f"{label}: cannot read file (no such file)")
-    chatter = io.StringIO()
+    check_input_file(path)
     try:
-        # meshio prints its parse errors and may call sys.exit on a bad file.
-        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
-            try:
-                mesh = meshio.read(path, file_format="gmsh")
-            except ValueError:
-                # meshio cannot read back the $NodeData of an ASCII file it wrote itself ("could not be read
-                # to its end"): a design needs its nodes and elements only, so read it without its data blocks
-                mesh = _read_ascii_msh_without_data(path, meshio)
-                if mesh is None:
-                    raise
-    except (Exception, SystemExit) as exc:
-        # On SystemExit meshio's printed text only repeats the file name; an IndexError is an element
-        # naming a node the file does not have ("index 6 is out of bounds for axis 0 with size 4")
-        reason = ("not a valid gmsh file" if isinstance(exc, SystemExit) else
-                  f"an element refers to a node the file does not define: {exc}" if isinstance(exc, IndexError) else
-                  f"{chatter.getvalue()} {exc}")
-        msg = " ".join(reason.split())
-        raise InputError(f"{label}: cannot read gmsh file ({msg})") from None
-    blocks = [c.data for c in mesh.cells if c.type == "line"]
-    if not blocks or sum(len(b) for b in blocks) == 0:
-        kinds = sorted({c.type for c in mesh.cells}) or ["none"]
+        with open(path, "rb") as fh:
+            msh = _Msh(fh.read(), label)
+    except OSError as exc:
+        raise InputError(f"{label}: cannot read file ({exc.strerror or exc})") from None
+    points, lines, other = msh.read()
+    if not lines:
+        kinds = sorted(other) or ["none"]
         raise InputError(f"{label}: the design has no line elements (cell types: {', '.join(kinds)})")
     # anything else beside the lines (a triangle, a quad) would be dropped without a word: say so instead
     # (point elements carry nothing for a line graph and are skipped, as gmsh writes them for its points)
-    other = {}
-    for c in mesh.cells:
-        if c.type not in ("line", "vertex") and len(c.data):
-            other[c.type] = other.get(c.type, 0) + len(c.data)
+    other.pop("vertex", None)
     if other:
         listed = ", ".join(f"{n} {kind} element{'s' * (n != 1)}" for kind, n in sorted(other.items()))
         raise InputError(f"{label}: the design holds {listed} besides its line elements: a design is a line graph "
                          "of beam segments only (a target surface goes to --target-surface)")
-    return design_from_arrays(mesh.points, np.concatenate(blocks, axis=0), source=label)
+    return design_from_arrays(points, np.asarray(lines, dtype=np.int64).reshape(-1, 2), source=label)
 
 
-_DATA_BLOCKS = ("$NodeData", "$ElementData", "$ElementNodeData")
+class _Msh:
+    """Reads the nodes and elements of a gmsh file, line by line (binary sections byte by byte).
 
+    meshio, which read designs before, took whatever numbers came next: a line element of three
+    nodes shifted every later one, a node numbered 0 became the last node, and a damaged file failed
+    with its internals ("cannot reshape array of size 7 into shape (4,3)").
+    """
 
-def _read_ascii_msh_without_data(path, meshio):
-    """An ASCII gmsh file read by meshio without its data blocks (None for a binary file: they read as they are)."""
-    import tempfile
+    def __init__(self, data: bytes, label: str):
+        self.data, self.label = data, label
+        self.pos = self.lineno = 0  # where the next line begins; the number of the last line read
+        self.version, self.binary, self.order = "2", False, "<"
 
-    with open(path, "rb") as fh:
-        head = fh.read(64).split()
-    if len(head) < 3 or head[0] != b"$MeshFormat" or head[2] != b"0":  # "$MeshFormat 2.2 0 8": 0 is ASCII
+    def error(self, what: str, lineno: int | None = None) -> InputError:
+        return InputError(f"{self.label}: line {lineno or self.lineno}: {what}")
+
+    def read(self) -> tuple[np.ndarray, list, dict]:
+        """Nodes (n, 3), line elements as pairs of 0-based node indices, and the count of every other kind."""
+        self._read_format()
+        points = lines = None
+        other: dict = {}
+        while (line := self.line()) is not None:
+            if not line.startswith("$"):
+                raise self.error(f"expected a section such as $Nodes or $Elements, got {_shown(line)}")
+            if line == "$Nodes" and points is None:
+                points, index = self._read_nodes()
+            elif line == "$Elements" and lines is None:
+                if points is None:
+                    raise self.error("$Elements comes before $Nodes")
+                lines = self._read_elements(index, other)
+            elif line in ("$Nodes", "$Elements"):
+                raise self.error(f"a second {line} section")
+            else:  # $Entities, $PhysicalNames, $NodeData, ...: nothing a design needs
+                self._skip_to("$End" + line[1:], line)
+        for section, found in (("$Nodes", points), ("$Elements", lines)):
+            if found is None:
+                raise InputError(f"{self.label}: the file has no {section} section")
+        return points, lines, other
+
+    # ---- lines and bytes
+
+    def line(self) -> str | None:
+        """The next line that is not blank, stripped; None at the end of the file."""
+        while self.pos < len(self.data):
+            end = self.data.find(b"\n", self.pos)
+            end = len(self.data) if end < 0 else end
+            text = self.data[self.pos:end].strip()
+            self.pos, self.lineno = end + 1, self.lineno + 1
+            if text:
+                return text.decode("latin-1")  # any byte: a binary file's garbage still reads as text here
         return None
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        kept, skip = [], None
-        for line in fh:
-            word = line.strip()
-            if skip is None and word in _DATA_BLOCKS:
-                skip = "$End" + word[1:]
-            elif skip is not None:
-                if word == skip:
-                    skip = None
+
+    def _fields(self, section: str, what: str, kind=int, size: int | None = None) -> list:
+        """The next line of ``section`` as numbers (``size`` of them, if given)."""
+        line = self.line()
+        if line is None:
+            raise InputError(f"{self.label}: the file ends inside {section}, before {what} (a truncated file?)")
+        if line.startswith("$"):
+            raise self.error(f"{section} ends before {what}")
+        try:
+            values = [kind(v) for v in line.split()]
+            if size is not None and len(values) != size:
+                raise ValueError
+        except ValueError:
+            count = "" if size is None else f"{size} "
+            numbers = f"{count}{'whole ' * (kind is int)}number{'s' * (size != 1)}"
+            raise self.error(f"{what}: expected {numbers}, got {_shown(line)}") from None
+        return values
+
+    def _take(self, items: int, dtype, section: str, what: str) -> np.ndarray:
+        """``items`` values of ``dtype`` from a binary section ("i4", "u8", "f8" in the file's byte order, or a
+        structured dtype)."""
+        dtype = np.dtype(self.order + dtype if isinstance(dtype, str) else dtype)
+        size = items * dtype.itemsize
+        if items < 0 or self.pos + size > len(self.data):
+            raise InputError(f"{self.label}: the file ends inside {section}, in {what} (a truncated file?)")
+        chunk = self.data[self.pos:self.pos + size]
+        self.pos += size
+        self.lineno += chunk.count(b"\n")
+        return np.frombuffer(chunk, dtype)
+
+    def _numbers(self, section: str, what: str, ints: int, sizes: int = 0) -> list:
+        """A header: ``ints`` int32 then ``sizes`` size_t in binary, one line of whole numbers in ASCII."""
+        if not self.binary:
+            return self._fields(section, what, int, ints + sizes)
+        return (self._take(ints, "i4", section, what).tolist() + self._take(sizes, "u8", section, what).tolist())
+
+    def _expect(self, marker: str, after: str) -> None:
+        line = self.line()
+        if line is None:
+            raise InputError(f"{self.label}: the file ends before {marker}, after {after} (a truncated file?)")
+        if line != marker:
+            raise self.error(f"expected {marker} after {after}, got {_shown(line)}")
+
+    def _skip_to(self, marker: str, section: str) -> None:
+        """Past the line that ends with ``marker``: a binary data block runs straight into its end marker
+        (the reference's files write no line break before ``$EndNodeData``)."""
+        found = self.data.find(marker.encode(), self.pos)
+        while found >= 0 and self.data[found + len(marker):found + len(marker) + 1].strip():  # $EndNodeDataX
+            found = self.data.find(marker.encode(), found + 1)
+        if found < 0:
+            raise self.error(f"{section} is not closed by {marker} (a truncated file?)")
+        self.lineno += self.data.count(b"\n", self.pos, found)
+        self.pos = found
+        self.line()
+
+    # ---- sections
+
+    def _read_format(self) -> None:
+        line = self.line()
+        while line == "$Comments":
+            self._skip_to("$EndComments", "$Comments")
+            line = self.line()
+        if line is None:
+            raise InputError(f"{self.label}: the file is empty, not a gmsh file")
+        if line != "$MeshFormat":
+            begins = (f"it begins with {_shown(line)}, not $MeshFormat" if line.isascii() and line.isprintable()
+                      else "it does not begin with $MeshFormat")  # binary data: its bytes say nothing
+            raise self.error(f"not a gmsh file: {begins}")
+        fields = (self.line() or "").split()
+        if len(fields) != 3 or fields[1] not in ("0", "1") or fields[2] != "8":
+            raise self.error(f"$MeshFormat must read 'version file-type 8' (file-type 0 for ASCII, 1 for binary), "
+                             f"got {_shown(' '.join(fields))}")
+        if fields[0] not in ("2", "2.0", "2.1", "2.2", "4.1"):
+            raise self.error(f"gmsh format version {_shown(fields[0])} is not supported (2.2 and 4.1 are)")
+        self.version, self.binary = fields[0][0], fields[1] == "1"
+        if self.binary:  # the integer 1, in the file's byte order
+            one = self.data[self.pos:self.pos + 4]
+            if one not in (_ONE["<"], _ONE[">"]):
+                raise self.error("$MeshFormat of a binary file must hold the integer 1 after its version line")
+            self.order = "<" if one == _ONE["<"] else ">"
+            self._take(1, "i4", "$MeshFormat", "its integer 1")
+        self._expect("$EndMeshFormat", "the format")
+
+    def _read_nodes(self) -> tuple[np.ndarray, dict]:
+        """``$Nodes``: coordinates (n, 3) and node number -> 0-based index."""
+        if self.version == "2":  # a count (a line, in binary files too), then per node: number x y z
+            n, blocks = self._fields("$Nodes", "the number of nodes", int, 1)[0], [None]
+        else:  # block count, node count, lowest and highest number; per block: dim, entity, parametric, count
+            head = self._numbers("$Nodes", "its header (block count, node count, lowest and highest number)", 0, 4)
+            n, blocks = head[1], []
+        if n < 0:
+            raise self.error(f"the number of nodes must be 0 or more, got {n}")
+        if 8 * n > len(self.data):  # a node takes 8 bytes at the least ("1 0 0 0" and its line break)
+            raise self.error(f"$Nodes announces {n} nodes, more than the file can hold")
+        points, tags, lines = np.empty((n, 3)), [], []  # lines: of each node's number, in an ASCII file
+        for b in range(len(blocks) if self.version == "2" else head[0]):
+            if self.version == "2":
+                count, width = n, 3
             else:
-                kept.append(line)
-    with tempfile.NamedTemporaryFile("w", suffix=".msh", delete=False, encoding="utf-8") as tmp:
-        tmp.writelines(kept)
-    try:
-        return meshio.read(tmp.name, file_format="gmsh")
-    finally:
-        os.unlink(tmp.name)
+                dim, _, parametric, count = self._numbers("$Nodes", f"the header of node block {b + 1}", 3, 1)
+                width = 3 + (dim if parametric else 0)  # parametric nodes add their u (v, w)
+            if not 0 <= count <= n - len(tags):
+                raise self.error(f"$Nodes announces {n} nodes, its blocks hold more")
+            first = len(tags)
+            if self.binary:
+                if self.version == "2":  # per node: its number (int32), then x, y, z
+                    rec = self._take(count, [("tag", self.order + "i4"), ("x", self.order + "f8", (3,))], "$Nodes",
+                                     f"its {n} nodes")
+                    block_tags, xyz = rec["tag"], rec["x"]
+                else:  # the numbers (size_t), then the coordinates
+                    block_tags = self._take(count, "u8", "$Nodes", f"node block {b + 1}")
+                    xyz = self._take(count * width, "f8", "$Nodes", f"node block {b + 1}").reshape(count, width)[:, :3]
+                tags += block_tags.tolist()
+                points[first:first + count] = xyz
+            elif self.version == "2":
+                for i in range(count):
+                    values = self._fields("$Nodes", f"node {i + 1} of {n} ('number x y z')", float, 4)
+                    if not values[0].is_integer():
+                        raise self.error(f"a node number must be a whole number, got {values[0]:g}")
+                    tags.append(int(values[0]))
+                    points[first + i] = values[1:]
+                    lines.append(self.lineno)
+            else:
+                for i in range(count):
+                    tags += self._fields("$Nodes", f"the number of node {first + i + 1} of {n}", int, 1)
+                    lines.append(self.lineno)
+                for i in range(count):
+                    values = self._fields("$Nodes", f"the coordinates of node {tags[first + i]}", float, width)
+                    points[first + i] = values[:3]
+        if len(tags) != n:
+            raise self.error(f"$Nodes announces {n} nodes, its blocks hold {len(tags)}")
+        where = (lambda i: f"line {lines[i]}") if lines else (lambda i: f"$Nodes, node {i + 1} of {n}")
+        numbers = np.array(tags, dtype=np.int64)
+        for i in np.flatnonzero(numbers < 1)[:1]:
+            raise InputError(f"{self.label}: {where(i)}: a node number must be 1 or more, got {tags[i]}")
+        index = dict(zip(tags, range(n)))
+        if len(index) < n:  # a number given twice: the dict kept its last place
+            first = next(i for i, tag in enumerate(tags) if index[tag] != i)
+            raise InputError(f"{self.label}: {where(index[tags[first]])}: node {tags[first]} is defined twice (first "
+                             f"at {where(first)})")
+        for i in np.flatnonzero(~np.isfinite(points).all(axis=1))[:1]:
+            raise InputError(f"{self.label}: {where(i)}: node {tags[i]} has a non-finite coordinate "
+                             f"{tuple(points[i].tolist())}")
+        self._expect("$EndNodes", f"the {n} nodes")
+        return points, index
+
+    def _read_elements(self, index: dict, other: dict) -> list:
+        """``$Elements``: the line elements as 0-based node pairs; ``other`` counts the rest by kind."""
+        kinds = _element_kinds()
+        lines, done = [], 0
+
+        def add(number: int, kind: str, nodes: list, where: str) -> None:
+            missing = [v for v in nodes if v not in index]
+            if missing:
+                raise InputError(f"{self.label}: {where}: element {number} refers to node {missing[0]}, which $Nodes "
+                                 "does not define")
+            if kind == "line":
+                lines.append([index[nodes[0]], index[nodes[1]]])
+            else:
+                other[kind] = other.get(kind, 0) + 1
+
+        numbers = np.array(sorted(index), dtype=np.int64)
+        positions = np.array([index[v] for v in numbers.tolist()], dtype=np.int64)
+
+        def add_block(rows: np.ndarray, kind: str, first: int) -> None:
+            """A binary block: element numbers in column 0, the nodes from column ``first`` on."""
+            nodes = rows[:, first:].astype(np.int64)
+            at = np.minimum(np.searchsorted(numbers, nodes), max(len(numbers) - 1, 0))
+            known = numbers[at] == nodes if len(numbers) else np.zeros(nodes.shape, bool)
+            if not known.all():
+                e, k = np.argwhere(~known)[0]
+                add(int(rows[e, 0]), kind, [int(nodes[e, k])], "$Elements")
+            if kind == "line":
+                lines.extend(positions[at].tolist())
+            else:
+                other[kind] = other.get(kind, 0) + len(rows)
+
+        def kind_of(etype: int, where: str) -> tuple:
+            if etype not in kinds:
+                raise InputError(f"{self.label}: {where}: element type {etype} is not a gmsh element type")
+            return kinds[etype]
+
+        if self.version == "2":  # a line, in binary files too
+            n = self._fields("$Elements", "the number of elements", int, 1)[0]
+        else:
+            n = self._numbers("$Elements", "its header (block count, element count, lowest and highest number)", 0, 4)[1]
+        if self.version == "2" and not self.binary:  # per element: number, type, tag count, tags, nodes
+            for i in range(n):
+                values = self._fields("$Elements", f"element {i + 1} of {n} ('number type tag-count tags... nodes')")
+                if len(values) < 3:
+                    raise self.error(f"an element is 'number type tag-count tags... nodes...', got {len(values)} "
+                                     f"number{'s' * (len(values) != 1)}")
+                number, etype, ntags = values[:3]
+                kind, nodes = kind_of(etype, f"line {self.lineno}")
+                if ntags < 0 or len(values) != 3 + ntags + nodes:
+                    raise self.error(f"element {number}: a {kind} element with {ntags} tags is {3 + ntags + nodes} "
+                                     f"numbers, this line has {len(values)}")
+                add(number, kind, values[3 + ntags:], f"line {self.lineno}")
+            done = n
+        while done < n:  # blocks: version 2 binary, and version 4
+            where = f"$Elements, the block after {done} of its {n} elements"
+            if self.version == "2":  # type, count, tag count; per element: number, tags, nodes (all int32)
+                etype, count, ntags = self._numbers("$Elements", f"the block after {done} of its {n} elements", 3)
+            else:  # dim, entity, type, count; per element: number and nodes
+                _, _, etype, count = self._numbers("$Elements", f"the header of the block after {done} of its {n} "
+                                                   "elements", 3, 1)
+                ntags = 0
+            kind, nodes = kind_of(etype, f"line {self.lineno}" if not self.binary else where)
+            if not 0 < count <= n - done or ntags < 0:
+                raise InputError(f"{self.label}: {where}: a block of {count} elements does not fit in the {n} "
+                                 "announced")
+            width = 1 + ntags + nodes
+            if self.binary:
+                rows = self._take(count * width, "i4" if self.version == "2" else "u8", "$Elements",
+                                  f"the block after {done} of its {n} elements")
+                add_block(rows.reshape(count, width), kind, 1 + ntags)
+            else:
+                for _ in range(count):
+                    values = self._fields("$Elements", f"a {kind} element ('number' and {nodes} nodes)", int, width)
+                    add(values[0], kind, values[1:], f"line {self.lineno}")
+            done += count
+        self._expect("$EndElements", f"the {n} elements")
+        return lines
+
+
+_ONE = {"<": (1).to_bytes(4, "little"), ">": (1).to_bytes(4, "big")}
+
+
+def _shown(text: str, limit: int = 40) -> str:
+    """``text`` for a message: quoted, cut short."""
+    return repr(text if len(text) <= limit else text[:limit] + "...")
+
+
+def _element_kinds() -> dict:
+    """gmsh element type -> (meshio's name for it, its number of nodes)."""
+    from meshio._common import num_nodes_per_cell
+    from meshio.gmsh.common import _gmsh_to_meshio_type
+
+    return {t: (name, num_nodes_per_cell[name]) for t, name in _gmsh_to_meshio_type.items()}
 
 
 #: A median ratio of rest length to drawn segment length beyond this factor (either way) is a units mistake

@@ -17,7 +17,7 @@ import os
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 from ..io.design import Design, design_from_arrays
 
 RHINO_UNITS_TO_MM = {"Millimeters": 1.0, "Centimeters": 10.0, "Decimeters": 100.0, "Meters": 1000.0,
@@ -42,6 +42,7 @@ def _open(path):
         import rhino3dm
     except ImportError:  # pragma: no cover (a dependency)
         raise InputError(f"{path}: reading .3dm needs the rhino3dm package (pip install rhino3dm)") from None
+    check_input_file(path)
     if not os.path.isfile(path):
         raise InputError(f"{path}: no such file")
     f = rhino3dm.File3dm.Read(str(path))

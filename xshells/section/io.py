@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 from .profiles import Profile, make_profile, points_in_loop, polygon
 
 MERGE_TOL = 1e-8
@@ -182,6 +182,7 @@ def profile_from_loops(loops: list[np.ndarray], name: str) -> Profile:
 def load_contour(path, scale: float = 1.0) -> Profile:
     """Profile from an OBJ or gmsh ``.msh`` contour file, coordinates multiplied by ``scale``."""
     path = Path(path)
+    check_input_file(path, "contour file")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     suffix = path.suffix.lower()
@@ -258,6 +259,7 @@ def load_section(path, young: float | None = None, poisson: float | None = None)
     (profile, E, nu)
     """
     path = Path(path)
+    check_input_file(path, "cross-section file")
     if path.suffix.lower() in (".obj", ".msh"):
         if young is None or poisson is None:
             raise InputError(f"{path}: a contour file has no material; give Young's modulus and Poisson's ratio")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from ..errors import InputError
+from .spec import MAX_TASKS
 
 
 def register(subparsers) -> None:
@@ -16,6 +17,8 @@ def register(subparsers) -> None:
     p.add_argument("--ship-files", action="store_true", help="send input files to the workers and outputs back (no shared file system)")
     p.add_argument("--retry-failed", action="store_true", help="re-run tasks recorded as failed or diverged")
     p.add_argument("--max-tasks", type=int, help="run at most this many unfinished tasks now")
+    p.add_argument("--force", action="store_true",
+                   help=f"run a sweep of more than {MAX_TASKS:,} tasks (refused without it: most likely a mistake)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_sweep)
 
@@ -31,7 +34,7 @@ def _sweep(args) -> int:
         raise InputError(f"--max-tasks must be at least 1, got {args.max_tasks} (leave it out to run every task)")
     if args.workers is not None and args.scheduler:
         raise InputError("--workers sizes a local cluster; it contradicts --scheduler")
-    spec = load_spec(args.spec)
+    spec = load_spec(args.spec, max_tasks=None if args.force else MAX_TASKS)
     settings = SweepSettings(workers=args.workers, scheduler=args.scheduler, ship_files=args.ship_files,
                              retry_failed=args.retry_failed, max_tasks=args.max_tasks)
     bar = None

@@ -26,7 +26,7 @@ import uuid
 from dataclasses import dataclass
 from typing import Callable
 
-from ..errors import InputError
+from ..errors import STOP, InputError
 from ..io.export import atomic_write_text
 from .order import DispatchOrder
 from .spec import PATH_KEYS, SweepSpec, Task
@@ -255,9 +255,12 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
                 client.cancel([g for g, _ in running.values() if not g.done()])
                 break
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        # a second Ctrl-C waits for the cluster to close (seconds): cut short, the close hung for ten
+        # seconds more and left worker processes behind
+        with STOP.deferred():
+            client.close()
+            if cluster is not None:
+                cluster.close()
     return stopped
 
 
@@ -379,8 +382,38 @@ def _start_forkserver(modules: list) -> bool:
     from multiprocessing import forkserver
 
     multiprocessing.get_context("forkserver").set_forkserver_preload([m for m in modules if m])
-    forkserver.ensure_running()
+    with _children_ignore_ctrl_c():
+        forkserver.ensure_running()
     return True
+
+
+@contextlib.contextmanager
+def _children_ignore_ctrl_c():
+    """Processes started meanwhile ignore Ctrl-C, and one meant for this process is not lost.
+
+    The terminal sends Ctrl-C to every process of the command: each local worker printed its
+    traceback (asyncio's CancelledError, then KeyboardInterrupt) while the sweep was still stopping.
+    An ignored signal stays ignored through exec (and Python then leaves it so), and the fork server
+    hands its workers the handler it started with: they all ignore it, and this process alone stops,
+    keeps the finished tasks and closes the cluster, which ends the workers. SIGINT is blocked
+    meanwhile, so that one that comes is delivered here afterwards (Linux keeps a blocked signal
+    pending even while it is ignored).
+    """
+    import signal
+    import threading
+
+    handler = signal.getsignal(signal.SIGINT)
+    if (not hasattr(signal, "pthread_sigmask") or handler is None  # Windows; a handler set outside Python
+            or threading.current_thread() is not threading.main_thread()):  # only the main thread may set one
+        yield
+        return
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, files: dict | None) -> dict:

@@ -31,10 +31,11 @@ import glob
 import hashlib
 import itertools
 import json
+import math
 import os
 from dataclasses import dataclass
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 from ..io.case_schema import field_check, validate_case
 from . import tasks as T
 
@@ -43,6 +44,10 @@ ALIASES = {"E": "material.E", "young": "material.E", "nu": "material.nu", "param
            "stiff_axis": "material.stiff_axis", "design": "file", "flat_file": "file"}
 PATH_KEYS = ("file", "rest_lengths", "material.contour_file", "target_surface")
 ANGLE_KEYS = ("angle_deg", "angle_rad", "open_by_deg")
+#: The most tasks a sweep file may expand to without ``--force`` (``max_tasks=None``): a spec of more is most
+#: likely a mistake (an axis of a thousand values by accident), and expanding and checking 1.58 million tasks
+#: took minutes and gigabytes before the first one ran.
+MAX_TASKS = 100_000
 
 # The case keys are checked by the case files' own schema (xshells.io.case_schema), one field at a
 # time here and as a whole case once expanded; direction and start are the deploy task's options.
@@ -86,9 +91,13 @@ class SweepSpec:
     varying_keys: tuple
 
 
-def load_spec(path) -> SweepSpec:
-    """Read and check a sweep file (``.yaml``, ``.yml`` or ``.json``); one-line InputError on any problem."""
+def load_spec(path, *, max_tasks: int | None = MAX_TASKS) -> SweepSpec:
+    """Read and check a sweep file (``.yaml``, ``.yml`` or ``.json``); one-line InputError on any problem.
+
+    A sweep of more than ``max_tasks`` tasks is refused before it is expanded (None: no limit).
+    """
     path = os.fspath(path)
+    check_input_file(path, "sweep file")
     try:
         with open(path, encoding="utf-8") as fh:
             raw = fh.read()
@@ -112,7 +121,7 @@ def load_spec(path) -> SweepSpec:
 
         data = loads(raw, path)
     name = os.path.splitext(os.path.basename(path))[0]
-    return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name)
+    return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name, max_tasks=max_tasks)
 
 
 def _yaml_loader():
@@ -149,8 +158,9 @@ def _yaml_loader():
     return Loader
 
 
-def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> SweepSpec:
-    """Check a parsed sweep and expand it into tasks (paths relative to ``base_dir``)."""
+def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_tasks: int | None = MAX_TASKS) -> SweepSpec:
+    """Check a parsed sweep and expand it into tasks (paths relative to ``base_dir``); more than ``max_tasks``
+    tasks (None: no limit) are refused before they are expanded."""
     if not isinstance(data, dict):
         raise InputError("sweep: must be a mapping with keys task, base, axes (and optionally name, cases)")
     _unknown(data, TOP_KEYS, "")
@@ -188,6 +198,7 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> Sweep
     cases = [_overrides(c, f"cases[{i}]", allowed, base_dir) for i, c in enumerate(cases)]
     if len({k for k, _ in axis_values}) != len(axis_values):
         raise InputError("axes: a key appears twice (aliases such as E and material.E name the same key)")
+    _check_size(cases, axes, axis_values, max_tasks)
 
     points = []
     for case in cases:
@@ -228,6 +239,17 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep") -> Sweep
 
 
 # ---------------------------------------------------------------- helpers
+
+
+def _check_size(cases: list, axes: dict, axis_values: list, max_tasks: int | None) -> None:
+    """Refuse a sweep of more than ``max_tasks`` tasks, naming the factors of the product."""
+    count = len(cases) * math.prod(len(values) for _, values in axis_values)
+    if max_tasks is None or count <= max_tasks:
+        return
+    factors = ([f"{len(cases)} cases"] if len(cases) > 1 else []) + [
+        f"{raw} {len(values)}" for raw, (_, values) in zip(axes, axis_values)]
+    raise InputError(f"axes: {' × '.join(factors)} make {count:,} tasks, more than the limit of {max_tasks:,}: "
+                     "give fewer values, or --force to run them all")
 
 
 def _unknown_key(where: str, raw, known) -> InputError:
@@ -278,6 +300,10 @@ def _check(key: str, value, where: str, allowed: dict, base_dir: str):
         raise InputError(f"{where}: {exc}") from None
     if key in PATH_KEYS and value is not None:
         path = value if os.path.isabs(value) else os.path.normpath(os.path.join(base_dir, value))
+        try:  # a named pipe would block the id's hash (and the task), a folder fail it
+            check_input_file(path)
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
         if not os.path.isfile(path):
             raise InputError(f"{where}: no such file {value!r}")
         value = path
