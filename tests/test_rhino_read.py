@@ -1,5 +1,7 @@
 """Designs from Rhino .3dm files: round trip from a bundled OBJ, units, snapping within the file's tolerance,
 near misses, curved curves, layers."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -190,3 +192,165 @@ def test_a_degenerate_line_is_not_called_curved(tmp_path, end, words):
     f.Write(str(tmp_path / "d.3dm"), 7)
     with pytest.raises(InputError, match=rf"d.3dm: object 1 .*{words}"):  # "is curved ... give --sample" before
         read_design(tmp_path / "d.3dm")
+
+
+def _manta_lines():
+    d = read_design(EXAMPLES / "manta_ray.obj")
+    return d, [rhino3dm.LineCurve(rhino3dm.Point3d(*d.vertices[a]), rhino3dm.Point3d(*d.vertices[b])) for a, b in d.edges]
+
+
+def _block(f, name, geometry, layer=0):
+    """A block definition of ``geometry`` on layer index ``layer``; returns its id."""
+    a = rhino3dm.ObjectAttributes()
+    a.LayerIndex = layer
+    index = f.InstanceDefinitions.Add(name, "", "", "", rhino3dm.Point3d(0, 0, 0), tuple(geometry), (a,) * len(geometry))
+    return f.InstanceDefinitions[index].Id
+
+
+def _place(f, idef, xform, layer=0):
+    a = rhino3dm.ObjectAttributes()
+    a.LayerIndex = layer
+    f.Objects.AddInstanceObject(rhino3dm.InstanceReference(idef, xform), a)
+
+
+def _new(units="Millimeters", tolerance=0.01, layers=("design",)):
+    f = rhino3dm.File3dm()
+    f.Settings.ModelUnitSystem = getattr(rhino3dm.UnitSystem, units)
+    f.Settings.ModelAbsoluteTolerance = tolerance
+    for name in layers:
+        f.Layers.AddLayer(name, (0, 0, 0, 255))
+    return f
+
+
+def test_a_design_placed_as_a_block_is_read_where_it_is_placed(tmp_path):
+    # the definition's own lines were read as the design, the placement's move ignored
+    d, lines = _manta_lines()
+    turn = rhino3dm.Transform.Rotation(0.5, rhino3dm.Vector3d(0, 0, 1), rhino3dm.Point3d(0, 0, 0))
+    half = rhino3dm.Transform.Scale(rhino3dm.Point3d(0, 0, 0), 0.5)
+    move = rhino3dm.Transform.Multiply(rhino3dm.Transform.Translation(5000, -300, 20), rhino3dm.Transform.Multiply(turn, half))
+    f = _new()
+    _place(f, _block(f, "manta", lines), move)
+    f.Write(str(tmp_path / "block.3dm"), 7)
+    c, s = np.cos(0.5), np.sin(0.5)
+    expect = 0.5 * d.vertices @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + [5000, -300, 20]
+    placed = read_design(tmp_path / "block.3dm")
+    moved = dataclasses.replace(d, vertices=expect)
+    assert _same_graph(moved, placed)
+    # nested: the manta block inside a block placed twice, the transforms composed; unplaced definitions are no design
+    f = _new()
+    inner = _block(f, "manta", lines)
+    outer = _block(f, "pair", [rhino3dm.InstanceReference(inner, rhino3dm.Transform.Translation(0, 1000, 0))])
+    _block(f, "unused", [rhino3dm.LineCurve(rhino3dm.Point3d(0, 0, 0), rhino3dm.Point3d(1, 0, 0))])
+    _place(f, outer, rhino3dm.Transform.Translation(100, 0, 0))
+    _place(f, outer, rhino3dm.Transform.Translation(100, 5000, 0))
+    f.Write(str(tmp_path / "nested.3dm"), 7)
+    two = read_design(tmp_path / "nested.3dm")
+    assert two.num_vertices == 2 * d.num_vertices and two.num_segments == 2 * d.num_segments
+    np.testing.assert_allclose(two.vertices.min(axis=0), d.vertices.min(axis=0) + [100, 1000, 0], atol=1e-9)
+    np.testing.assert_allclose(two.vertices.max(axis=0), d.vertices.max(axis=0) + [100, 6000, 0], atol=1e-9)
+    # a stretched block would change the beams' shape: refused in one line naming it
+    f = _new()
+    stretch = rhino3dm.Transform.Scale(rhino3dm.Plane.WorldXY(), 2.0, 1.0, 1.0)
+    _place(f, _block(f, "manta", lines), stretch)
+    f.Write(str(tmp_path / "stretched.3dm"), 7)
+    with pytest.raises(InputError, match=r"stretched.3dm: object \d+ \(a block placement\) of block 'manta' is "
+                                         r"stretched, sheared or projected.*Explode"):
+        read_design(tmp_path / "stretched.3dm")
+
+
+def test_a_target_mesh_placed_as_a_block_is_read_where_it_is_placed(tmp_path):
+    from xshells.rhino import read_3dm_surface
+
+    m = rhino3dm.Mesh()
+    for p in ((0, 0, 0), (100, 0, 0), (100, 100, 10), (0, 100, 0)):
+        m.Vertices.Add(*p)
+    m.Faces.AddFace(0, 1, 2, 3)
+    f = _new(layers=("target",))
+    _place(f, _block(f, "srf", [m]), rhino3dm.Transform.Translation(0, 0, 500))
+    f.Write(str(tmp_path / "srf.3dm"), 7)
+    V, F = read_3dm_surface(tmp_path / "srf.3dm")
+    assert len(F) == 2 and V[:, 2].min() == 500 and V[:, 2].max() == 510
+
+
+def test_a_target_mesh_far_from_the_origin_keeps_its_vertices(tmp_path):
+    # map coordinates in metres: read in single precision, 400 vertices became fewer and moved by up to 92.8 mm
+    from xshells.rhino import read_3dm_surface
+
+    n = 20
+    X, Y = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n))
+    V = np.c_[X.ravel(), Y.ravel(), 0.35 * (X.ravel() ** 2 - Y.ravel() ** 2)] + [500000.0, 5000000.0, 120.0]
+    m = rhino3dm.Mesh()
+    for p in V.tolist():
+        m.Vertices.AddPoint3d(*p)
+    for i in range(n - 1):
+        for j in range(n - 1):
+            m.Faces.AddFace(i * n + j, i * n + j + 1, (i + 1) * n + j + 1, (i + 1) * n + j)
+    f = _new("Meters", 1e-4, layers=())
+    f.Objects.AddMesh(m)
+    f.Write(str(tmp_path / "utm.3dm"), 7)
+    Vr, Fr = read_3dm_surface(tmp_path / "utm.3dm")
+    assert len(Vr) == n * n and len(Fr) == 2 * (n - 1) ** 2
+    np.testing.assert_allclose(Vr, V * 1000, rtol=0, atol=1e-6)  # mm
+
+
+def test_the_near_miss_window_follows_the_design_not_only_the_tolerance(tmp_path):
+    # The uniform linkage at 200 mm a unit (free ends 30 mm from a joint) saved in metres with a 1 mm tolerance
+    # was refused (100 tolerances = 100 mm); a 2 mm miss at a 0.01 mm tolerance passed as a free end.
+    d = read_design(EXAMPLES / "uniform_linkage.obj")
+    V = d.vertices * 200
+    metres = read_design(_write(tmp_path / "m.3dm", units="Meters", tolerance=1e-3,
+                                segments=[(V[a] / 1000, V[b] / 1000) for a, b in d.edges]))
+    assert (metres.num_vertices, metres.num_segments) == (d.num_vertices, d.num_segments)
+    np.testing.assert_allclose(np.sort(metres.vertices, axis=0), np.sort(V, axis=0), atol=1e-9)
+    m, _ = _manta_lines()
+    segs = [(m.vertices[a].copy(), m.vertices[b]) for a, b in m.edges]
+    segs[5][0][0] += 2.0
+    with pytest.raises(InputError, match=r"far.3dm: the end of object 5 at .* misses a vertex by 2 millimeters, more "
+                                         r"than the file's tolerance 0\.01: join them in Rhino \(or set the tolerance "
+                                         r"above 2 millimeters\), or, for a free end, keep it at least 4\.1 millimeters"):
+        read_design(_write(tmp_path / "far.3dm", tolerance=0.01, segments=segs))
+
+
+def test_an_unmeshed_surface_beside_a_mesh_is_refused(tmp_path):
+    # the Brep was dropped and the mesh alone taken as the target, without a word
+    from xshells.rhino import read_3dm_surface
+
+    m = rhino3dm.Mesh()
+    for p in ((0, 0, 0), (100, 0, 0), (100, 100, 0)):
+        m.Vertices.Add(*p)
+    m.Faces.AddFace(0, 1, 2)
+    f = _new(layers=())
+    f.Objects.AddMesh(m)
+    f.Objects.AddBrep(rhino3dm.Brep.CreateFromBox(rhino3dm.Box(rhino3dm.BoundingBox(0, 0, 0, 10, 10, 10))))
+    f.Write(str(tmp_path / "both.3dm"), 7)
+    with pytest.raises(InputError, match=r"both.3dm: object 1 is a surface saved without its render mesh"):
+        read_3dm_surface(tmp_path / "both.3dm")
+    f.Objects.Delete(f.Objects[1].Attributes.Id)
+    f.Objects.AddSphere(rhino3dm.Sphere(rhino3dm.Point3d(0, 0, 0), 1000))  # a NURBS surface: no mesh at all
+    f.Write(str(tmp_path / "sphere.3dm"), 7)
+    with pytest.raises(InputError, match=r"sphere.3dm: object 1 is a NurbsSurface, which carries no mesh"):
+        read_3dm_surface(tmp_path / "sphere.3dm")
+
+
+def test_a_layer_name_of_several_layers_is_ambiguous(tmp_path):
+    # A::design was taken for "design" without a word about B::design
+    from xshells.rhino import read_3dm_design
+
+    f = _new(layers=())
+    for parent, y in (("A", 0), ("B", 50)):
+        top = rhino3dm.Layer()
+        top.Name = parent
+        pi = f.Layers.Add(top)
+        child = rhino3dm.Layer()
+        child.Name = "design"
+        child.ParentLayerId = f.Layers[pi].Id
+        a = rhino3dm.ObjectAttributes()
+        a.LayerIndex = f.Layers.Add(child)
+        f.Objects.AddLine(rhino3dm.Point3d(0, y, 0), rhino3dm.Point3d(100, y, 0), a)
+        f.Objects.AddLine(rhino3dm.Point3d(50, y - 20, 0), rhino3dm.Point3d(50, y + 20, 0), a)
+    f.Write(str(tmp_path / "two.3dm"), 7)
+    with pytest.raises(InputError, match=r"two.3dm: layer 'design' is ambiguous \('A::design', 'B::design'\): give its "
+                                         r"full path$"):
+        read_3dm_design(tmp_path / "two.3dm", layer="design")
+    assert read_3dm_design(tmp_path / "two.3dm", layer="B::design").vertices[:, 1].min() == 30
+
