@@ -354,3 +354,39 @@ def test_a_layer_name_of_several_layers_is_ambiguous(tmp_path):
         read_3dm_design(tmp_path / "two.3dm", layer="design")
     assert read_3dm_design(tmp_path / "two.3dm", layer="B::design").vertices[:, 1].min() == 30
 
+
+def _mesh_file(path, units="Millimeters", layers=("target",), scale=1.0):
+    """A 2 m square with a bump, meshed 8 x 8, once on each of ``layers``."""
+    f = _new(units, 1e-6 * scale if units == "Meters" else 0.001, layers=layers)
+    n = 9
+    X, Y = np.meshgrid(np.linspace(0, 2000, n), np.linspace(0, 2000, n))
+    Z = 300 * np.exp(-((X - 1000) ** 2 + (Y - 1000) ** 2) / 800**2)
+    for k in range(len(layers)):
+        m = rhino3dm.Mesh()
+        for p in np.c_[X.ravel(), Y.ravel(), Z.ravel()].tolist():
+            m.Vertices.Add(*(c / (1000 if units == "Meters" else 1) for c in p))
+        for i in range(n - 1):
+            for j in range(n - 1):
+                m.Faces.AddFace(i * n + j, i * n + j + 1, (i + 1) * n + j + 1, (i + 1) * n + j)
+        a = rhino3dm.ObjectAttributes()
+        a.LayerIndex = k
+        f.Objects.AddMesh(m, a)
+    f.Write(str(path), 7)
+    return path
+
+
+def test_inverse_on_a_3dm_in_metres_says_so_and_speaks_mm(tmp_path, capsys):
+    # no line said the surface was converted, result.json called its units the file's, --spacing had no unit
+    from xshells.cli import main
+    from xshells.inverse.run import units_text
+    from xshells.inverse.surface import load_target
+
+    path = _mesh_file(tmp_path / "cap_m.3dm", units="Meters")
+    surface = load_target(path)
+    assert surface.note == "cap_m.3dm: layer 'target', units Meters, converted to mm (x1000)"
+    assert units_text(surface).startswith("mm (the .3dm surface is read in mm")
+    assert main(["inverse", str(path), "--spacing", "0.3", "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "xshells inverse: note: cap_m.3dm: layer 'target', units Meters, converted to mm (x1000)"
+    assert err[1].startswith("xshells inverse: error: --spacing 0.3 mm gives about") and len(err) == 2
+

@@ -32,6 +32,7 @@ __all__ = [
     "target_surface",
     "read_surface",
     "read_surface_faces",
+    "read_surface_noted",
     "point_mesh_squared_distance",
     "closest_points",
     "FittingTerm",
@@ -278,16 +279,22 @@ double precision (one at 3e300 ended ``xshells optimize`` in an IndexError and w
 
 def read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`read_surface`, with the file face each triangle comes from (its coordinates checked for size)."""
-    V, F, face = _read_surface_faces(path)
+    return read_surface_noted(path)[:3]
+
+
+def read_surface_noted(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, str | None]:
+    """:func:`read_surface_faces`, and how the file was read where that says more than its name (a ``.3dm``'s
+    layer, its units and their conversion to mm; else None)."""
+    V, F, face, note = _read_surface_faces(path)
     big = np.flatnonzero(np.abs(np.where(np.isfinite(V), V, 0.0)).max(axis=1, initial=0.0) > _MAX_COORDINATE) if len(V) else []
     if len(big):
         v = int(big[0])
         raise InputError(f"{path}: vertex {v + 1} has a coordinate of {np.abs(V[v]).max():.3g}: too large to compute with "
                          f"(is the surface in the design's units?)")
-    return V, F, face
+    return V, F, face, note
 
 
-def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, str | None]:
     """:func:`read_surface_faces` before the size check.
 
     Returns
@@ -297,6 +304,8 @@ def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None
     face : (f,) int64 or None
         The 0-based index of each triangle's face among the file's surface
         faces, or None where every face is a triangle (then ``face[i] = i``).
+    note : str or None
+        How a ``.3dm`` was read (its layer and units); None for the other formats.
     """
     import meshio
 
@@ -305,8 +314,8 @@ def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None
     if path.suffix.lower() == ".3dm":  # Rhino: its meshes, or its surfaces' render meshes, in mm
         from ..rhino.read import read_3dm_surface
 
-        V, F = read_3dm_surface(path)
-        return V, F, None
+        V, F, note = read_3dm_surface(path, with_note=True)
+        return V, F, None, note
     try:
         with warnings.catch_warnings():  # meshio warns while guessing at malformed files
             warnings.simplefilter("ignore")
@@ -343,7 +352,7 @@ def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None
         origin.append(first + o)
         first += len(corners)
     F, origin = np.concatenate(tris), np.concatenate(origin)
-    return V, F, (None if len(F) == first else origin)
+    return V, F, (None if len(F) == first else origin), None
 
 
 _NOT_CONVEX = "is a polygon that is not convex or crosses itself: triangulate it before use"

@@ -178,13 +178,22 @@ def check_options(options: InverseOptions, surface) -> float:
     from .net import estimate_segments
 
     if spacing >= 0.5 * width or estimate_segments(surface, spacing, np.radians(options.angle)) < 8:
-        raise InputError(f"--spacing {spacing:.4g} is larger than the surface allows (it is {length:.4g} long and "
-                         f"about {width:.4g} wide): use at most {0.25 * width:.4g}")
+        u = surface.unit  # a .3dm is read in mm, whatever its own units: say so
+        raise InputError(f"--spacing {spacing:.4g}{u} is larger than the surface allows (it is {length:.4g}{u} long and "
+                         f"about {width:.4g}{u} wide): use at most {0.25 * width:.4g}{u}")
     n = estimate_segments(surface, spacing, np.radians(options.angle))
     if n > MAX_SEGMENTS and not options.force:
-        raise InputError(f"--spacing {spacing:.4g} gives about {n} segments, more than {MAX_SEGMENTS}: give a larger "
-                         f"spacing, or --force")
+        raise InputError(f"--spacing {spacing:.4g}{surface.unit} gives about {n} segments, more than {MAX_SEGMENTS}: "
+                         f"give a larger spacing, or --force")
     return float(spacing)
+
+
+def units_text(surface) -> str:
+    """What result.json says of the units: a .3dm surface is read in mm (its note says from which units)."""
+    if surface.note:
+        return ("mm (the .3dm surface is read in mm: see 'input') and the material's (the section in mm, Young's "
+                "modulus in MPa)")
+    return "those of the surface file (lengths) and of the material (Young's modulus): the bundled data use mm and MPa"
 
 
 def _stage_bar(progress, total, desc, unit="it"):
@@ -325,6 +334,10 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
 
     t0 = time.perf_counter()
     surface = load_target(surface_path)
+    if surface.note:  # how a .3dm was read, its units converted: a one-line note, with or without progress
+        import sys
+
+        print(f"xshells inverse: note: {surface.note}", file=sys.stderr)
     warning = developable_warning(surface, REACH["fit_mean"])
     if warning and progress:
         import sys
@@ -901,8 +914,7 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     atomic_write_text(os.path.join(out_dir, "case.json"), json.dumps(case, indent=1) + "\n")
     write_drawings(out_dir, "flat_layout", final_design, p)
 
-    result = {"surface": str(surface_path), "units": "those of the surface file (lengths) and of the material "
-              "(Young's modulus): the bundled data use mm and MPa", "spacing": spacing, "angle_deg": options.angle,
+    result = {"surface": str(surface_path), "input": surface.note, "units": units_text(surface), "spacing": spacing, "angle_deg": options.angle,
               "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "grading_deg": options.grading, "beams": beams, "beams_reason": beams_reason,
               "direction": options.direction,
               "mirrored_layout": mirror, "scissor_residual": smap.residual, "held_rms": held_rms, "steadying_springs": steady if hold.steady is not None else 0.0,

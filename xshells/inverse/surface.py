@@ -33,6 +33,9 @@ class TargetSurface:
         Length of the bounding-box diagonal.
     area : float
     boundary_loops : int
+    note : str or None
+        How the file was read where that says more than its name: a ``.3dm``'s layer, its units and their
+        conversion to mm (then the lengths here are mm).
     """
 
     V: np.ndarray = field(repr=False)
@@ -41,6 +44,12 @@ class TargetSurface:
     diagonal: float = 0.0
     area: float = 0.0
     boundary_loops: int = 1
+    note: str | None = None
+
+    @property
+    def unit(self) -> str:
+        """The length unit for messages: " mm" for a ``.3dm`` (read in mm), else "" (the file's own units)."""
+        return " mm" if self.note else ""
 
     @property
     def face_normals(self) -> np.ndarray:
@@ -57,10 +66,12 @@ class TargetSurface:
 def load_target(path) -> TargetSurface:
     """Read and check a target surface (OBJ, PLY, STL or gmsh ``.msh``, quads and polygons split into
     triangles; see :func:`check_target`)."""
-    from ..design.fitting import read_surface_faces
+    from dataclasses import replace
 
-    V, F, face = read_surface_faces(path)
-    return check_target(V, F, str(path), face=face)
+    from ..design.fitting import read_surface_noted
+
+    V, F, face, note = read_surface_noted(path)
+    return replace(check_target(V, F, str(path), face=face), note=note)
 
 
 def _edges(F: np.ndarray):
