@@ -44,3 +44,15 @@ def test_ctrl_c_asks_the_workers_to_stop_and_waits_for_them(tmp_path):
         timer.cancel()
         signal.signal(signal.SIGINT, previous)
     assert [p.read_text() for p in paths] == ["stopped", "stopped"]
+
+
+def test_the_workers_read_3dm_files_with_the_commands_options():
+    # a fork server's worker started with the reader's defaults, not --target-layer: the candidates of
+    # `inverse site.3dm --target-layer roof` read every layer of the file
+    from xshells.rhino.read import get_defaults, set_defaults
+
+    set_defaults(target_layer="roof")
+    try:
+        assert [r["target_layer"] for _, r in in_processes(get_defaults, [()], 1)] == ["roof"]
+    finally:
+        set_defaults()

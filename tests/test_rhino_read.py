@@ -390,3 +390,21 @@ def test_inverse_on_a_3dm_in_metres_says_so_and_speaks_mm(tmp_path, capsys):
     assert err[0] == "xshells inverse: note: cap_m.3dm: layer 'target', units Meters, converted to mm (x1000)"
     assert err[1].startswith("xshells inverse: error: --spacing 0.3 mm gives about") and len(err) == 2
 
+
+def test_the_target_layer_is_chosen_apart_from_the_design_layer(tmp_path, capsys):
+    # --layer chose both (the design's layer was looked for among the surfaces); inverse had no layer option
+    from xshells.cli import main
+
+    two = _mesh_file(tmp_path / "two.3dm", layers=("a", "b"))
+    out = str(tmp_path / "o")
+    assert main(["inverse", str(two), "--spacing", "5000", "--out", out, "--no-progress"]) == 2
+    assert "surfaces on several layers ('a', 'b'): pick one with --target-layer" in capsys.readouterr().err
+    assert main(["inverse", str(two), "--target-layer", "b", "--spacing", "5000", "--out", out, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "note: two.3dm: layer 'b', units Millimeters" in err and "--spacing 5000 mm is larger than" in err
+    obj = EXAMPLES / "targets" / "spherical_cap_R2000_30deg.obj"
+    assert main(["inverse", str(obj), "--target-layer", "b", "--out", out, "--no-progress"]) == 2
+    assert f"--target-layer reads a .3dm target surface: {obj} is not one" in capsys.readouterr().err
+    assert main(["optimize", str(EXAMPLES / "quad.obj"), "--target-layer", "b", "--out", out, "--no-progress"]) == 2
+    assert "--target-layer reads a .3dm target surface: none is given" in capsys.readouterr().err
+

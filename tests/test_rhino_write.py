@@ -48,3 +48,34 @@ def test_deploy_writes_a_layered_3dm_in_millimetres(tmp_path):
     assert M.shape == V.shape
     assert np.abs(M - V).max() <= 1e-6 * np.ptp(V, axis=0).max()
     assert not mesh.Vertices.UseDoublePrecisionVertices
+
+
+def test_optimize_writes_the_target_surface_it_fitted_and_reads_it_from_its_own_layer(tmp_path):
+    # deployed.3dm had no target layer; and --layer chose the surface's layer too, so one file could not hold both
+    d = read_design(EXAMPLES / "nonuniform_linkage.obj")
+    V = d.vertices * 200
+    f = rhino3dm.File3dm()
+    f.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Millimeters
+    design, target = f.Layers.AddLayer("design", (0, 0, 0, 255)), f.Layers.AddLayer("target", (0, 0, 0, 255))
+    a, t = rhino3dm.ObjectAttributes(), rhino3dm.ObjectAttributes()
+    a.LayerIndex, t.LayerIndex = design, target
+    for i, j in d.edges:
+        f.Objects.AddLine(rhino3dm.Point3d(*V[i]), rhino3dm.Point3d(*V[j]), a)
+    lo, hi = V.min(axis=0) - 50, V.max(axis=0) + 50
+    m = rhino3dm.Mesh()
+    for x, y in ((lo[0], lo[1]), (hi[0], lo[1]), (hi[0], hi[1]), (lo[0], hi[1]), ((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2)):
+        m.Vertices.Add(x, y, 0.0 if x in (lo[0], hi[0]) else 40.0)
+    for k in range(4):
+        m.Faces.AddFace(k, (k + 1) % 4, 4)
+    f.Objects.AddMesh(m, t)
+    path = str(tmp_path / "both.3dm")
+    f.Write(path, 7)
+    out = tmp_path / "o"
+    assert main(["optimize", path, "--layer", "design", "--target-surface", path, "--target-layer", "target",
+                 "--angle", "50", "--max-iters", "1", "--steps", "5", "--subdivision", "4", "--no-baseline",
+                 "--out", str(out), "--no-progress"]) == 0
+    g = rhino3dm.File3dm.Read(str(out / "deployed.3dm"))
+    names = [layer.FullPath for layer in g.Layers]
+    meshes = [o.Geometry for o in g.Objects if names[o.Attributes.LayerIndex] == "target"]
+    assert len(meshes) == 1 and len(meshes[0].Vertices) == 5 and meshes[0].Faces.Count == 4
+    assert "target surface both.3dm: layer 'target', units Millimeters" in json.loads((out / "result.json").read_text())["warnings"]

@@ -39,6 +39,8 @@ SUBCOMMANDS = [
 
 
 DESIGN_COMMANDS = ("deploy", "optimize", "sparsify", "fabricate", "analyze", "app", "sweep")
+# the commands that read a target surface, and the option that names it
+SURFACE_COMMANDS = {"optimize": "target_surface", "inverse": "surface"}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -67,12 +69,17 @@ def build_parser(modules: list[str] | None = None) -> argparse.ArgumentParser:
                 raise
             continue
         mod.register(sub)
-    for name, sp in sub.choices.items():  # the commands that read a design file: its .3dm options
-        if name in DESIGN_COMMANDS:
+    for name, sp in sub.choices.items():  # the commands that read a design file or a surface: their .3dm options
+        if name in DESIGN_COMMANDS or name in SURFACE_COMMANDS:
             g = sp.add_argument_group("Rhino .3dm input")
+        if name in DESIGN_COMMANDS:
             g.add_argument("--layer", help="the layer of a .3dm design to read (default: its one layer holding curves)")
             g.add_argument("--sample", type=int, metavar="N",
                            help="replace each curved curve of a .3dm design by N straight segments (default: refuse them)")
+        if name in SURFACE_COMMANDS:  # a layer of its own: the design's and the surface's differ in one file
+            g.add_argument("--target-layer", metavar="LAYER",
+                           help="the layer of a .3dm target surface to read (default: its one layer holding meshes "
+                                "or surfaces)")
     return parser
 
 
@@ -155,15 +162,20 @@ def _execute_checked(args) -> int:
     # command line: a run that goes wrong says so in its own one-line message.
     import numpy as np
 
-    if hasattr(args, "layer"):  # this command's .3dm options (None: the reader's own defaults)
+    if hasattr(args, "layer") or hasattr(args, "target_layer"):  # this command's .3dm options (None: the reader's own)
         from .rhino.read import set_defaults
 
-        given = [f"--{k}" for k in ("layer", "sample") if getattr(args, k) is not None]
+        given = [f"--{k}" for k in ("layer", "sample") if getattr(args, k, None) is not None]
         path = next((v for v in (getattr(args, k, None) for k in ("input", "case", "design")) if isinstance(v, str)), "")
         if given and path.lower().endswith((".obj", ".msh")):  # they would be ignored
             raise InputError(f"{' and '.join(given)} read{'s' * (len(given) == 1)} a .3dm design: {path} is not one")
-
-        set_defaults(layer=args.layer, sample=args.sample)
+        target_layer = getattr(args, "target_layer", None)
+        if target_layer is not None:
+            surface = getattr(args, SURFACE_COMMANDS.get(args.command, ""), None)
+            if not isinstance(surface, str) or not surface.lower().endswith(".3dm"):
+                raise InputError("--target-layer reads a .3dm target surface: "
+                                 + (f"{surface} is not one" if isinstance(surface, str) else "none is given"))
+        set_defaults(layer=getattr(args, "layer", None), sample=getattr(args, "sample", None), target_layer=target_layer)
     with np.errstate(all="ignore"):
         return int(args.func(args) or 0)
 

@@ -75,9 +75,14 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
             bar.close()
     if not res.converged:
         raise InputError(f"{case_path}: the initial design does not deploy to {np.degrees(target):.2f}° ({res.message}){why}")
-    from .fitting import FittingTerm, read_surface
+    from .fitting import FittingTerm, read_surface_noted
 
-    surface = read_surface(target_surface) if target_surface else None
+    surface = None
+    if target_surface:
+        V, F, _, note = read_surface_noted(target_surface)
+        surface = (V, F)
+        if note:  # a .3dm target: its layer and units, converted to mm, said as the design's are
+            warnings = list(warnings) + [f"target surface {note}"]
     fitting = FittingTerm.paper_defaults(D, surface=surface)
     spare = copy.deepcopy((L, D, fitting)) if keep_copy else None
 
@@ -204,7 +209,8 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
 
     flat_L = problem.flat.L  # the optimized design as one Rhino file: flat layout, deployed state, strips (mm)
     write_3dm(os.path.join(out_dir, "deployed.3dm"), flat_design=flat_L.graph.design if flat_L.graph.is_planar else None,
-              deployed=problem.deployed.L, strips=plan_of(flat_L, flat_L.joint_angles(), problem.deployed.L.joint_angles(), p))
+              deployed=problem.deployed.L, strips=plan_of(flat_L, flat_L.joint_angles(), problem.deployed.L.joint_angles(), p),
+              target=problem.fitting.surface if target_surface else None)  # the surface given, as fitted (mm)
     bfgs = None
     if with_baseline and not interrupted:
         base_problem = problem.fresh_copy()  # the same starting problem, without deploying again

@@ -21,10 +21,14 @@ _QUEUE = None  # in a worker: the queue its bars' updates go to
 _STOP = None   # in a worker: set when this process asks the work to stop
 
 
-def _init_worker(queue=None, stop=None):
+def _init_worker(queue=None, stop=None, rhino_defaults=None):
     global _QUEUE, _STOP
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     _QUEUE, _STOP = queue, stop
+    if rhino_defaults:  # the command's --target-layer etc.: a fork server's worker does not inherit them
+        from ..rhino.read import set_defaults
+
+        set_defaults(**rhino_defaults)
 
 
 class _RemoteBar:
@@ -112,8 +116,10 @@ def in_processes(fn, jobs: list, workers: int, progress: bool = False, stop_wait
     ctx = mp.get_context(method)
     queue, stop = (ctx.Queue() if progress else None), ctx.Event()
     relay = BarRelay(queue) if progress else None
+    from ..rhino.read import get_defaults
+
     pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx, initializer=_init_worker,
-                               initargs=(queue, stop))
+                               initargs=(queue, stop, get_defaults()))
     done, futures = False, {}
     try:
         futures = {pool.submit(fn, *job): i for i, job in enumerate(jobs)}
