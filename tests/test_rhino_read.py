@@ -408,3 +408,23 @@ def test_the_target_layer_is_chosen_apart_from_the_design_layer(tmp_path, capsys
     assert main(["optimize", str(EXAMPLES / "quad.obj"), "--target-layer", "b", "--out", out, "--no-progress"]) == 2
     assert "--target-layer reads a .3dm target surface: none is given" in capsys.readouterr().err
 
+
+def test_fabricate_refuses_units_for_a_3dm_and_both_commands_say_the_conversion_without_progress(tmp_path, capsys):
+    # --units m on a file in metres scaled it x1000 a second time; --no-progress hid the conversion
+    import json
+
+    from xshells.cli import main
+
+    d = read_design(EXAMPLES / "manta_ray.obj")
+    m = _write(tmp_path / "manta_m.3dm", units="Meters", tolerance=1e-5,
+               segments=[(d.vertices[a] / 1000, d.vertices[b] / 1000) for a, b in d.edges])
+    assert main(["fabricate", str(m), "--units", "m", "--out", str(tmp_path / "f"), "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == (f"xshells fabricate: error: {m}: --units m does not apply to a .3dm: the "
+                                               "file states its units (Meters) and is read in mm; leave --units out")
+    note = "  note: manta_m.3dm: layer 'beams', units Meters, converted to mm (x1000)"
+    assert main(["fabricate", str(m), "--subdivision", "4", "--out", str(tmp_path / "f"), "--no-progress"]) == 0
+    assert note in capsys.readouterr().out.splitlines()
+    assert json.loads((tmp_path / "f" / "bom.json").read_text())["sections"][0]["total_length_mm"] > 20000  # 26 m
+    assert main(["analyze", str(m), "--supports", "lowest:4", "--load", "self-weight", "--density", "1e-9",
+                 "--steps", "5", "--subdivision", "4", "--no-critical", "--out", str(tmp_path / "a"), "--no-progress"]) == 0
+    assert note in capsys.readouterr().out.splitlines()

@@ -9,7 +9,7 @@ def register(subparsers) -> None:
         "analyze", help="support and load the deployed shell: stresses, reactions, stability, critical load factor",
         description="Deploys a case or design (as xshells deploy), then solves its nonlinear equilibrium on supports "
                     "under dead loads, with large displacements. Units follow the input (N, mm, MPa for the bundled data).")
-    p.add_argument("input", help="a case file (.json) or a design (.obj, .msh)")
+    p.add_argument("input", help="a case file (.json) or a design (.obj, .msh, .3dm)")
     p.add_argument("--supports", required=True, help="lowest:N (the N lowest vertices) or joints:i,j,… (input vertex indices)")
     p.add_argument("--support-type", choices=("pinned", "clamped"), default="pinned")
     p.add_argument("--joints", choices=("locked", "free"), default="locked",
@@ -77,5 +77,7 @@ def _analyze(args) -> int:
           ("; BUCKLED" if r["buckled"] else ""))
     if r["status"] != "complete":  # as xshells deploy's "stopped at …° of …°: why"
         print(f"  {r['status']} at load factor {r['load_factor_reached']:.4g} of {r['load_factor']:.4g}: {r['message']}")
+    if r.get("input"):  # how a .3dm was read (its units converted to mm): a note, with or without progress
+        print(f"  note: {r['input']}")
     print(f"  outputs in {args.out}/")
     return 0 if r["status"] == "complete" else 1

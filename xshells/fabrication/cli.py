@@ -10,8 +10,9 @@ def register(subparsers) -> None:
         description="Traces every continuous beam of a flat design, places its holes from the rest lengths (solved, as "
                     "xshells deploy does, or read from the case's file), nests the strips onto stock and writes "
                     "cutlist.csv, joints.csv, beams.svg/.dxf, assembly.svg and bom.json. Lengths are in mm: a design "
-                    "drawn in other units takes --units and is converted (and says so).")
-    p.add_argument("input", help="a case file (.json) or a flat design (.obj, .msh)")
+                    "drawn in other units takes --units and is converted (and says so); a .3dm states its own units "
+                    "and is converted to mm as it is read.")
+    p.add_argument("input", help="a case file (.json) or a flat design (.obj, .msh, .3dm)")
     p.add_argument("--material", help="for a design file: TYPE:P1,P2,... (default rectangle:10,7) or a cross-section JSON")
     p.add_argument("--young", type=float, help="for a design file: Young's modulus (default 20000, MPa)")
     p.add_argument("--poisson", type=float, help="for a design file: Poisson's ratio (default 0.3)")
@@ -23,7 +24,8 @@ def register(subparsers) -> None:
     p.add_argument("--stock-length", type=float, help="nest the strips onto bars this long, mm")
     p.add_argument("--sheet", help="nest the strips onto sheets WxH, mm (for laser cutting), e.g. 2500x1250")
     p.add_argument("--kerf", type=float, default=3.0, help="material lost per cut, mm (default 3)")
-    p.add_argument("--units", default="mm", help="the design's length unit: mm (default), cm, m, in, ft")
+    p.add_argument("--units", default="mm", help="the length unit of an .obj or .msh design: mm (default), cm, m, in, ft (a .3dm "
+                                                 "states its own)")
     p.add_argument("--top", choices=("A", "B"), default="A", help="the family of strips on the upper layer")
     p.add_argument("--out", default="fabricate_out")
     p.add_argument("--no-progress", action="store_true")
@@ -62,5 +64,7 @@ def _fabricate(args) -> int:
         print(f"  {st['stock_count']} {st['kind']}, utilization {100 * st['utilization']:.1f} %")
     if b["design_units"] != "mm":
         print(f"  {b['units_note']}")
+    if r.get("input"):  # how a .3dm was read (its units converted to mm): a note, with or without progress
+        print(f"  note: {r['input']}")
     print(f"  outputs in {args.out}/")
     return 0

@@ -257,8 +257,13 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
 
     t0 = time.perf_counter()
     os.makedirs(out_dir, exist_ok=True)
+    if units_to_mm(options.units) != 1.0 and str(design_path).lower().endswith(".3dm"):  # refused before any work
+        # the reader has converted the file's own units to mm already: a second conversion scaled it x1000
+        from ..rhino.read import file_units
+
+        raise InputError(f"{design_path}: --units {options.units} does not apply to a .3dm: the file states its units "
+                         f"({file_units(design_path)}) and is read in mm; leave --units out")
     design = read_design(design_path)
-    units_to_mm(options.units)  # refused before any work
     linkage = Linkage(design, material, subdivision=subdivision,
                       rest_lengths=read_rest_lengths(rest_lengths_path, design.num_segments, design) if rest_lengths_path else None)
     if not linkage.graph.is_planar:
@@ -309,6 +314,4 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
     atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     if progress and plan.units != "mm":
         print(f"note: {bom['units_note']}", file=sys.stderr)
-    if progress and design.note:
-        print(f"note: {design.note}", file=sys.stderr)
     return result
