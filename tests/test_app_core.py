@@ -126,6 +126,30 @@ def test_uploads_are_parsed_and_limited():
             store.open_upload(name, data)
 
 
+def test_an_uploaded_3dm_says_how_it_was_read(tmp_path):
+    # the status line said only "opened manta_m: 312 segments": not that the file was in metres, converted to mm
+    rhino3dm = pytest.importorskip("rhino3dm")
+    from xshells.app.session import Session
+    from xshells.io import read_design
+
+    d = read_design(os.path.join(EXAMPLES, "manta_ray.obj"))
+    f = rhino3dm.File3dm()
+    f.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Meters
+    f.Settings.ModelAbsoluteTolerance = 1e-6
+    for a, b in d.edges:
+        f.Objects.AddLine(rhino3dm.Point3d(*(d.vertices[a] / 1000)), rhino3dm.Point3d(*(d.vertices[b] / 1000)))
+    f.Write(str(tmp_path / "manta_m.3dm"), 7)
+    s = Session(grid_project(2, 2), out_dir=str(tmp_path))
+    events = []
+    s.listeners.append(lambda e, p: events.append((e, p)))
+    try:
+        assert s.open_upload("manta_m.3dm", (tmp_path / "manta_m.3dm").read_bytes())
+    finally:
+        s.close()
+    assert ("status", "opened manta_m: 312 segments (manta_m.3dm: layer '(no layer)', units Meters, converted to mm "
+                      "(x1000))") in events
+
+
 def test_grid_project_bounds():
     assert grid_project(2, 3, 60).layout.num_segments == 2 * 4 + 3 * 3
     for args in ((0, 3), (3, 100), (3, 3, 1.0)):

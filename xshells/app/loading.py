@@ -40,6 +40,9 @@ class Project:
     rest_lengths : ndarray or None
     direction : {"up", "down"}
         Which way the flat state buckles (a case's ``direction``).
+    note : str or None
+        How the design file was read where that says more than its name (a ``.3dm``'s layer and units,
+        converted to mm): the status line says it when the project opens.
     """
 
     name: str
@@ -49,6 +52,7 @@ class Project:
     target_angle_deg: float | None = None
     rest_lengths: np.ndarray | None = None
     direction: str = "up"
+    note: str | None = None
 
 
 def open_path(path: str) -> Project:
@@ -68,11 +72,12 @@ def open_path(path: str) -> Project:
         design = read_design(case.design_path)
         p = read_rest_lengths(case.rest_lengths_path, design.num_segments, design) if case.rest_lengths_path else None
         angle = np.degrees(case.angle_rad) if case.angle_rad is not None else None
-        return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p, case.direction)
+        return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p, case.direction,
+                       note=design.note)
     if ext in DESIGN_SUFFIXES:
         design = read_design(path)
         layout = layout_from_design(design)
-        return Project(os.path.splitext(os.path.basename(path))[0], layout, default_material(layout))
+        return Project(os.path.splitext(os.path.basename(path))[0], layout, default_material(layout), note=design.note)
     raise InputError(f"{path}: open a design (.obj, .msh, .3dm) or a case file (.json)")
 
 
@@ -131,7 +136,7 @@ class UploadStore:
             design = parse_design_bytes(name, content)
             self._designs[name] = design
             layout = layout_from_design(design)
-            return Project(os.path.splitext(name)[0], layout, default_material(layout))
+            return Project(os.path.splitext(name)[0], layout, default_material(layout), note=design.note)
         if ext == ".json":
             return self._case_from_bytes(name, content)
         raise InputError(f"{name}: upload a design (.obj, .msh, .3dm) or a case file (.json)")
@@ -162,7 +167,7 @@ class UploadStore:
         # an uploaded case without a subdivision keeps the app's own default (8), not the case files' (10)
         sub = case.subdivision if "subdivision" in spec else 8
         return Project(case.name or os.path.splitext(name)[0], layout_from_design(design), material, sub, angle,
-                       direction=case.direction or "up")
+                       direction=case.direction or "up", note=design.note)
 
 
 def grid_project(nx: int, ny: int, angle_deg: float = 90.0, spacing: float = 100.0) -> Project:

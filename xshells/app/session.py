@@ -132,7 +132,9 @@ class Session:
         self._emit("project", project.name)
         self._emit("material", spec_summary(self.material_spec))
         self._layout_changed()
-        self.status(f"opened {project.name}: {project.layout.num_segments} segments")
+        # a .3dm's layer and units (converted to mm) are said, as the command line says them
+        self.status(f"opened {project.name}: {project.layout.num_segments} segments"
+                    + (f" ({project.note})" if project.note else ""))
 
     def open_path(self, path: str) -> None:
         self.load(open_path(path))
