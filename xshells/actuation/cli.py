@@ -13,7 +13,7 @@ def register(subparsers) -> None:
         description="Sparse actuation (paper §6). Deploys the case with every joint actuated, then finds the fewest "
                     "joints whose torques reach the same shape within --max-fit (or the best --actuators N), and the "
                     "trade-off curve on the way. Torques are in the energy's units (N·mm for mm and MPa).")
-    p.add_argument("case", help="a case file (.json), or a design (.obj, .msh) with --material etc.")
+    p.add_argument("case", help="a case file (.json), or a design (.obj, .msh, .3dm) with --material etc.")
     p.add_argument("--max-fit",
                    help="the fewest actuators whose mean joint deviation from the dense deployment stays within this "
                         "share of the span: a percentage (1%%) or a fraction (0.01); default 1%%")

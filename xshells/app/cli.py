@@ -10,7 +10,7 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("app", help="the interactive design tool in the browser",
                               description="Edit a flat X-shell layout, deploy it interactively and export it for fabrication. "
                                           "Serves on 127.0.0.1 (this machine only) unless --host is given.")
-    p.add_argument("input", nargs="?", help="a design (.obj, .msh) or a case file (.json); default: a 6 × 6 grid")
+    p.add_argument("input", nargs="?", help="a design (.obj, .msh, .3dm) or a case file (.json); default: a 6 × 6 grid")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; 0.0.0.0 exposes it to the network)")
     p.add_argument("--out", default="xshells_app_out", help="folder for exports (default: xshells_app_out)")

@@ -12,7 +12,7 @@ DEMO_DESIGN = os.path.join(os.path.dirname(__file__), "..", "data", "examples", 
 def register(subparsers) -> None:
     p = subparsers.add_parser("deploy", help="find the assembly state of a flat design and deploy it",
                               description="Deploy a flat X-shell design by joint torques. Units follow the input (the bundled data: mm, MPa).")
-    p.add_argument("input", help="a case file (.json) or a design (.obj, .msh)")
+    p.add_argument("input", help="a case file (.json) or a design (.obj, .msh, .3dm)")
     p.add_argument("--material", help="TYPE:P1,P2,... (e.g. rectangle:10,7) or a cross-section JSON file")
     p.add_argument("--young", type=float, help="Young's modulus (default 20000, as in the paper, MPa)")
     p.add_argument("--poisson", type=float, help="Poisson's ratio (default 0.3)")

@@ -10,7 +10,7 @@ def register(subparsers) -> None:
         "optimize", help="optimize a case's rest lengths for low flat and deployed energy near the target shape",
         description="Design optimization (paper §5): minimizes γ/E₀·E_flat + (1−γ)/E₀·E_deployed + β/(2l₀²)·T over the "
                     "per-segment rest lengths, keeping the flat state planar and its joint angles open. Units follow the input.")
-    p.add_argument("case", help="a case file (.json), or a design (.obj, .msh) with --material etc.")
+    p.add_argument("case", help="a case file (.json), or a design (.obj, .msh, .3dm) with --material etc.")
     p.add_argument("--gamma", type=float, help="share of the flat energy, in [0, 1] (default 0.9)")
     p.add_argument("--beta", type=float, help="weight of the fitting term (default 1000)")
     p.add_argument("--target-surface", help="a surface mesh (OBJ, PLY, STL, .msh or .3dm; triangles, quads or convex polygons) to fit (default: the deployed design's quads, Loop-subdivided twice)")
