@@ -188,6 +188,8 @@ def test_unchanged_inputs_come_from_the_cache(server, deployed):
     ({"pointer": "/deploy", "values": [{"ParamName": [5], "InnerTree": {}}]}, "'ParamName' (a name)"),
     ({"pointer": "/deploy", "values": [{"ParamName": "Lines"}], "absolutetolerance": -1}, "not a positive length"),
     ({"pointer": "/deploy", "values": [{"ParamName": "Lines"}], "absolutetolerance": "nan"}, "not a positive length"),
+    # 0 was taken for 0.001 without a word
+    ({"pointer": "/deploy", "values": [{"ParamName": "Lines"}], "absolutetolerance": 0}, "absolutetolerance 0.0 is not"),
 ])
 def test_malformed_payloads_get_one_line(server, body, words):
     url, _, _ = server
@@ -261,6 +263,26 @@ def test_unknown_get_is_404_with_a_message(server):
     assert e.value.code == 404 and "no component /nothing" in json.loads(e.value.read())["errors"][0]
 
 
+def test_head_answers_as_get_does(server):
+    # HEAD answered 200 for a path that GET calls 404
+    import http.client
+
+    url, _, _ = server
+    for path, code in (("/nothing", 404), ("/deploy", 200), ("/solve", 405)):
+        conn = http.client.HTTPConnection(url.split("//")[1], timeout=10)
+        conn.request("HEAD", path)
+        r = conn.getresponse()
+        assert (r.status, r.getheader("Content-Type"), r.read()) == (code, "application/json", b"")
+        conn.close()
+
+
+def test_no_component_has_an_input_and_an_output_of_one_name():
+    # Sparsify's input and output were both "Actuators"
+    for c in components():
+        meta = c.metadata()
+        assert not {i["Name"] for i in meta["Inputs"]} & {o["Name"] for o in meta["Outputs"]}, c.name
+
+
 @pytest.mark.parametrize("method, code, words", [
     ("PUT", 405, "PUT is not served"), ("DELETE", 405, "DELETE is not served"),
     ("FOO", 501, "501 Unsupported method ('FOO')"),  # http.server's own error: its HTML page before
@@ -278,7 +300,7 @@ def test_other_methods_get_a_json_error(server, method, code, words):
 
 
 @pytest.mark.parametrize("pointer, extra, expect", [
-    ("/sparsify", {"Actuators": ("System.Int32", 4)}, {"Actuators": 4, "Torques": 4}),
+    ("/sparsify", {"Actuators": ("System.Int32", 4)}, {"Actuated": 4, "Torques": 4}),
     ("/optimize", {"MaxIters": ("System.Int32", 2)}, {"Layout": 170}),
     ("/analyze", {"Supports": ("System.String", "lowest:4"), "Loads": ("System.String", "self-weight"),
                   "Density": ("System.Double", 1.9e-9)}, {"MaxStress": 1}),

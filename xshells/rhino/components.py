@@ -231,7 +231,7 @@ def solve_sparsify(values: dict, ctx: Context) -> dict:
             points.append((g.Point.X, g.Point.Y, g.Point.Z))
             torques.append(float(exact.get(int(vertex), shown)))
     text, warnings = _report("sparsify", r, code)
-    return {"Actuators": points, "Torques": torques, **_state_outputs(layers), "Report": text,
+    return {"Actuated": points, "Torques": torques, **_state_outputs(layers), "Report": text,
             "_warnings": warnings}
 
 
@@ -290,7 +290,8 @@ def components() -> list[Component]:
                                                   "the fit within MaxFit)", default=0),
                    Param("MaxFit", "Text", "allowed deviation from the densely actuated shape (e.g. 1%)", default="1%"),
                    steps, sub, SAMPLE),
-                  (Param("Actuators", "Point", "the actuated joints", many=True),
+                  # not "Actuators", the input's name: one name for an input and an output confused them
+                  (Param("Actuated", "Point", "the actuated joints", many=True),
                    Param("Torques", "Number", "their torques, N·mm", many=True), CENTERLINES, BEAMS, REPORT),
                   solve_sparsify),
         Component("/analyze", "Analyze", "The deployed shell on supports under loads: stresses, reactions, "

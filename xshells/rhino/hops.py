@@ -266,7 +266,9 @@ class HopsService:
         if comp is None:
             return self._error(f"no component {uri} (components: {', '.join(sorted(self.components))})", payload)
         units = payload.get("modelunits") or "Millimeters"
-        tol = payload.get("absolutetolerance") or 0.001
+        tol = payload.get("absolutetolerance")
+        if tol is None:  # not sent: Rhino's default for a millimetre document. A 0 sent is refused below (it became 0.001)
+            tol = 0.001
         key = hashlib.sha256(json.dumps([uri, units, tol, payload.get("values")], sort_keys=True,
                                         default=str).encode()).hexdigest()
         with self._lock:
@@ -334,14 +336,20 @@ def make_server(service: HopsService, host: str = "127.0.0.1", port: int = 5000)
             self.end_headers()
             self.wfile.write(data)
 
-        def do_GET(self):
+        def _get(self) -> tuple[int, str]:
             path = self.path.split("?")[0]
             if path.rstrip("/") == "/solve":
-                return self._reply(405, json.dumps({"errors": ["POST a Hops payload to /solve"]}))
-            self._reply(*service.metadata(path))
+                return 405, json.dumps({"errors": ["POST a Hops payload to /solve"]})
+            return service.metadata(path)
 
-        def do_HEAD(self):
-            self.send_response(200)
+        def do_GET(self):
+            self._reply(*self._get())
+
+        def do_HEAD(self):  # GET's status and headers, no body (it answered 200 for a path that GET calls 404)
+            status, text = self._get()
+            self.send_response(status)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(text.encode("utf-8"))))
             self.end_headers()
 
         def _not_served(self):
