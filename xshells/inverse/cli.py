@@ -11,7 +11,7 @@ def register(subparsers) -> None:
                     "optimizes its rest lengths (paper eq. 5) while a load that first holds it on the surface is let go. "
                     "Writes a case that `xshells deploy` reproduces. Units follow the surface (lengths) and the "
                     "material (Young's modulus): the bundled data use mm and MPa.")
-    p.add_argument("surface", help="the target: a surface mesh (OBJ, PLY, STL, gmsh .msh or Rhino .3dm; triangles, quads or convex polygons) in design units")
+    p.add_argument("surface", help="the target: a surface mesh (OBJ, PLY, STL, gmsh .msh or Rhino .3dm; triangles, quads or convex polygons) in design units (a .3dm states its own and is read in mm)")
     p.add_argument("--spacing", type=float, help="joint spacing along the beams (default: 1/12 of the surface's diagonal, or a quarter of its width where that is less)")
     p.add_argument("--angle", type=float, default=90.0, help="deployed average opening angle, degrees, in (20, 160) (default 90)")
     p.add_argument("--orientation", type=float, default=0.0,
