@@ -256,6 +256,17 @@ def test_a_design_placed_as_a_block_is_read_where_it_is_placed(tmp_path):
     with pytest.raises(InputError, match=r"stretched.3dm: object \d+ \(a block placement\) of block 'manta' is "
                                          r"stretched, sheared or projected.*Explode"):
         read_design(tmp_path / "stretched.3dm")
+    # a block whose objects are not in the file (linked to another): no design, said so, not an empty placement
+    f = _new()
+    idef = _block(f, "linked", lines[:2])
+    for oid in next(d for d in f.InstanceDefinitions if d.Name == "linked").GetObjectIds():
+        f.Objects.Delete(oid)
+    _place(f, idef, rhino3dm.Transform.Translation(0, 0, 0))
+    f.Objects.AddLine(rhino3dm.Point3d(0, 0, 0), rhino3dm.Point3d(0, 100, 0))
+    f.Objects.AddLine(rhino3dm.Point3d(-50, 50, 0), rhino3dm.Point3d(50, 50, 0))
+    f.Write(str(tmp_path / "linked.3dm"), 7)
+    with pytest.raises(InputError, match=r"linked.3dm: block 'linked' \(placed by object 0\) is linked to a file"):
+        read_design(tmp_path / "linked.3dm")
 
 
 def test_a_target_mesh_placed_as_a_block_is_read_where_it_is_placed(tmp_path):

@@ -138,11 +138,13 @@ def _placed(rhino3dm, path, f) -> list[tuple]:
         X = _xform(path, ref, f"{label} of block {name!r}")
         M = X if M is None else M @ X
         where = f"in block {name!r} ({''.join(f'in block {c!r}, ' for c in reversed(chain))}placed by object {top})"
-        for oid in idef.GetObjectIds():
-            hit = by_id.get(str(oid))
-            if hit is None:  # listed but not stored: nothing to show
-                continue
-            j, o = hit
+        ids = [str(oid) for oid in idef.GetObjectIds()]
+        if idef.UpdateType.name == "Linked" or any(oid not in by_id for oid in ids):
+            # its geometry lives in another file: reading the placement as empty would drop it without a word
+            raise InputError(f"{path}: block {name!r} (placed by object {top}) is linked to a file whose objects are "
+                             "not stored here: in Rhino, make it embedded (BlockManager) and save again")
+        for oid in ids:
+            j, o = by_id[oid]
             if isinstance(o.Geometry, rhino3dm.InstanceReference):
                 place(top, j, o.Geometry, M, chain + (name,))
             else:
