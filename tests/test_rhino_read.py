@@ -400,6 +400,10 @@ def test_inverse_on_a_3dm_in_metres_says_so_and_speaks_mm(tmp_path, capsys):
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "xshells inverse: note: cap_m.3dm: layer 'target', units Meters, converted to mm (x1000)"
     assert err[1].startswith("xshells inverse: error: --spacing 0.3 mm gives about") and len(err) == 2
+    assert main(["inverse", str(path), "--beams", "even", "--material", "rectangle:120,7", "--spacing", "200",
+                 "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "beams (120 mm wide) would overlap (gap 66.1 mm)" in err and "joint spacing (200 mm)" in err
 
 
 def test_the_target_layer_is_chosen_apart_from_the_design_layer(tmp_path, capsys):

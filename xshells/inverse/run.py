@@ -748,10 +748,11 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     width = float(np.ptp(material.outline[0], axis=0).max()) if material.outline else 0.0
     gap = _min_beam_gap(net, alpha0)
     if width > 0 and gap < width:
-        units = (f"; the beams are wider than half the joint spacing ({spacing:.3g}): is the surface in the "
+        u = surface.unit
+        units = (f"; the beams are wider than half the joint spacing ({spacing:.3g}{u}): is the surface in the "
                  f"material's units (the section's, and E's: mm and MPa by default)?" if width > 0.5 * spacing else "")
         raise InputError(f"--flat-angle {options.flat_angle:g}°: closed that far, neighbouring beams "
-                         f"({width:.3g} wide) would overlap (gap {gap:.3g}): open it, or use a larger spacing{units}")
+                         f"({width:.3g}{u} wide) would overlap (gap {gap:.3g}{u}): open it, or use a larger spacing{units}")
 
     # 3. rest lengths and a first deployment ----------------------------------------------------
     from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
