@@ -386,7 +386,7 @@ def _mesh_file(path, units="Millimeters", layers=("target",), scale=1.0):
     return path
 
 
-def test_inverse_on_a_3dm_in_metres_says_so_and_speaks_mm(tmp_path, capsys):
+def test_inverse_on_a_3dm_in_metres_says_so_and_speaks_mm(tmp_path, capsys, reset_3dm_options):
     # no line said the surface was converted, result.json called its units the file's, --spacing had no unit
     from xshells.cli import main
     from xshells.inverse.run import units_text
@@ -406,7 +406,7 @@ def test_inverse_on_a_3dm_in_metres_says_so_and_speaks_mm(tmp_path, capsys):
     assert "beams (120 mm wide) would overlap (gap 66.1 mm)" in err and "joint spacing (200 mm)" in err
 
 
-def test_the_target_layer_is_chosen_apart_from_the_design_layer(tmp_path, capsys):
+def test_the_target_layer_is_chosen_apart_from_the_design_layer(tmp_path, capsys, reset_3dm_options):
     # --layer chose both (the design's layer was looked for among the surfaces); inverse had no layer option
     from xshells.cli import main
 
@@ -424,7 +424,7 @@ def test_the_target_layer_is_chosen_apart_from_the_design_layer(tmp_path, capsys
     assert "--target-layer reads a .3dm target surface: none is given" in capsys.readouterr().err
 
 
-def test_fabricate_refuses_units_for_a_3dm_and_both_commands_say_the_conversion_without_progress(tmp_path, capsys):
+def test_fabricate_refuses_units_for_a_3dm_and_both_commands_say_the_conversion_without_progress(tmp_path, capsys, reset_3dm_options):
     # --units m on a file in metres scaled it x1000 a second time; --no-progress hid the conversion
     import json
 

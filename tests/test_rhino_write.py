@@ -50,7 +50,7 @@ def test_deploy_writes_a_layered_3dm_in_millimetres(tmp_path):
     assert not mesh.Vertices.UseDoublePrecisionVertices
 
 
-def test_optimize_writes_the_target_surface_it_fitted_and_reads_it_from_its_own_layer(tmp_path):
+def test_optimize_writes_the_target_surface_it_fitted_and_reads_it_from_its_own_layer(tmp_path, reset_3dm_options):
     # deployed.3dm had no target layer; and --layer chose the surface's layer too, so one file could not hold both
     d = read_design(EXAMPLES / "nonuniform_linkage.obj")
     V = d.vertices * 200
