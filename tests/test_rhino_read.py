@@ -256,6 +256,15 @@ def test_a_design_placed_as_a_block_is_read_where_it_is_placed(tmp_path):
     with pytest.raises(InputError, match=r"stretched.3dm: object \d+ \(a block placement\) of block 'manta' is "
                                          r"stretched, sheared or projected.*Explode"):
         read_design(tmp_path / "stretched.3dm")
+    # ... but a stretched block of other things, on another layer, does not stop the design from being read
+    f = _new(layers=("design", "notes"))
+    _place(f, _block(f, "title", [rhino3dm.LineCurve(rhino3dm.Point3d(0, 0, 0), rhino3dm.Point3d(1, 0, 0))], layer=1),
+           stretch)
+    _place(f, _block(f, "manta", lines), rhino3dm.Transform.Translation(0, 0, 0))
+    f.Write(str(tmp_path / "titled.3dm"), 7)
+    from xshells.rhino import read_3dm_design
+
+    assert _same_graph(d, read_3dm_design(tmp_path / "titled.3dm", layer="design"))
     # a block whose objects are not in the file (linked to another): no design, said so, not an empty placement
     f = _new()
     idef = _block(f, "linked", lines[:2])

@@ -99,34 +99,40 @@ def _pick_layer(path, names: list[str], layer: str) -> int:
     return matches[0]
 
 
-def _xform(path, ref, label: str) -> np.ndarray:
-    """A block placement's transform as a 4 x 4 array; only a similarity (a rigid motion, mirror or uniform scale)
-    is taken, as it keeps the beams' shape: a stretched or sheared block would change it behind the drawing's back."""
+def _xform(path, ref, label: str) -> tuple[np.ndarray, str | None]:
+    """A block placement's transform as a 4 x 4 array, and why it cannot be read (else None).
+
+    Only a similarity (a rigid motion, mirror or uniform scale) is taken, as it keeps the beams' shape: a
+    stretched or sheared block would change it behind the drawing's back. The reason is given, not raised: a
+    stretched block of other things (a title block) does not stop the design from being read.
+    """
     X = ref.Xform
     M = np.array([[getattr(X, f"M{r}{c}") for c in range(4)] for r in range(4)], float)
     A = M[:3, :3]
     if not np.all(np.isfinite(M)):
-        raise InputError(f"{path}: {label} has a non-finite transform")
+        return M, f"{path}: {label} has a non-finite transform"
     scale2 = float(np.trace(A.T @ A)) / 3.0
     if (np.abs(M[3] - [0, 0, 0, 1]).max() > 1e-12 or not scale2 > 0
             or np.abs(A.T @ A - scale2 * np.eye(3)).max() > 1e-9 * scale2):
-        raise InputError(f"{path}: {label} is stretched, sheared or projected: only a move, rotation, mirror or "
-                         "uniform scale of a block is read (in Rhino: Explode it to use the changed geometry)")
-    return M
+        return M, (f"{path}: {label} is stretched, sheared or projected: only a move, rotation, mirror or uniform "
+                   "scale of a block is read (in Rhino: Explode it to use the changed geometry)")
+    return M, None
 
 
 def _placed(rhino3dm, path, f) -> list[tuple]:
-    """The objects the model shows: ``(label, geometry, layer index, transform or None)``.
+    """The objects the model shows: ``(label, geometry, layer index, transform or None, refused)``.
 
     Top-level objects as they are; each block placement adds its definition's objects through its transform
     (nested blocks too, transforms composed). A definition's objects are never taken where they are stored.
+    ``refused`` is why an object placed through a transform that is not read cannot be used, else None: the
+    reader raises it if it takes that object (:func:`_taken`).
     """
     objects = list(f.Objects)
     by_id = {str(o.Attributes.Id): (i, o) for i, o in enumerate(objects)}
     idefs = {str(d.Id): d for d in f.InstanceDefinitions}
     out = []
 
-    def place(top, i, ref, M, chain):
+    def place(top, i, ref, M, chain, refused):
         # top: the top-level placement's index; chain: the blocks this one is nested in, outermost first
         idef = idefs.get(str(ref.ParentIdefId))
         label = f"object {i} (a block placement{f' in block {chain[-1]!r}' if chain else ''})"
@@ -135,8 +141,8 @@ def _placed(rhino3dm, path, f) -> list[tuple]:
         name = idef.Name
         if name in chain:
             raise InputError(f"{path}: block {name!r} contains itself")
-        X = _xform(path, ref, f"{label} of block {name!r}")
-        M = X if M is None else M @ X
+        X, why = _xform(path, ref, f"{label} of block {name!r}")
+        M, refused = (X if M is None else M @ X), refused or why
         where = f"in block {name!r} ({''.join(f'in block {c!r}, ' for c in reversed(chain))}placed by object {top})"
         ids = [str(oid) for oid in idef.GetObjectIds()]
         if idef.UpdateType.name == "Linked" or any(oid not in by_id for oid in ids):
@@ -146,19 +152,25 @@ def _placed(rhino3dm, path, f) -> list[tuple]:
         for oid in ids:
             j, o = by_id[oid]
             if isinstance(o.Geometry, rhino3dm.InstanceReference):
-                place(top, j, o.Geometry, M, chain + (name,))
+                place(top, j, o.Geometry, M, chain + (name,), refused)
             else:
-                out.append((f"object {j} {where}", o.Geometry, int(o.Attributes.LayerIndex), M))
+                out.append((f"object {j} {where}", o.Geometry, int(o.Attributes.LayerIndex), M, refused))
 
     for i, o in enumerate(objects):
         if o.Attributes.IsInstanceDefinitionObject:  # a block's geometry: only where a placement puts it
             continue
         g = o.Geometry
         if isinstance(g, rhino3dm.InstanceReference):
-            place(i, i, g, None, ())
+            place(i, i, g, None, (), None)
         else:
-            out.append((f"object {i}", g, int(o.Attributes.LayerIndex), None))
+            out.append((f"object {i}", g, int(o.Attributes.LayerIndex), None, None))
     return out
+
+
+def _taken(refused: str | None) -> None:
+    """An object placed by :func:`_placed` is used: refuse it if its placement cannot be read."""
+    if refused:
+        raise InputError(refused)
 
 
 def _apply(M, P: np.ndarray) -> np.ndarray:
@@ -210,9 +222,9 @@ def read_3dm_design(path, layer: str | None = None, sample: int | None = None) -
     tol = float(f.Settings.ModelAbsoluteTolerance) or 1e-6
     names = _layer_names(f)
     by_layer: dict[int, list] = {}
-    for label, g, li, M in _placed(rhino3dm, path, f):
+    for label, g, li, M, refused in _placed(rhino3dm, path, f):
         if isinstance(g, rhino3dm.Curve):
-            by_layer.setdefault(li, []).append((label, g, M))
+            by_layer.setdefault(li, []).append((label, g, M, refused))
     if layer is None:
         if not by_layer:
             raise InputError(f"{path}: no lines or polylines in the file")
@@ -226,7 +238,8 @@ def read_3dm_design(path, layer: str | None = None, sample: int | None = None) -
             raise InputError(f"{path}: layer {layer!r} holds no lines or polylines")
     layer_name = names[chosen] if 0 <= chosen < len(names) else "(no layer)"
     points, owner, edges = [], [], []
-    for label, g, M in by_layer[chosen]:
+    for label, g, M, refused in by_layer[chosen]:
+        _taken(refused)
         pts = _apply(M, _curve_points(rhino3dm, g, sample, f"{path}: {label} on layer {layer_name!r}"))
         base = len(points)
         points.extend(pts.tolist())
@@ -330,9 +343,11 @@ def read_3dm_surface(path, layer: str | None = None, *, with_note: bool = False)
     names = _layer_names(f)
     chosen = None if layer is None else _pick_layer(path, names, layer)
     pieces, unmeshed = [], []
-    for label, g, li, M in _placed(rhino3dm, path, f):
+    for label, g, li, M, refused in _placed(rhino3dm, path, f):
         if chosen is not None and li != chosen:
             continue
+        if isinstance(g, (rhino3dm.Mesh, rhino3dm.Brep, rhino3dm.Extrusion, rhino3dm.Surface, rhino3dm.SubD)):
+            _taken(refused)
         lname = names[li] if 0 <= li < len(names) else "(no layer)"
         if isinstance(g, rhino3dm.Mesh):
             pieces.append((lname, g, M))
