@@ -398,6 +398,21 @@ def test_mirrored_edits_keep_a_symmetric_layout_symmetric():
         core.Mirror("z", 0.0)
 
 
+def test_a_mirrored_move_moves_the_partner_by_the_mirrored_displacement():
+    """The partner is matched within 1 % of the span: put on the exact mirror image of the moved joint, it jumped
+    by its asymmetry (the manta ray's joint 116 by (−13.3, +10.0) for a move of joint 110 along x)."""
+    lay = core.move_joint(_symmetric_grid(), 13, (3.02, 0.97))  # (3, 1), a little off the image of joint 5 at (1, 1)
+    m = core.Mirror.through_centre(_symmetric_grid(), "x")
+    assert core.mirror_partner(lay, 5, m) == 13
+    out = core.move_joint_mirrored(lay, 5, (1.2, 1.0), m)  # along x only
+    d = out.vertices - lay.vertices
+    np.testing.assert_allclose(d[5], [0.2, 0.0])
+    np.testing.assert_allclose(d[13], [-0.2, 0.0], atol=1e-15)  # was (−0.22, +0.03): onto (2.8, 1.0)
+    assert np.count_nonzero(np.abs(d).sum(axis=1)) == 2
+    on_line = core.move_joint(lay, 9, (2.01, 1.0))  # near the line x = 2: it keeps its offset and slides along it
+    np.testing.assert_allclose(core.move_joint_mirrored(on_line, 9, (2.3, 1.4), m).vertices[9], [2.01, 1.4])
+
+
 def test_cage_rest_is_identity_and_handles_deform_smoothly():
     lay = _symmetric_grid()
     cage = core.Cage.around(lay, (3, 3), margin=0.0)
