@@ -80,6 +80,44 @@ def test_topology_messages(grid):
     assert core.topology_problems(core.Layout(np.zeros((2, 2)), np.zeros((0, 2)))) == ["the layout has no segments"]
 
 
+def test_a_layout_turned_inside_out_is_a_topology_problem_at_once(tmp_path):
+    """Darth Vader with boundary joint 88 raised 38 mm (as dragged in the page): corners 87 and 153 cross the lines
+    between their neighbours. The topology check said "ok", and the app spent 104 s deploying until they folded."""
+    from xshells.app.session import Session
+
+    project = open_path(os.path.join(EXAMPLES, "darth_vader", "case.json"))
+    lay = core.move_joint(project.layout, 32, project.layout.vertices[32] + [0.0, 37.77])
+    assert core.topology_problems(lay) == []
+    folded = core.move_joint(lay, 88, lay.vertices[88] + [0.0, 37.77])
+    (line,) = core.topology_problems(folded)
+    assert re.fullmatch(r"joint 87 is folded through: it crossed the line from joint 85 to joint 88, turning its cell "
+                        r"inside out \(and corner 153\); deployed, it would invert", line), line
+    # a corner of a lattice pushed into its cell, and a joint dragged across a beam of its own family
+    grid = _symmetric_grid()
+    assert core.topology_problems(core.move_joint(grid, 0, (0.4, 0.4))) == []  # still on its own side of joints 1–4
+    assert core.topology_problems(core.move_joint(grid, 0, (0.8, 0.8)))[0].startswith("joint 0 is folded through")
+    assert core.topology_problems(core.move_joint(grid, 5, (1.3, 1.2))) == []
+    assert core.topology_problems(core.move_joint(grid, 5, (2.6, 1.5))) == [
+        "segments 19 (joints 4–5) and 22 (joints 8–9) cross: beams of one family lie in one layer and would collide"]
+    # the session does not simulate it: the edit does not follow itself, and a solve asked for says why at once
+    s = Session(project, out_dir=str(tmp_path))
+    events = []
+    s.listeners.append(lambda e, p: events.append((e, p)))
+    try:
+        s.live = False
+        assert s.edit(core.move_joint, 32, lay.vertices[32])
+        s.live, s.angle_deg = True, 115.0  # as if deployed: an edit follows itself with a solve
+        before = len(events)
+        assert s.edit(core.move_joint, 88, folded.vertices[88])
+        assert [p for e, p in events if e == "problems"][-1] == [line]
+        assert s.worker.wait_idle(10) and not [e for e, p in events[before:] if e in ("progress", "status")]
+        s.request_angle(115.0)
+        assert s.worker.wait_idle(60)
+        assert [p for e, p in events if e == "status"][-1] == "cannot simulate: " + line
+    finally:
+        s.close()
+
+
 def test_picking(grid):
     v = 4
     assert core.nearest_vertex(grid, grid.vertices[v] + 1.0) == v
