@@ -396,6 +396,48 @@ def test_an_inverting_joint_stops_the_slider_at_the_last_good_state():
     assert info.angle_deg == pytest.approx(np.degrees(sim.current_angle))
 
 
+def test_the_branch_check_compares_only_converged_states_and_keeps_a_failure_in_the_status_line(monkeypatch):
+    """A deployment that stopped short (a joint folds near 157.5° on the way to 179°) was "agreed" with by a cold
+    deployment stopped at the same state (joints 0.0e+00 apart), and that replaced the status line's reason."""
+    from xshells.app.loading import Project
+    from xshells.app.session import Session
+    from xshells.app.sim import Simulation
+
+    grid = grid_project(4, 4, 70)
+    s = Session(Project("bent grid", core.warp_bend(grid.layout, 0.5), grid.material, subdivision=4))
+    events = []
+    s.listeners.append(lambda e, p: events.append((e, p)))
+    try:
+        s.request_angle(179.0)
+        assert s.worker.wait_idle(120)
+        failed = s.last_deployed.info
+        assert not failed.converged and "inverts" in failed.message
+        status = [p for e, p in events if e == "status"][-1]
+        assert status == failed.message
+        s.check_branch()
+        assert s.worker.wait_idle(120)
+        assert not [p for e, p in events if e == "branch"]
+        assert [p for e, p in events if e == "status"][-1] == status
+        # a converged shown state, and a cold deployment that stops: said so, and no branch to switch to
+        s.request_angle(150.0)
+        assert s.worker.wait_idle(120) and s.last_deployed.info.converged
+        solve_to = Simulation.solve_to
+
+        def stops(self, angle_deg, cancel=None, progress=None):
+            info = solve_to(self, angle_deg, cancel, progress)
+            return type(info)(**{**info.__dict__, "converged": False, "message": "stopped near 149.0°: (as if) it inverts"})
+
+        monkeypatch.setattr(Simulation, "solve_to", stops)
+        s.check_branch()
+        assert s.worker.wait_idle(120)
+        branch = [p for e, p in events if e == "branch"][-1]
+        assert not branch["same"] and not branch["cold_converged"] and s.alternative is None
+        assert [p for e, p in events if e == "status"][-1] == \
+            "a cold deployment to 150.0° did not get there, no comparison: stopped near 149.0°: (as if) it inverts"
+    finally:
+        s.close()
+
+
 # ----------------------------------------------------------------------------- direct manipulation
 def _symmetric_grid() -> core.Layout:
     """A 5 × 4 lattice, mirror-symmetric about x = 2 and y = 1.5."""

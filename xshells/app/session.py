@@ -436,8 +436,14 @@ class Session:
         """Deploy the current layout from its flat state (as a cold start would) and compare with the shown state.
 
         Emits ``"branch"`` with ``{"same": bool, "difference": max joint distance / span, "energy_shown",
-        "energy_cold", "flipped"}``; when they differ, the cold state is kept as :attr:`alternative` and
-        :meth:`choose_branch` switches to it.
+        "energy_cold", "flipped", "cold_converged", "cold_message"}``; when they differ, the cold state is
+        kept as :attr:`alternative` and :meth:`choose_branch` switches to it.
+
+        Only a converged shown state is compared, and only with a converged
+        cold one: a deployment that stopped short was "agreed" with by a cold
+        one stopped at the same flat state (joints 0 apart), and that line
+        replaced the status line's reason why it stopped. A cold deployment
+        that stops is reported as such, with its reason, and is no branch to switch to.
         """
         angle = self.angle_deg
         if angle is None:
@@ -448,8 +454,9 @@ class Session:
 
             with self._lock:
                 shown, key, layout, k, p = self.sim, self._sim_key, self.layout, self.subdivision, self.rest_lengths
-            if shown is None or key != self._key():
-                return None
+                view = self.last_deployed
+            if shown is None or key != self._key() or view is None or not view.info.converged:
+                return None  # nothing solved, or a state that stopped short: its status line stays
             direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
             cold = Simulation(layout, self.material, k, rest_lengths=p, settings=SimSettings(direction=direction),
                               cancel=cancel)
@@ -459,20 +466,22 @@ class Session:
             span = float(np.ptp(layout.vertices, axis=0).max())
             diff = float(np.abs(P - Q).max()) / span
             zs, zc = (L.height_selector() @ L.get_vars() for L in (shown.linkage, cold.linkage))
-            result = {"same": diff <= 1e-6, "difference": diff, "energy_shown": shown.linkage.energy(),
+            result = {"same": info.converged and diff <= 1e-6, "difference": diff, "energy_shown": shown.linkage.energy(),
                       "energy_cold": info.energy, "flipped": bool((zs - np.median(zs)) @ (zc - np.median(zc)) < 0),
-                      "angle_deg": angle}
+                      "angle_deg": angle, "cold_converged": info.converged, "cold_message": info.message}
             with self._lock:
-                if self.sim is not shown:
-                    return None  # edited meanwhile: the comparison is stale
-                self.alternative = None if result["same"] else (cold, key)
+                if self.sim is not shown or self.last_deployed is not view:
+                    return None  # edited or re-solved meanwhile: the comparison is stale
+                self.alternative = None if result["same"] or not info.converged else (cold, key)
             return result
 
         def done(result):
             if result is None:
                 return
             self._emit("branch", result)
-            if result["same"]:
+            if not result["cold_converged"]:
+                self.status(f"a cold deployment to {angle:.1f}° did not get there, no comparison: {result['cold_message']}")
+            elif result["same"]:
                 self.status(f"a cold deployment agrees (joints within {result['difference']:.1e} of the span)")
             else:
                 self.status(f"two branches: shown energy {result['energy_shown']:.6g}, cold deployment "

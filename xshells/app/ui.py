@@ -567,7 +567,10 @@ class App:
                                     f"torque {i.torque:.4g}  \nmax |z| {i.max_abs_z:.4g}  \n"
                                     f"solve + mesh {payload.solve_time_s:.2f} s")
         elif event == "branch":
-            if payload["same"]:
+            if not payload["cold_converged"]:
+                self.branch_md.content = f"*a cold deployment did not get there: {payload['cold_message']}*"
+                self.branch_row.visible = False
+            elif payload["same"]:
                 self.branch_md.content = f"*a cold deployment agrees (joints within {payload['difference']:.1e} of the span)*"
                 self.branch_row.visible = False
             else:
