@@ -338,10 +338,7 @@ class Session:
             from .sim import Cancelled
             raise Cancelled()
         self._emit("progress", (0.1, f"assembly state ({layout.num_segments} segments)…"))
-        from .sim import SimSettings
-
-        direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
-        sim = Simulation(layout, material, k, rest_lengths=p, settings=SimSettings(direction=direction), cancel=cancel)
+        sim = Simulation(layout, material, k, rest_lengths=p, settings=self._settings(), cancel=cancel)
         self._emit("flat", self._view(sim, time.perf_counter()))  # the flat assembly state of the edited layout
         warm = None
         if angle_deg is not None and previous is not None and previous.states[1:]:
@@ -361,6 +358,12 @@ class Session:
             if key[0] != "preview":
                 self._sims = [e for e in self._sims if e[0] != key][-(SIM_CACHE - 1):] + [(key, layout, sim)]
         return sim
+
+    def _settings(self):
+        """The simulation settings of the project: its buckling direction and deployment steps, as ``xshells deploy``'s."""
+        from .sim import SimSettings
+
+        return SimSettings(direction=self.project.direction, steps=self.project.steps)
 
     def _view(self, sim, t0: float, info=None) -> View:
         from ..linkage.export import scalar_fields, swept_mesh
@@ -450,15 +453,14 @@ class Session:
             return
 
         def job(cancel, progress):
-            from .sim import SimSettings, Simulation
+            from .sim import Simulation
 
             with self._lock:
                 shown, key, layout, k, p = self.sim, self._sim_key, self.layout, self.subdivision, self.rest_lengths
                 view = self.last_deployed
             if shown is None or key != self._key() or view is None or not view.info.converged:
                 return None  # nothing solved, or a state that stopped short: its status line stays
-            direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
-            cold = Simulation(layout, self.material, k, rest_lengths=p, settings=SimSettings(direction=direction),
+            cold = Simulation(layout, self.material, k, rest_lengths=p, settings=self._settings(),
                               cancel=cancel)
             info = cold.solve_to(angle, cancel=cancel,
                                  progress=lambda f, text: progress(f, f"cold deployment for comparison: at {text}"))
@@ -659,8 +661,15 @@ class Session:
             return exports.write_fabrication_files(os.path.dirname(path), os.path.basename(path), layout, self.material,
                                                    p, kind)
         if kind == "case":
+            # Rest lengths only where the design has its own (opened with it, or optimized): those from the
+            # rest-length solve are left to `xshells deploy` to solve again. Given instead, they hold the flat
+            # state differently (the pinned joint's frame as drawn, not as solved), and the deployed joints
+            # came out rotated against the shown ones by 3.2e-3 of the span (manta ray at 90°).
+            with self._lock:
+                given = self.rest_lengths
             return exports.write_case(self._path(".json"), self.name, layout, self.material_spec, self.subdivision,
-                                      self.angle_deg if self.angle_deg is not None else self.target_angle_deg, p)
+                                      self.angle_deg if self.angle_deg is not None else self.target_angle_deg, given,
+                                      direction=self.project.direction, steps=self.project.steps)
         if kind in ("obj", "ply", "gltf", "glb", "png"):
             sim = self.sim
             if sim is None:
