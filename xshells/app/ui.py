@@ -398,11 +398,12 @@ class App:
         """Scene positions of the joints that can be hovered (flat layout, then the shown deployed state) and their labels."""
         layout = self.session.layout
         P = [self._to_scene(layout.vertices) + [0, 0, 0.025]] if layout.num_vertices else []
-        labels = [f"joint {v}  ({x:.4g}, {y:.4g})" for v, (x, y) in enumerate(layout.vertices)]
+        span = layout.span()
+        labels = [hover.flat_label(v, xy, span) for v, xy in enumerate(layout.vertices)]
         view = self._shown_deployed
         if view is not None and view.joint_vertices is not None and len(view.joints):
             P.append(self._deployed_to_scene(view.joints, view))
-            labels += [f"joint {v}  (height {z:.4g})" for v, z in
+            labels += [hover.height_label(v, z, span) for v, z in
                        zip(view.joint_vertices.tolist(), view.joints[:, 2] - view.joints[:, 2].min())]
         return (np.vstack(P) if P else np.zeros((0, 3))), labels
 
