@@ -304,3 +304,24 @@ def test_drag_a_joint_in_the_plan_view(tmp_path):
                 browser.close()
     finally:
         app.stop()
+
+
+def test_an_angle_typed_outside_the_sliders_range_puts_it_back_with_one_line(tmp_path):
+    # no browser: the slider's box sends what was typed as its value (the page kept 200, -5 or 179.9 in the slider)
+    from xshells.app.cli import start
+
+    app = start(EXAMPLE, host="127.0.0.1", port=_free_port(), out_dir=str(tmp_path / "out"))
+    s = app.session
+    statuses = []
+    s.listeners.append(lambda e, p: statuses.append(p) if e == "status" else None)
+    try:
+        app.angle.value = 40.0
+        assert s.angle_deg == 40.0
+        for typed in (200.0, -5.0, 179.9, float("nan")):
+            app.angle.value = typed
+            assert app.angle.value == 40.0 and s.angle_deg == 40.0
+            assert statuses[-1] == f"opening angle {typed:g}°: give one from 5° to 175° (back at 40.0°)"
+        app.angle.value = 175.0  # the ends are in range
+        assert s.angle_deg == 175.0
+    finally:
+        app.stop()

@@ -205,7 +205,8 @@ class App:
         with tabs.add_tab("Deploy"):
             lo, hi = 5.0, 175.0
             self.angle = gui.add_slider("opening angle (°)", lo, hi, 0.1, 90.0)
-            self.angle.on_update(lambda _: s.request_angle(float(self.angle.value)))
+            self._angle_range, self._angle_resetting = (lo, hi), False
+            self.angle.on_update(lambda _: self._angle_changed())
             self.field = gui.add_dropdown("colour by", tuple(FIELDS), initial_value="bending energy")
             self.field.on_update(lambda _: s.set_field(self.field.value))
             row = gui.add_button_group("animation", ("Play", "Stop"))
@@ -303,6 +304,28 @@ class App:
         angle = float(np.clip(angle, 5.0, 175.0))
         self.angle.value = angle
         s.request_angle(angle)  # a repeated request from the slider's own callback just replaces this one
+
+    def _angle_changed(self) -> None:
+        """Deploy to the slider's angle; one typed into its box outside the slider's range puts it back, with one line.
+
+        The box takes any number (200, −5, 179.9) and the slider kept it: the
+        page then showed an angle that was never solved, or one the linkage
+        folds on the way to.
+        """
+        if self._angle_resetting:
+            return
+        v = float(self.angle.value)
+        lo, hi = self._angle_range
+        if np.isfinite(v) and lo <= v <= hi:
+            self.session.request_angle(v)
+            return
+        back = self.session.angle_deg if self.session.angle_deg is not None else float(np.clip(v, lo, hi) if np.isfinite(v) else lo)
+        self._angle_resetting = True
+        try:
+            self.angle.value = back
+        finally:
+            self._angle_resetting = False
+        self.session.status(f"opening angle {v:g}°: give one from {lo:g}° to {hi:g}° (back at {back:.1f}°)")
 
     def _flat_angle_guess(self) -> float:
         """Average opening angle of the layout's joints (what the assembly state keeps)."""
