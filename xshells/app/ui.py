@@ -36,6 +36,20 @@ SECTION_TYPES = ("rectangle", "ellipse", "I", "L", "+")
 PLAN_FOV = np.radians(8.0)  # the plan view: a narrow field of view from far above, nearly orthographic
 PLAN_HALF_HEIGHT = 1.15  # scene units from the view's centre to its top edge (the layout spans 2)
 GAP = 1.25  # scene units between the centre of each half and the origin
+PANEL_PX = 400  # viser's control panel with its margin, at its default width (it floats over the canvas's right side)
+
+
+def plan_camera(width: float, height: float) -> tuple[float, float]:
+    """The plan view's half-height at the layout (scene units) and how far right of the layout its centre lies.
+
+    Fits the flat layout (2 units across, with the margin of
+    ``PLAN_HALF_HEIGHT``) into the canvas left of the panel: centred on the
+    whole canvas, the layout ran under the panel at 1400 × 800. A canvas
+    under twice the panel's width is taken whole (viser then folds the panel away).
+    """
+    visible = width - PANEL_PX if width > 2 * PANEL_PX else width
+    px = min(visible, height) / (2 * PLAN_HALF_HEIGHT)  # pixels per scene unit
+    return height / (2 * px), (width - visible) / (2 * px)
 FIRST_SOLVE_DELAY_S = 3.0  # after the first page connects (see App.__init__; measured in benchmarks/app.py)
 
 
@@ -518,10 +532,13 @@ class App:
         clients = [client] if client is not None else list(self.server.get_clients().values())
         for c in clients:
             if which == "Plan":  # from straight above, tilted by 1e-4 rad so that "up" (+z) stays well defined
-                d = PLAN_HALF_HEIGHT / np.tan(0.5 * PLAN_FOV)
+                half, right = PLAN_HALF_HEIGHT, 0.0
+                if c.camera.update_timestamp:  # the canvas size is known once the page has sent its camera
+                    half, right = plan_camera(c.camera.image_width, c.camera.image_height)
+                d = half / np.tan(0.5 * PLAN_FOV)
                 c.camera.fov = PLAN_FOV
-                c.camera.position = (-GAP, -1e-4 * d, d)  # position moves look_at along: set look_at after it
-                c.camera.look_at = (-GAP, 0.0, 0.0)
+                c.camera.position = (-GAP + right, -1e-4 * d, d)  # position moves look_at along: set look_at after it
+                c.camera.look_at = (-GAP + right, 0.0, 0.0)
             else:
                 c.camera.fov = np.radians(75.0)
                 c.camera.position = (0.75, -2.8, 2.35)
