@@ -333,7 +333,9 @@ class App:
         if np.isfinite(v) and lo <= v <= hi:
             self.session.request_angle(v)
             return
-        back = self.session.angle_deg if self.session.angle_deg is not None else float(np.clip(v, lo, hi) if np.isfinite(v) else lo)
+        back = self.session.angle_deg
+        if back is None:  # nothing shown yet: the nearest end of the range
+            back = float(np.clip(v, lo, hi)) if np.isfinite(v) else lo
         self._angle_resetting = True
         try:
             self.angle.value = back
