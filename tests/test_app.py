@@ -229,7 +229,7 @@ def test_drag_a_joint_in_the_plan_view(tmp_path):
     following (warm start), and the result checked against a cold deployment of the edited layout."""
     from xshells.app.cli import start
     from xshells.app.sim import Simulation
-    from xshells.app.ui import GAP, PLAN_HALF_HEIGHT
+    from xshells.app.ui import GAP, plan_camera
 
     os.makedirs(ARTIFACTS, exist_ok=True)
     app = start(EXAMPLE, host="127.0.0.1", port=_free_port(), out_dir=str(tmp_path / "out"))
@@ -253,8 +253,9 @@ def test_drag_a_joint_in_the_plan_view(tmp_path):
                 page.wait_for_timeout(1500)
                 # where a layout point is on the screen: the plan camera looks straight down on the flat half
                 box = page.locator("canvas").first.bounding_box()
-                px = box["height"] / (2 * PLAN_HALF_HEIGHT)
-                to_screen = lambda P: (box["x"] + box["width"] / 2 + (P[0] + GAP) * px,  # noqa: E731
+                half, right = plan_camera(box["width"], box["height"])  # its centre, right of the layout's
+                px = box["height"] / (2 * half)
+                to_screen = lambda P: (box["x"] + box["width"] / 2 + (P[0] + GAP - right) * px,  # noqa: E731
                                        box["y"] + box["height"] / 2 - P[1] * px)
                 v = 40
                 x, y = to_screen(app._to_scene(s.layout.vertices[v]))
@@ -304,3 +305,40 @@ def test_drag_a_joint_in_the_plan_view(tmp_path):
                 browser.close()
     finally:
         app.stop()
+
+
+def test_an_angle_typed_outside_the_sliders_range_puts_it_back_with_one_line(tmp_path):
+    # no browser: the slider's box sends what was typed as its value (the page kept 200, -5 or 179.9 in the slider)
+    from xshells.app.cli import start
+
+    app = start(EXAMPLE, host="127.0.0.1", port=_free_port(), out_dir=str(tmp_path / "out"))
+    s = app.session
+    statuses = []
+    s.listeners.append(lambda e, p: statuses.append(p) if e == "status" else None)
+    try:
+        app.angle.value = 40.0
+        assert s.angle_deg == 40.0
+        for typed in (200.0, -5.0, 179.9, float("nan")):
+            app.angle.value = typed
+            assert app.angle.value == 40.0 and s.angle_deg == 40.0
+            assert statuses[-1] == f"opening angle {typed:g}°: give one from 5° to 175° (back at 40.0°)"
+        app.angle.value = 175.0  # the ends are in range
+        assert s.angle_deg == 175.0
+    finally:
+        app.stop()
+
+
+@pytest.mark.parametrize("width, height", [(1400, 800), (1000, 800), (1920, 1080), (700, 900)])
+def test_the_plan_view_fits_the_layout_left_of_the_panel(width, height):
+    # centred on the whole canvas, the layout ran under the panel at 1400 × 800
+    from xshells.app import hover
+    from xshells.app.ui import PANEL_PX, PLAN_FOV, plan_camera
+
+    half, right = plan_camera(width, height)
+    d = half / np.tan(0.5 * PLAN_FOV)
+    corners = np.array([[x, y, 0.0] for x in (-1.0, 1.0) for y in (-1.0, 1.0)])  # the layout spans 2 units
+    ndc, front = hover.project(corners, (right, 0.0, d), (0.0, 1.0, 0.0, 0.0), PLAN_FOV, width / height)  # looking down
+    px = (ndc + 1) / 2 * [width, height]
+    visible = width - PANEL_PX if width > 2 * PANEL_PX else width
+    assert front.all() and px.min() > 0 and px[:, 0].max() < visible and px[:, 1].max() < height
+    assert abs(px[:, 0].mean() - visible / 2) < 1e-6 * width  # centred in what the panel leaves

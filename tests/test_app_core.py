@@ -80,6 +80,44 @@ def test_topology_messages(grid):
     assert core.topology_problems(core.Layout(np.zeros((2, 2)), np.zeros((0, 2)))) == ["the layout has no segments"]
 
 
+def test_a_layout_turned_inside_out_is_a_topology_problem_at_once(tmp_path):
+    """Darth Vader with boundary joint 88 raised 38 mm (as dragged in the page): corners 87 and 153 cross the lines
+    between their neighbours. The topology check said "ok", and the app spent 104 s deploying until they folded."""
+    from xshells.app.session import Session
+
+    project = open_path(os.path.join(EXAMPLES, "darth_vader", "case.json"))
+    lay = core.move_joint(project.layout, 32, project.layout.vertices[32] + [0.0, 37.77])
+    assert core.topology_problems(lay) == []
+    folded = core.move_joint(lay, 88, lay.vertices[88] + [0.0, 37.77])
+    (line,) = core.topology_problems(folded)
+    assert re.fullmatch(r"joint 87 is folded through: it crossed the line from joint 85 to joint 88, turning its cell "
+                        r"inside out \(and corner 153\); deployed, it would invert", line), line
+    # a corner of a lattice pushed into its cell, and a joint dragged across a beam of its own family
+    grid = _symmetric_grid()
+    assert core.topology_problems(core.move_joint(grid, 0, (0.4, 0.4))) == []  # still on its own side of joints 1–4
+    assert core.topology_problems(core.move_joint(grid, 0, (0.8, 0.8)))[0].startswith("joint 0 is folded through")
+    assert core.topology_problems(core.move_joint(grid, 5, (1.3, 1.2))) == []
+    assert core.topology_problems(core.move_joint(grid, 5, (2.6, 1.5))) == [
+        "segments 19 (joints 4–5) and 22 (joints 8–9) cross: beams of one family lie in one layer and would collide"]
+    # the session does not simulate it: the edit does not follow itself, and a solve asked for says why at once
+    s = Session(project, out_dir=str(tmp_path))
+    events = []
+    s.listeners.append(lambda e, p: events.append((e, p)))
+    try:
+        s.live = False
+        assert s.edit(core.move_joint, 32, lay.vertices[32])
+        s.live, s.angle_deg = True, 115.0  # as if deployed: an edit follows itself with a solve
+        before = len(events)
+        assert s.edit(core.move_joint, 88, folded.vertices[88])
+        assert [p for e, p in events if e == "problems"][-1] == [line]
+        assert s.worker.wait_idle(10) and not [e for e, p in events[before:] if e in ("progress", "status")]
+        s.request_angle(115.0)
+        assert s.worker.wait_idle(60)
+        assert [p for e, p in events if e == "status"][-1] == "cannot simulate: " + line
+    finally:
+        s.close()
+
+
 def test_picking(grid):
     v = 4
     assert core.nearest_vertex(grid, grid.vertices[v] + 1.0) == v
@@ -295,10 +333,12 @@ def test_cli_registers_app():
 
 
 def test_default_material_matches_deploy():
-    from xshells.app.loading import DEFAULT_MATERIAL
+    from xshells.app.loading import DEFAULT_MATERIAL, DEFAULT_STEPS
     from xshells.deploy.case import DEFAULT_MATERIAL as DEPLOY_DEFAULT
+    from xshells.deploy.simulate import DeployOptions
 
     assert DEFAULT_MATERIAL == DEPLOY_DEFAULT
+    assert DEFAULT_STEPS == DeployOptions().steps
 
 
 def test_adapters_drive_optimization_and_actuation_and_stop():
@@ -382,6 +422,107 @@ def test_an_inverting_joint_stops_the_slider_at_the_last_good_state():
     assert info.angle_deg == pytest.approx(np.degrees(sim.current_angle))
 
 
+def test_the_branch_check_compares_only_converged_states_and_keeps_a_failure_in_the_status_line(monkeypatch):
+    """A deployment that stopped short (a joint folds near 157.5° on the way to 179°) was "agreed" with by a cold
+    deployment stopped at the same state (joints 0.0e+00 apart), and that replaced the status line's reason."""
+    from xshells.app.loading import Project
+    from xshells.app.session import Session
+    from xshells.app.sim import Simulation
+
+    grid = grid_project(4, 4, 70)
+    s = Session(Project("bent grid", core.warp_bend(grid.layout, 0.5), grid.material, subdivision=4))
+    events = []
+    s.listeners.append(lambda e, p: events.append((e, p)))
+    try:
+        s.request_angle(179.0)
+        assert s.worker.wait_idle(120)
+        failed = s.last_deployed.info
+        assert not failed.converged and "inverts" in failed.message
+        status = [p for e, p in events if e == "status"][-1]
+        assert status == failed.message
+        s.check_branch()
+        assert s.worker.wait_idle(120)
+        assert not [p for e, p in events if e == "branch"]
+        assert [p for e, p in events if e == "status"][-1] == status
+        # a converged shown state, and a cold deployment that stops: said so, and no branch to switch to
+        s.request_angle(150.0)
+        assert s.worker.wait_idle(120) and s.last_deployed.info.converged
+        solve_to = Simulation.solve_to
+
+        def stops(self, angle_deg, cancel=None, progress=None):
+            info = solve_to(self, angle_deg, cancel, progress)
+            return type(info)(**{**info.__dict__, "converged": False, "message": "stopped near 149.0°: (as if) it inverts"})
+
+        monkeypatch.setattr(Simulation, "solve_to", stops)
+        s.check_branch()
+        assert s.worker.wait_idle(120)
+        branch = [p for e, p in events if e == "branch"][-1]
+        assert not branch["same"] and not branch["cold_converged"] and s.alternative is None
+        assert [p for e, p in events if e == "status"][-1] == \
+            "a cold deployment to 150.0° did not get there, no comparison: stopped near 149.0°: (as if) it inverts"
+    finally:
+        s.close()
+
+
+def _deploy_exported_case(session, folder) -> np.ndarray:
+    """``xshells deploy`` on the session's case export: its deployed joints."""
+    from xshells.cli import main
+
+    case = session.export("case")[0]
+    assert main(["deploy", case, "--out", str(folder), "--no-progress"]) == 0
+    with open(os.path.join(folder, "result.json")) as fh:
+        return np.array(json.load(fh)["deployed"]["joint_positions"])
+
+
+def test_the_exported_case_deploys_to_the_shown_joints(tmp_path):
+    """Edited, deployed and exported: ``xshells deploy`` on the case gives the joints shown. The export held the
+    rest lengths of the rest-length solve, and deployed from them the flat state is held differently (the manta
+    ray's joints came out rotated by 3.2e-3 of the span; this linkage, left free, closed until a joint inverted)."""
+    from xshells.app.session import Session
+
+    s = Session(open_path(os.path.join(EXAMPLES, "nonuniform_linkage.obj")), out_dir=str(tmp_path))
+    try:
+        s.set_subdivision(4)
+        s.request_angle(40.0)
+        assert s.worker.wait_idle(120) and s.last_deployed.info.converged
+        rng = np.random.default_rng(1)
+        for _ in range(3):
+            v = int(rng.integers(s.layout.num_vertices))
+            assert s.edit(core.move_joint, v, s.layout.vertices[v] + 0.003 * s.layout.span() * rng.normal(size=2))
+            assert s.worker.wait_idle(60) and s.last_warm is not None and s.last_warm.ok
+        shown = s.last_deployed.joints
+        joints = _deploy_exported_case(s, tmp_path / "cli")
+        assert np.abs(joints - shown).max() <= 1e-8 * s.layout.span()
+        assert not (tmp_path / "nonuniform_linkage_rest_lengths.txt").exists()
+        s.rest_lengths = s.sim.linkage.rest_lengths.copy()  # the design's own rest lengths (as optimized) are written
+        assert json.loads((tmp_path / "nonuniform_linkage.json").read_text()).get("rest_lengths") is None
+        s.export("case")
+        assert json.loads((tmp_path / "nonuniform_linkage.json").read_text())["rest_lengths"] == \
+            "nonuniform_linkage_rest_lengths.txt"
+    finally:
+        s.close()
+
+
+def test_a_cold_deployment_buckles_as_xshells_deploy_does(tmp_path):
+    """Darth Vader with joint 32 raised 38 mm: the app's own deployment (6° steps) buckled into a bowl, the mirror
+    image of the command line's dome (same energy), and the branch check then showed "two branches"."""
+    from xshells.app.session import Session
+
+    s = Session(open_path(os.path.join(EXAMPLES, "darth_vader", "case.json")), out_dir=str(tmp_path))
+    try:
+        s.live = False
+        assert s.edit(core.move_joint, 32, s.layout.vertices[32] + [0.0, 37.77])
+        s.request_angle(115.0)
+        assert s.worker.wait_idle(300) and s.last_deployed.info.converged
+        shown = s.last_deployed.joints
+        r2 = np.sum((shown[:, :2] - shown[:, :2].mean(axis=0)) ** 2, axis=1)
+        assert np.corrcoef(-r2, shown[:, 2])[0, 1] > 0.9  # "up": a dome, its middle above its rim (was −0.95)
+        joints = _deploy_exported_case(s, tmp_path / "cli")
+        assert np.abs(joints - shown).max() <= 1e-8 * s.layout.span()  # was 0.43 of the span
+    finally:
+        s.close()
+
+
 # ----------------------------------------------------------------------------- direct manipulation
 def _symmetric_grid() -> core.Layout:
     """A 5 × 4 lattice, mirror-symmetric about x = 2 and y = 1.5."""
@@ -420,6 +561,21 @@ def test_mirrored_edits_keep_a_symmetric_layout_symmetric():
     np.testing.assert_allclose(on_line.vertices[9], [2.0, 1.4])
     with pytest.raises(InputError, match="mirror axis"):
         core.Mirror("z", 0.0)
+
+
+def test_a_mirrored_move_moves_the_partner_by_the_mirrored_displacement():
+    """The partner is matched within 1 % of the span: put on the exact mirror image of the moved joint, it jumped
+    by its asymmetry (the manta ray's joint 116 by (−13.3, +10.0) for a move of joint 110 along x)."""
+    lay = core.move_joint(_symmetric_grid(), 13, (3.02, 0.97))  # (3, 1), a little off the image of joint 5 at (1, 1)
+    m = core.Mirror.through_centre(_symmetric_grid(), "x")
+    assert core.mirror_partner(lay, 5, m) == 13
+    out = core.move_joint_mirrored(lay, 5, (1.2, 1.0), m)  # along x only
+    d = out.vertices - lay.vertices
+    np.testing.assert_allclose(d[5], [0.2, 0.0])
+    np.testing.assert_allclose(d[13], [-0.2, 0.0], atol=1e-15)  # was (−0.22, +0.03): onto (2.8, 1.0)
+    assert np.count_nonzero(np.abs(d).sum(axis=1)) == 2
+    on_line = core.move_joint(lay, 9, (2.01, 1.0))  # near the line x = 2: it keeps its offset and slides along it
+    np.testing.assert_allclose(core.move_joint_mirrored(on_line, 9, (2.3, 1.4), m).vertices[9], [2.01, 1.4])
 
 
 def test_cage_rest_is_identity_and_handles_deform_smoothly():

@@ -75,3 +75,11 @@ def test_the_relay_element_is_one_attribute_safe_snippet():
     script = html.split('onerror="', 1)[1].rsplit('"', 1)[0]
     assert '"' not in script and "\n" not in script and "INTERVAL" not in script
     assert str(hover.RELAY_INTERVAL_MS) in script
+
+
+def test_labels_give_the_coordinates_in_the_designs_unit_to_a_ten_thousandth_of_the_span():
+    # the manta ray's joint 81, 20 m from the origin on a 2317 mm span: "(2.078e+04, -7852)" with 4 significant digits
+    assert hover.flat_label(81, (20781.34, -7852.37), 2316.9) == "joint 81  (20781.3, -7852.4)"
+    assert hover.flat_label(40, (0.629312, 0.48241), 2.0) == "joint 40  (0.6293, 0.4824)"  # a unit-sized layout
+    assert hover.height_label(5, 304.6921, 2316.9) == "joint 5  (height 304.7)"
+    assert [hover.decimals(s) for s in (2e4, 1e4, 2316.9, 100.0, 2.0, 0.0, float("nan"))] == [0, 0, 1, 2, 4, 4, 4]

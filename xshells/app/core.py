@@ -209,16 +209,25 @@ def mirror_partner(layout: Layout, v: int, mirror: Mirror, tolerance: float | No
 
 
 def move_joint_mirrored(layout: Layout, v: int, xy, mirror: Mirror) -> Layout:
-    """Move joint ``v`` to ``xy`` and its mirror partner to the mirror image (a joint on the line stays on it)."""
+    """Move joint ``v`` to ``xy`` and its mirror partner by the mirrored displacement (a joint on the line slides along it).
+
+    The partner moves by the mirror image of ``v``'s displacement, as the
+    brush does, not to the mirror image of ``xy``: a partner is matched within
+    1 % of the span, and putting it on the exact image turned any asymmetry
+    up to that into a jump (manta ray, joint 110 moved along x: its partner
+    116 jumped by (−13.3, +10.0)).
+    """
     partner = mirror_partner(layout, v, mirror)
     V = layout.vertices.copy()
     xy = np.asarray(xy, float)[:2]
-    if partner is None or partner == v:
-        if partner == v:  # on the mirror line: it may slide along it only
-            xy = 0.5 * (xy + mirror.point(xy))
+    if partner is None:
         V[v] = xy
+    elif partner == v:  # on the mirror line (within the match tolerance): it slides along the line only
+        d = xy - V[v]
+        V[v] = V[v] + 0.5 * (d + mirror.vector(d))
     else:
-        V[v], V[partner] = xy, mirror.point(xy)
+        V[partner] = V[partner] + mirror.vector(xy - V[v])
+        V[v] = xy
     return Layout(V, layout.edges)
 
 
@@ -306,7 +315,8 @@ def topology_problems(layout: Layout) -> list[str]:
 
     Checks: no segments, self-loops, valence above 4, duplicate edges,
     zero-length segments, disconnected parts; then the linkage analysis
-    (e.g. a valence-3 joint that cannot be paired).
+    (e.g. a valence-3 joint that cannot be paired); then a layout turned
+    inside out (:func:`inversions`).
     """
     V, E = layout.vertices, layout.edges
     if len(E) == 0:
@@ -337,9 +347,69 @@ def topology_problems(layout: Layout) -> list[str]:
         try:
             from ..linkage.graph import analyze
 
-            analyze(layout_to_design(layout))
+            graph = analyze(layout_to_design(layout))
         except InputError as exc:
             out.append(str(exc).replace("<arrays>: ", ""))
+        else:
+            out += inversions(layout, graph)
+    return out
+
+
+def inversions(layout: Layout, graph) -> list[str]:
+    """A layout turned inside out somewhere, one line each: a folded corner, beams of one family crossing.
+
+    The analysis cannot see either: it gives every joint an opening angle in
+    [0°, 180°] and labels the beams to suit. A corner (a valence-2 joint,
+    where two beams end) dragged across the line between its two neighbours
+    turns its cell inside out; the labelling then makes it open the other way
+    than the rest, and a deployment folds it through 0° (Darth Vader with
+    boundary joint 88 raised 38 mm: corner 153, found 104 s into the app's
+    deployment). Beams of one family lie in one layer, so two that cross
+    collide (:mod:`xshells.linkage.clearance` measures how close they come
+    in a solved flat state; here the drawn segments are enough).
+    """
+    from ..linkage.clearance import beam_family
+
+    V, E = layout.vertices, layout.edges
+    out: list[str] = []
+    neighbours: list[set] = [set() for _ in range(layout.num_vertices)]
+    for a, b in E.tolist():
+        neighbours[a].add(b)
+        neighbours[b].add(a)
+
+    def side(p, q, r) -> float:  # > 0 where r lies left of the line p → q
+        return float((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]))
+
+    folded = []
+    for j in np.flatnonzero(graph.valence == 2).tolist():
+        u, w = sorted(neighbours[j])
+        cell = (neighbours[u] & neighbours[w]) - {j}  # the corner's quad cell j, u, c, w
+        if len(cell) == 1:
+            c = cell.pop()
+            if side(V[u], V[w], V[j]) * side(V[u], V[w], V[c]) > 0:  # j on c's side: the cell turned inside out
+                folded.append((j, u, w))
+    if folded:
+        j, u, w = folded[0]
+        more = f" (and corner{'s' * (len(folded) > 2)} {', '.join(str(f[0]) for f in folded[1:6])})" if len(folded) > 1 else ""
+        out.append(f"joint {j} is folded through: it crossed the line from joint {u} to joint {w}, turning its cell inside "
+                   f"out{more}; deployed, it would invert")
+    # beams of one family that cross away from a joint (segments sharing a joint meet there)
+    family = np.array([beam_family(graph, b) for b in range(graph.num_beams)])[np.asarray(graph.beam_of_segment)]
+    P, Q = V[E[:, 0]], V[E[:, 1]]
+    lo, hi = np.minimum(P, Q), np.maximum(P, Q)
+    i, k = np.nonzero(np.triu((lo[:, None] <= hi[None]).all(-1) & (lo[None] <= hi[:, None]).all(-1), 1)
+                      & (family[:, None] == family[None]))
+    keep = (E[i][:, :, None] != E[k][:, None, :]).all(axis=(1, 2))
+    i, k = i[keep], k[keep]
+
+    def orient(p, q, r):
+        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+
+    cross = (orient(P[i], Q[i], P[k]) * orient(P[i], Q[i], Q[k]) < 0) & (orient(P[k], Q[k], P[i]) * orient(P[k], Q[k], Q[i]) < 0)
+    if cross.any():
+        a, b = int(i[cross][0]), int(k[cross][0])
+        out.append(f"segments {a} (joints {E[a, 0]}–{E[a, 1]}) and {b} (joints {E[b, 0]}–{E[b, 1]}) cross: beams of "
+                   f"one family lie in one layer and would collide")
     return out
 
 

@@ -110,9 +110,11 @@ def write_mesh(path, mesh, field: str | None = None) -> None:
 
 
 def write_case(path, name: str, layout: Layout, material: dict, subdivision: int, angle_deg: float | None,
-               rest_lengths=None) -> list[str]:
+               rest_lengths=None, direction: str = "up", steps: int | None = None) -> list[str]:
     """Write a case JSON that ``xshells deploy`` and the app reload, with its design (and rest lengths) beside it.
 
+    ``direction`` and ``steps`` are the deployment's (which way, and in how
+    many increments, the flat state buckles: both decide the branch).
     Returns the paths written.
     """
     from ..io.export import write_design_obj
@@ -127,6 +129,9 @@ def write_case(path, name: str, layout: Layout, material: dict, subdivision: int
             "material": {k: v for k, v in material.items() if k in ("type", "params", "E", "nu", "stiff_axis")}}
     if angle_deg is not None:
         spec["angle_deg"] = float(angle_deg)
+    spec["direction"] = direction
+    if steps is not None:
+        spec["steps"] = int(steps)
     if rest_lengths is not None:
         rl_name = f"{stem}_rest_lengths.txt"
         atomic_write_text(os.path.join(folder, rl_name), "".join(f"{v!r}\n" for v in np.asarray(rest_lengths, float).tolist()))

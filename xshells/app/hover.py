@@ -52,6 +52,28 @@ if (!window.__xshellsHover) { window.__xshellsHover = 1;
 """
 
 
+def decimals(span: float) -> int:
+    """Decimals that resolve 1/10 000 of ``span``: the coordinates as a drawing gives them, in the design's unit.
+
+    Four significant digits read "(2.078e+04, -7852)" for the manta ray's
+    joint 81 (a 2317 mm span, 20 m from the origin); one decimal reads
+    "(20781.3, -7852.4)".
+    """
+    span = float(span)
+    return int(np.clip(np.ceil(-np.log10(1e-4 * span)), 0, 12)) if np.isfinite(span) and span > 0 else 4
+
+
+def flat_label(v: int, xy, span: float) -> str:
+    """The hover label of joint ``v`` of the flat layout: its layout coordinates."""
+    d = decimals(span)
+    return f"joint {v}  ({xy[0]:.{d}f}, {xy[1]:.{d}f})"
+
+
+def height_label(v: int, z: float, span: float) -> str:
+    """The hover label of joint ``v`` of a deployed state: its height above the lowest joint."""
+    return f"joint {v}  (height {z:.{decimals(span)}f})"
+
+
 def relay_html() -> str:
     """The panel element that relays the pointer: a marker, a style that hides the field, and the script.
 

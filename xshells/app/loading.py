@@ -22,6 +22,7 @@ MAX_UPLOAD_BYTES = 5 * 1024 * 1024
 # opening the app does not import the solver; test_app_core checks they agree)
 DEFAULT_MATERIAL = {"type": "rectangle", "E": 20000.0, "nu": 0.3, "params": [10.0, 7.0]}
 DESIGN_SUFFIXES = (".obj", ".msh", ".3dm")
+DEFAULT_STEPS = 40  # xshells deploy's (DeployOptions.steps), copied for the same reason
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,9 @@ class Project:
     note : str or None
         How the design file was read where that says more than its name (a ``.3dm``'s layer and units,
         converted to mm): the status line says it when the project opens.
+    steps : int
+        Angle increments of a deployment from the flat state (a case's ``steps``); the branch it
+        buckles into can depend on them, so the app deploys with the command line's.
     """
 
     name: str
@@ -53,6 +57,7 @@ class Project:
     rest_lengths: np.ndarray | None = None
     direction: str = "up"
     note: str | None = None
+    steps: int = DEFAULT_STEPS
 
 
 def open_path(path: str) -> Project:
@@ -73,7 +78,7 @@ def open_path(path: str) -> Project:
         p = read_rest_lengths(case.rest_lengths_path, design.num_segments, design) if case.rest_lengths_path else None
         angle = np.degrees(case.angle_rad) if case.angle_rad is not None else None
         return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p, case.direction,
-                       note=design.note)
+                       note=design.note, steps=case.steps)
     if ext in DESIGN_SUFFIXES:
         design = read_design(path)
         layout = layout_from_design(design)
@@ -167,7 +172,7 @@ class UploadStore:
         # an uploaded case without a subdivision keeps the app's own default (8), not the case files' (10)
         sub = case.subdivision if "subdivision" in spec else 8
         return Project(case.name or os.path.splitext(name)[0], layout_from_design(design), material, sub, angle,
-                       direction=case.direction or "up", note=design.note)
+                       direction=case.direction or "up", note=design.note, steps=case.steps)
 
 
 def grid_project(nx: int, ny: int, angle_deg: float = 90.0, spacing: float = 100.0) -> Project:

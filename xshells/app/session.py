@@ -340,10 +340,7 @@ class Session:
             from .sim import Cancelled
             raise Cancelled()
         self._emit("progress", (0.1, f"assembly state ({layout.num_segments} segments)…"))
-        from .sim import SimSettings
-
-        direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
-        sim = Simulation(layout, material, k, rest_lengths=p, settings=SimSettings(direction=direction), cancel=cancel)
+        sim = Simulation(layout, material, k, rest_lengths=p, settings=self._settings(), cancel=cancel)
         self._emit("flat", self._view(sim, time.perf_counter()))  # the flat assembly state of the edited layout
         warm = None
         if angle_deg is not None and previous is not None and previous.states[1:]:
@@ -363,6 +360,12 @@ class Session:
             if key[0] != "preview":
                 self._sims = [e for e in self._sims if e[0] != key][-(SIM_CACHE - 1):] + [(key, layout, sim)]
         return sim
+
+    def _settings(self):
+        """The simulation settings of the project: its buckling direction and deployment steps, as ``xshells deploy``'s."""
+        from .sim import SimSettings
+
+        return SimSettings(direction=self.project.direction, steps=self.project.steps)
 
     def _view(self, sim, t0: float, info=None) -> View:
         from ..linkage.export import scalar_fields, swept_mesh
@@ -438,22 +441,28 @@ class Session:
         """Deploy the current layout from its flat state (as a cold start would) and compare with the shown state.
 
         Emits ``"branch"`` with ``{"same": bool, "difference": max joint distance / span, "energy_shown",
-        "energy_cold", "flipped"}``; when they differ, the cold state is kept as :attr:`alternative` and
-        :meth:`choose_branch` switches to it.
+        "energy_cold", "flipped", "cold_converged", "cold_message"}``; when they differ, the cold state is
+        kept as :attr:`alternative` and :meth:`choose_branch` switches to it.
+
+        Only a converged shown state is compared, and only with a converged
+        cold one: a deployment that stopped short was "agreed" with by a cold
+        one stopped at the same flat state (joints 0 apart), and that line
+        replaced the status line's reason why it stopped. A cold deployment
+        that stops is reported as such, with its reason, and is no branch to switch to.
         """
         angle = self.angle_deg
         if angle is None:
             return
 
         def job(cancel, progress):
-            from .sim import SimSettings, Simulation
+            from .sim import Simulation
 
             with self._lock:
                 shown, key, layout, k, p = self.sim, self._sim_key, self.layout, self.subdivision, self.rest_lengths
-            if shown is None or key != self._key():
-                return None
-            direction = getattr(self.project, "direction", "up") if self.project is not None else "up"
-            cold = Simulation(layout, self.material, k, rest_lengths=p, settings=SimSettings(direction=direction),
+                view = self.last_deployed
+            if shown is None or key != self._key() or view is None or not view.info.converged:
+                return None  # nothing solved, or a state that stopped short: its status line stays
+            cold = Simulation(layout, self.material, k, rest_lengths=p, settings=self._settings(),
                               cancel=cancel)
             info = cold.solve_to(angle, cancel=cancel,
                                  progress=lambda f, text: progress(f, f"cold deployment for comparison: at {text}"))
@@ -461,20 +470,22 @@ class Session:
             span = float(np.ptp(layout.vertices, axis=0).max())
             diff = float(np.abs(P - Q).max()) / span
             zs, zc = (L.height_selector() @ L.get_vars() for L in (shown.linkage, cold.linkage))
-            result = {"same": diff <= 1e-6, "difference": diff, "energy_shown": shown.linkage.energy(),
+            result = {"same": info.converged and diff <= 1e-6, "difference": diff, "energy_shown": shown.linkage.energy(),
                       "energy_cold": info.energy, "flipped": bool((zs - np.median(zs)) @ (zc - np.median(zc)) < 0),
-                      "angle_deg": angle}
+                      "angle_deg": angle, "cold_converged": info.converged, "cold_message": info.message}
             with self._lock:
-                if self.sim is not shown:
-                    return None  # edited meanwhile: the comparison is stale
-                self.alternative = None if result["same"] else (cold, key)
+                if self.sim is not shown or self.last_deployed is not view:
+                    return None  # edited or re-solved meanwhile: the comparison is stale
+                self.alternative = None if result["same"] or not info.converged else (cold, key)
             return result
 
         def done(result):
             if result is None:
                 return
             self._emit("branch", result)
-            if result["same"]:
+            if not result["cold_converged"]:
+                self.status(f"a cold deployment to {angle:.1f}° did not get there, no comparison: {result['cold_message']}")
+            elif result["same"]:
                 self.status(f"a cold deployment agrees (joints within {result['difference']:.1e} of the span)")
             else:
                 self.status(f"two branches: shown energy {result['energy_shown']:.6g}, cold deployment "
@@ -652,8 +663,15 @@ class Session:
             return exports.write_fabrication_files(os.path.dirname(path), os.path.basename(path), layout, self.material,
                                                    p, kind)
         if kind == "case":
+            # Rest lengths only where the design has its own (opened with it, or optimized): those from the
+            # rest-length solve are left to `xshells deploy` to solve again. Given instead, they hold the flat
+            # state differently (the pinned joint's frame as drawn, not as solved), and the deployed joints
+            # came out rotated against the shown ones by 3.2e-3 of the span (manta ray at 90°).
+            with self._lock:
+                given = self.rest_lengths
             return exports.write_case(self._path(".json"), self.name, layout, self.material_spec, self.subdivision,
-                                      self.angle_deg if self.angle_deg is not None else self.target_angle_deg, p)
+                                      self.angle_deg if self.angle_deg is not None else self.target_angle_deg, given,
+                                      direction=self.project.direction, steps=self.project.steps)
         if kind in ("obj", "ply", "gltf", "glb", "png"):
             sim = self.sim
             if sim is None:

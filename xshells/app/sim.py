@@ -1,12 +1,12 @@
 """The app's simulation model: assembly state of a layout and warm-started deployed equilibria.
 
-:class:`Simulation` owns one :class:`~xshells.linkage.linkage.Linkage`. The
-first deployment walks up from the flat assembly state in small angle steps
-(leaving the flat saddle on the "up" side, as :func:`xshells.deploy.simulate.deploy`
-does); every later angle starts from the stored state nearest to it and
-takes the same constrained Newton steps (:func:`xshells.solve.minimize` with
-the average-angle constraint), so a slider move costs a few Newton
-iterations. Every reached state is kept (in memory) for the deployment
+:class:`Simulation` owns one :class:`~xshells.linkage.linkage.Linkage`. A
+deployment from the flat assembly state is :func:`xshells.deploy.simulate.deploy`
+itself, with the steps and direction ``xshells deploy`` takes for the
+exported case, so both leave the flat saddle on the same side; every later
+angle starts from the stored state nearest to it and takes constrained
+Newton steps (:func:`xshells.solve.minimize` with the average-angle
+constraint), so a slider move costs a few Newton iterations. Every reached state is kept (in memory) for the deployment
 animation. Work can be cancelled between and inside Newton solves.
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..deploy.simulate import DeployOptions, _gradient_scale, _noise_floor, folded_joint, rest_length_solve
+from ..deploy.simulate import DeployOptions, _gradient_scale, _noise_floor, deploy, folded_joint, rest_length_solve
 from ..errors import InputError
 from ..linkage.linkage import Linkage
 from ..linkage.state import restore, snapshot
@@ -37,15 +37,18 @@ class SimSettings:
     Attributes
     ----------
     max_step_deg : float
-        Largest angle increment between two constrained solves (keeps Newton in its basin).
+        Largest angle increment between two constrained solves from a deployed state (keeps Newton in its basin).
     direction : {"up", "down"}
     max_stored : int
         Deployed states kept for the animation (oldest extra states dropped).
+    steps : int
+        Angle increments of a deployment from the flat state (a case's ``steps``, as ``xshells deploy``).
     """
 
     max_step_deg: float = 6.0
     direction: str = "up"
     max_stored: int = 400
+    steps: int = DeployOptions().steps
 
 
 @dataclass(frozen=True)
@@ -229,6 +232,8 @@ class Simulation:
         if abs(start_angle - target) < 1e-10:
             self.current_angle = start_angle
             return info
+        if snap is self.flat:
+            return self._deploy(target, cancel, progress)
         n = max(1, int(np.ceil(abs(np.degrees(target - start_angle)) / self.settings.max_step_deg)))
         stop = self._stopper(cancel)
         last = info
@@ -261,6 +266,36 @@ class Simulation:
             if progress is not None:
                 progress(i / n, f"{np.degrees(angle):.1f}°")
         return last
+
+    def _deploy(self, target: float, cancel, progress) -> StateInfo:
+        """Deploy from the flat state to ``target`` (radians) as ``xshells deploy`` does, storing every step's state.
+
+        The same function with the same steps and direction as the command
+        line: which way the flat state buckles depends on the size of the
+        first step, and with 6° steps of its own the app buckled Darth Vader
+        (joint 32 raised 38 mm) into the mirror image of the command line's
+        dome (16, 14 or 20 steps give that bowl too; 40 and 50 the dome).
+        """
+        L = self.linkage
+
+        def step(rec) -> bool:
+            if cancel is not None and cancel.is_set():
+                raise Cancelled()
+            self._store(float(self._a @ L.get_vars()), self._info(True, rec.iterations))
+            if progress is not None:
+                progress(rec.step / self.settings.steps, f"{rec.average_angle_deg:.1f}°")
+            return False
+
+        result = deploy(L, target, DeployOptions(steps=self.settings.steps, direction=self.settings.direction),
+                        callback=step)
+        if result.converged:
+            self.current_angle = float(self._a @ L.get_vars())
+            return self.nearest_state(self.current_angle)[2]
+        # stopped short: keep the linkage at the last state reached (or flat), with its numbers, and say why
+        angle, snap, good = self.nearest_state(np.radians(result.reached_angle_deg))
+        restore(L, snap)
+        self.current_angle = angle
+        return StateInfo(**{**good.__dict__, "converged": False, "message": result.message})
 
     # ------------------------------------------------------------------ warm start after an edit
     def can_warm_start_from(self, previous: "Simulation | None") -> bool:

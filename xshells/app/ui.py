@@ -36,6 +36,20 @@ SECTION_TYPES = ("rectangle", "ellipse", "I", "L", "+")
 PLAN_FOV = np.radians(8.0)  # the plan view: a narrow field of view from far above, nearly orthographic
 PLAN_HALF_HEIGHT = 1.15  # scene units from the view's centre to its top edge (the layout spans 2)
 GAP = 1.25  # scene units between the centre of each half and the origin
+PANEL_PX = 400  # viser's control panel with its margin, at its default width (it floats over the canvas's right side)
+
+
+def plan_camera(width: float, height: float) -> tuple[float, float]:
+    """The plan view's half-height at the layout (scene units) and how far right of the layout its centre lies.
+
+    Fits the flat layout (2 units across, with the margin of
+    ``PLAN_HALF_HEIGHT``) into the canvas left of the panel: centred on the
+    whole canvas, the layout ran under the panel at 1400 × 800. A canvas
+    under twice the panel's width is taken whole (viser then folds the panel away).
+    """
+    visible = width - PANEL_PX if width > 2 * PANEL_PX else width
+    px = min(visible, height) / (2 * PLAN_HALF_HEIGHT)  # pixels per scene unit
+    return height / (2 * px), (width - visible) / (2 * px)
 FIRST_SOLVE_DELAY_S = 3.0  # after the first page connects (see App.__init__; measured in benchmarks/app.py)
 
 
@@ -205,7 +219,8 @@ class App:
         with tabs.add_tab("Deploy"):
             lo, hi = 5.0, 175.0
             self.angle = gui.add_slider("opening angle (°)", lo, hi, 0.1, 90.0)
-            self.angle.on_update(lambda _: s.request_angle(float(self.angle.value)))
+            self._angle_range, self._angle_resetting = (lo, hi), False
+            self.angle.on_update(lambda _: self._angle_changed())
             self.field = gui.add_dropdown("colour by", tuple(FIELDS), initial_value="bending energy")
             self.field.on_update(lambda _: s.set_field(self.field.value))
             row = gui.add_button_group("animation", ("Play", "Stop"))
@@ -304,6 +319,30 @@ class App:
         self.angle.value = angle
         s.request_angle(angle)  # a repeated request from the slider's own callback just replaces this one
 
+    def _angle_changed(self) -> None:
+        """Deploy to the slider's angle; one typed into its box outside the slider's range puts it back, with one line.
+
+        The box takes any number (200, −5, 179.9) and the slider kept it: the
+        page then showed an angle that was never solved, or one the linkage
+        folds on the way to.
+        """
+        if self._angle_resetting:
+            return
+        v = float(self.angle.value)
+        lo, hi = self._angle_range
+        if np.isfinite(v) and lo <= v <= hi:
+            self.session.request_angle(v)
+            return
+        back = self.session.angle_deg
+        if back is None:  # nothing shown yet: the nearest end of the range
+            back = float(np.clip(v, lo, hi)) if np.isfinite(v) else lo
+        self._angle_resetting = True
+        try:
+            self.angle.value = back
+        finally:
+            self._angle_resetting = False
+        self.session.status(f"opening angle {v:g}°: give one from {lo:g}° to {hi:g}° (back at {back:.1f}°)")
+
     def _flat_angle_guess(self) -> float:
         """Average opening angle of the layout's joints (what the assembly state keeps)."""
         try:
@@ -398,11 +437,12 @@ class App:
         """Scene positions of the joints that can be hovered (flat layout, then the shown deployed state) and their labels."""
         layout = self.session.layout
         P = [self._to_scene(layout.vertices) + [0, 0, 0.025]] if layout.num_vertices else []
-        labels = [f"joint {v}  ({x:.4g}, {y:.4g})" for v, (x, y) in enumerate(layout.vertices)]
+        span = layout.span()
+        labels = [hover.flat_label(v, xy, span) for v, xy in enumerate(layout.vertices)]
         view = self._shown_deployed
         if view is not None and view.joint_vertices is not None and len(view.joints):
             P.append(self._deployed_to_scene(view.joints, view))
-            labels += [f"joint {v}  (height {z:.4g})" for v, z in
+            labels += [hover.height_label(v, z, span) for v, z in
                        zip(view.joint_vertices.tolist(), view.joints[:, 2] - view.joints[:, 2].min())]
         return (np.vstack(P) if P else np.zeros((0, 3))), labels
 
@@ -494,10 +534,13 @@ class App:
         clients = [client] if client is not None else list(self.server.get_clients().values())
         for c in clients:
             if which == "Plan":  # from straight above, tilted by 1e-4 rad so that "up" (+z) stays well defined
-                d = PLAN_HALF_HEIGHT / np.tan(0.5 * PLAN_FOV)
+                half, right = PLAN_HALF_HEIGHT, 0.0
+                if c.camera.update_timestamp:  # the canvas size is known once the page has sent its camera
+                    half, right = plan_camera(c.camera.image_width, c.camera.image_height)
+                d = half / np.tan(0.5 * PLAN_FOV)
                 c.camera.fov = PLAN_FOV
-                c.camera.position = (-GAP, -1e-4 * d, d)  # position moves look_at along: set look_at after it
-                c.camera.look_at = (-GAP, 0.0, 0.0)
+                c.camera.position = (-GAP + right, -1e-4 * d, d)  # position moves look_at along: set look_at after it
+                c.camera.look_at = (-GAP + right, 0.0, 0.0)
             else:
                 c.camera.fov = np.radians(75.0)
                 c.camera.position = (0.75, -2.8, 2.35)
@@ -567,7 +610,10 @@ class App:
                                     f"torque {i.torque:.4g}  \nmax |z| {i.max_abs_z:.4g}  \n"
                                     f"solve + mesh {payload.solve_time_s:.2f} s")
         elif event == "branch":
-            if payload["same"]:
+            if not payload["cold_converged"]:
+                self.branch_md.content = f"*a cold deployment did not get there: {payload['cold_message']}*"
+                self.branch_row.visible = False
+            elif payload["same"]:
                 self.branch_md.content = f"*a cold deployment agrees (joints within {payload['difference']:.1e} of the span)*"
                 self.branch_row.visible = False
             else:
