@@ -135,6 +135,20 @@ def test_cli_output_onto_a_device_or_folder_is_refused_and_a_link_written_throug
     assert os.path.islink(tmp_path / "link.json") and "area" in json.loads((tmp_path / "t.json").read_text())
 
 
+@pytest.mark.parametrize("option, name", [("--plot", "x.png"), ("-o", "x.json")])
+def test_cli_unwritable_output_is_refused_before_the_computation(tmp_path, capsys, monkeypatch, option, name):
+    # --plot /nonexist/x.png printed the whole JSON, then exited 2
+    import xshells.section.cli as section_cli
+
+    monkeypatch.setattr(section_cli, "material_from_args", lambda args: pytest.fail("computed first"))
+    out = tmp_path / "missing" / name
+    assert main(["section", "rectangle", "10", "7", "--young", "1", "--poisson", "0.3", option, str(out)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.strip() == f"xshells section: error: {option} {out}: folder {out.parent} does not exist"
+    assert not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("argv, fragment", [
     (["section", "hexagon", "1", "2", "--young", "1", "--poisson", "0.3"], "unknown cross-section type"),
     (["section", "rectangle", "1", "-2", "--young", "1", "--poisson", "0.3"], "must be positive"),

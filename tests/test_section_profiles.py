@@ -122,6 +122,73 @@ def test_points_off_the_section_plane_are_refused_and_a_plane_z_is_dropped():
     assert np.allclose(flat.outer, profiles.polygon([(0, 0), (10, 0), (10, 7), (0, 7)]).outer)
 
 
+@pytest.mark.parametrize("record, words", [
+    # these were "internal error (ValueError: setting an array element with a sequence)" and
+    # "(ValueError: data must be finite ...)"
+    ("v 1", "bad.obj:2: vertex 'v 1' has 1 coordinate; expected x y [z]"),
+    ("v nan 0 0", "bad.obj:2: vertex 'v nan 0 0' has a coordinate that is not finite"),
+    ("v inf 0 0", "bad.obj:2: vertex 'v inf 0 0' has a coordinate that is not finite"),
+    ("v 1 zero 0", "bad.obj:2: bad vertex 'v 1 zero 0'"),
+])
+def test_a_malformed_obj_vertex_names_its_line(tmp_path, record, words):
+    path = tmp_path / "bad.obj"
+    path.write_text(f"v 0 0 0\n{record}\nv 1 1 0\nl 1 2 3 1\n")
+    one_line_error(lambda: load_contour(path), words)
+
+
+def test_a_non_finite_msh_node_is_named(tmp_path):
+    path = tmp_path / "bad.msh"
+    path.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 nan 0 0\n3 1 1 0\n$EndNodes\n"
+                    "$Elements\n3\n1 1 2 0 1 1 2\n2 1 2 0 1 2 3\n3 1 2 0 1 3 1\n$EndElements\n")
+    one_line_error(lambda: load_contour(path), "bad.msh: node 2 has a coordinate that is not finite")
+
+
+@pytest.mark.parametrize("vertices, words", [
+    # a tilted square was read as the 10 x 10 square; one drawn in xz was "open: a line ends at (0, 0)"
+    ("v 0 0 0\nv 10 0 5\nv 10 10 0\nv 0 10 -5", "z goes from -5 to 5: it is not flat in the xy plane"),
+    ("v 0 0 0\nv 10 0 0\nv 10 0 10\nv 0 0 10", "z goes from 0 to 10: it is drawn in another plane"),
+])
+def test_a_contour_whose_z_varies_is_refused(tmp_path, vertices, words):
+    path = tmp_path / "c.obj"
+    path.write_text(vertices + "\nl 1 2 3 4 1\n")
+    one_line_error(lambda: load_contour(path), "c.obj: the contour's", words, "draw the section in the xy plane")
+
+
+def test_a_contour_at_a_constant_z_is_read_and_unused_vertices_may_leave_the_plane(tmp_path):
+    path = tmp_path / "c.obj"
+    path.write_text("v 0 0 3\nv 10 0 3\nv 10 10 3\nv 0 10 3\nv 5 5 99\nl 1 2 3 4 1\n")
+    assert polygon_moments(load_contour(path).loops)[0] == pytest.approx(100)
+    path.write_text("v 0 0\nv 10 0\nv 10 10\nv 0 10\nl 1 2 3 4 1\n")  # no z at all
+    assert polygon_moments(load_contour(path).loops)[0] == pytest.approx(100)
+
+
+@pytest.mark.parametrize("spec, words", [
+    ({"points": [[0, 0, 0], [1, 0, 0], [1, 1, 0]]}, "'points' must be [x, y] pairs of numbers, got [0, 0, 0] at position 1"),
+    ({"points": [[0, 0], [1, 0], [1, "1"]]}, "got [1, \"1\"] at position 3"),
+    ({"points": None}, "'points' must be a list of [x, y] pairs, got null"),
+    ({"points": [[0, 0], [9, 0], [9, 9]], "holes": [[1, 1], [2, 1], [2, 2]]},
+     "'holes' must be a list of point lists"),
+    ({"points": [[0, 0], [9, 0], [9, 9]], "holes": [[[1, 1], [2, 1, 0], [2, 2]]]},
+     "hole 1 of 'holes' must be [x, y] pairs of numbers, got [2, 1, 0] at position 2"),
+])
+def test_json_points_must_be_pairs(tmp_path, spec, words):
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps({"type": "polygon", "young": 1, "poisson": 0.3, **spec}))
+    one_line_error(lambda: load_section(path), "p.json: ", words)
+
+
+def test_a_contour_is_held_to_the_parametric_size_range(tmp_path):
+    # a contour at 1e7 was accepted where a rectangle 1e7 wide was refused
+    path = tmp_path / "big.obj"
+    path.write_text("v 0 0\nv 2e7 0\nv 2e7 1e5\nv 0 1e5\nl 1 2 3 4 1\n")
+    one_line_error(lambda: load_contour(path), "big.obj: the contour's width 2e+07 is outside 1e-06 to 1e+06",
+                   "check the units")
+    one_line_error(lambda: profiles.polygon([(0, 0), (1e-7, 0), (1e-7, 1e-7)], name="p"), "width 1e-07 is outside")
+    one_line_error(lambda: profiles.make_profile("rectangle", [2e7, 1e5]), "is outside 1e-06 to 1e+06")
+    assert profiles.polygon([(0, 0), (1e6, 0), (1e6, 1), (0, 1)]).kind == "polygon"
+    assert profiles.polygon([(0, 0), (1e-6, 0), (1e-6, 1e-6), (0, 1e-6)]).kind == "polygon"
+
+
 def test_self_intersecting_polygon():
     bow_tie = [(0, 0), (1, 1), (1, 0), (0, 1)]
     one_line_error(lambda: profiles.polygon(bow_tie, name="bowtie"), "bowtie", "intersects itself")
@@ -164,6 +231,9 @@ def test_negative_dimension(kind, params):
     # these divided by zero, found the torsion solve singular, or ran out of memory meshing
     ("ellipse", [1e-300, 1e-300], "is outside 1e-06 to 1e+06"), ("rectangle", [1e200, 1e200], "is outside"),
     ("rectangle", [100000, 1], "span 1e+05x"), ("I", [1, 1, 1, 1, 1, 1e-9], "is outside"),
+    # the ratio was shown as "1e+03x, more than 1000x"
+    ("rectangle", [1001, 1], "span 1001x (largest over smallest), more than 1000x"),
+    ("rectangle", [1000.0001, 1], "span 1000.0001x"),
 ])
 def test_dimensions_out_of_range_or_proportion(kind, params, words):
     one_line_error(lambda: profiles.make_profile(kind, params), words)

@@ -80,11 +80,14 @@ def material_from_args(args):
     return Material(profile, E, nu, density=args.density, stiff_axis=_stiff_axis(args.stiff_axis), rtol=args.rtol)
 
 
-def _write_atomically(path: Path, write) -> None:
-    """Call ``write(temp_path)`` then move the result onto ``path``, so readers never see half a file."""
-    from ..io.export import output_target, replace_with
+def _temp_beside(path: Path) -> tuple[str, str]:
+    """``(target, temp)``: the file that writing ``path`` replaces and a new empty file in its folder.
 
-    path = Path(path)
+    Raises InputError in one line for a missing folder, a device or folder as ``path``, or a folder
+    that takes no new files.
+    """
+    from ..io.export import output_target
+
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise InputError(f"{path}: folder {directory} does not exist")
@@ -96,6 +99,20 @@ def _write_atomically(path: Path, write) -> None:
     except OSError as exc:  # a folder that takes no new files (/proc, read-only)
         raise InputError(f"{path}: cannot write there ({exc.strerror or exc})") from None
     os.close(fd)
+    return target, temp
+
+
+def check_output_path(path) -> None:
+    """Refuse an output that could not be written, before the (minutes long) computation rather than after."""
+    _, temp = _temp_beside(Path(path))
+    os.remove(temp)
+
+
+def _write_atomically(path: Path, write) -> None:
+    """Call ``write(temp_path)`` then move the result onto ``path``, so readers never see half a file."""
+    from ..io.export import replace_with
+
+    target, temp = _temp_beside(Path(path))
     try:
         write(temp)
         replace_with(temp, target)
@@ -134,6 +151,13 @@ def run(args: argparse.Namespace) -> int:
     """Handler for ``xshells section``; returns an exit code."""
     if args.plot and Path(args.plot).suffix.lower() != ".png":
         raise InputError(f"--plot {args.plot}: the picture must be a .png file")
+    # a bad --plot or -o was found after the JSON had been printed (and exited 2 with it on stdout)
+    for option, value in (("-o", args.output), ("--plot", args.plot)):
+        if value:
+            try:
+                check_output_path(value)
+            except InputError as exc:
+                raise InputError(f"{option} {exc}") from None
     material = material_from_args(args)
     text = json.dumps(material.summary(), indent=2)
     if args.output:

@@ -33,8 +33,24 @@ from .profiles import Profile, make_profile, points_in_loop, polygon
 MERGE_TOL = 1e-8
 
 
+def _obj_vertex(fields: list, path: Path, lineno: int) -> list:
+    """x, y, z of a ``v`` record (z 0 when absent); a record without x and y, or not finite, is refused."""
+    shown = " ".join(fields)
+    if len(fields) < 3:
+        raise InputError(f"{path}:{lineno}: vertex {shown!r} has {len(fields) - 1} coordinate"
+                         f"{'s' if len(fields) != 2 else ''}; expected x y [z]")
+    try:
+        # x y z, then an optional w or r g b that a contour does not use
+        coords = [float(v) for v in fields[1:4]]
+    except ValueError:
+        raise InputError(f"{path}:{lineno}: bad vertex {shown!r} (coordinates must be numbers)") from None
+    if not all(math.isfinite(c) for c in coords):
+        raise InputError(f"{path}:{lineno}: vertex {shown!r} has a coordinate that is not finite")
+    return coords + [0.0] * (3 - len(coords))
+
+
 def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (n, 2) and edges (s, 2) of an OBJ file's ``l`` and ``f`` records."""
+    """Vertices (n, 3) and edges (s, 2) of an OBJ file's ``l`` and ``f`` records."""
     vertices, edges = [], []
 
     def index(token: str, lineno: int) -> int:
@@ -50,17 +66,14 @@ def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
             if not fields:
                 continue
             if fields[0] == "v":
-                try:
-                    vertices.append([float(v) for v in fields[1:3]])
-                except ValueError:
-                    raise InputError(f"{path}:{lineno}: bad vertex {line.strip()!r}") from None
+                vertices.append(_obj_vertex(fields, path, lineno))
             elif fields[0] == "l":
                 ids = [index(t, lineno) for t in fields[1:]]
                 edges.extend(zip(ids[:-1], ids[1:]))
             elif fields[0] == "f":
                 ids = [index(t, lineno) for t in fields[1:]]
                 edges.extend(zip(ids, ids[1:] + ids[:1]))
-    return np.array(vertices, dtype=float).reshape(-1, 2), _boundary_of(np.array(edges, dtype=int).reshape(-1, 2))
+    return np.array(vertices, dtype=float).reshape(-1, 3), _boundary_of(np.array(edges, dtype=int).reshape(-1, 2))
 
 
 def _boundary_of(edges: np.ndarray) -> np.ndarray:
@@ -73,7 +86,7 @@ def _boundary_of(edges: np.ndarray) -> np.ndarray:
 
 
 def _read_msh(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (n, 2) and edges (s, 2) from a gmsh file's line (or triangle) elements."""
+    """Vertices (n, 3) and edges (s, 2) from a gmsh file's line (or triangle) elements."""
     import meshio
 
     try:
@@ -90,7 +103,14 @@ def _read_msh(path: Path) -> tuple[np.ndarray, np.ndarray]:
             t = block.data
             edges.append(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]))
     edges = np.concatenate(edges) if edges else np.zeros((0, 2), dtype=int)
-    return np.asarray(mesh.points[:, :2], dtype=float), _boundary_of(edges)
+    points = np.asarray(mesh.points, dtype=float)
+    points = np.column_stack([points, np.zeros((len(points), 3 - points.shape[1]))]) if points.shape[1] < 3 \
+        else points[:, :3]
+    bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+    if len(bad):
+        raise InputError(f"{path}: node {bad[0] + 1} has a coordinate that is not finite "
+                         f"({', '.join(f'{c:g}' for c in points[bad[0]])})")
+    return points, _boundary_of(edges)
 
 
 def _merge_close_points(points: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -192,7 +212,30 @@ def load_contour(path, scale: float = 1.0) -> Profile:
         points, edges = _read_msh(path)
     else:
         raise InputError(f"{path}: unknown contour format {suffix!r} (expected .obj or .msh)")
+    points = _in_xy_plane(points, edges, path)
     return profile_from_loops(loops_from_edges(points * float(scale), edges, str(path)), str(path))
+
+
+def _in_xy_plane(points: np.ndarray, edges: np.ndarray, path: Path) -> np.ndarray:
+    """The x, y of contour points (n, 3) whose edges lie in one plane z = constant (any constant).
+
+    A contour whose z varies was projected onto xy without a word (a tilted square read as the square);
+    one drawn in the xz or yz plane then read as an open or zero-area contour.
+    """
+    used = np.unique(edges)
+    used = used[(used >= 0) & (used < len(points))]  # a missing vertex is loops_from_edges' message
+    if len(used) == 0:
+        return points[:, :2]
+    z = points[used, 2]
+    diagonal = float(np.linalg.norm(np.ptp(points[used], axis=0)))
+    if np.ptp(z) > MERGE_TOL * diagonal:
+        xy = points[used, :2]
+        flat = np.ptp(xy, axis=0).min() <= MERGE_TOL * diagonal or \
+            np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False)[-1] <= MERGE_TOL * diagonal * np.sqrt(len(xy))
+        where = "it is drawn in another plane" if flat else "it is not flat in the xy plane"
+        raise InputError(f"{path}: the contour's z goes from {z.min():g} to {z.max():g}: {where}; "
+                         "draw the section in the xy plane (z constant)")
+    return points[:, :2]
 
 
 def _json_number(data: dict, key: str, path: Path):
@@ -242,6 +285,22 @@ def _json_params(data: dict, path: Path) -> list:
             raise InputError(f"{path}: 'params' must be a list of numbers, "
                              f"got {_json_text(value)} at position {i + 1}")
     return [float(value) for value in params]
+
+
+def _json_pairs(points, what: str, path: Path) -> None:
+    """Refuse in one line a JSON point list that is not [[x, y], ...] with finite numbers.
+
+    A third coordinate is refused rather than dropped: a JSON section is drawn in x, y.
+    """
+    if not isinstance(points, list):
+        raise InputError(f"{path}: {what} must be a list of [x, y] pairs, got {_json_text(points)}")
+    for i, point in enumerate(points):
+        if not (isinstance(point, list) and len(point) == 2
+                and all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in point)):
+            raise InputError(f"{path}: {what} must be [x, y] pairs of numbers, got {_json_text(point)} "
+                             f"at position {i + 1}")
+        if not all(math.isfinite(c) for c in point):
+            raise InputError(f"{path}: {what} point {i + 1} is not finite ({_json_text(point)})")
 
 
 def load_section(path, young: float | None = None, poisson: float | None = None) -> tuple[Profile, float, float]:
@@ -302,5 +361,15 @@ def load_section(path, young: float | None = None, poisson: float | None = None)
             raise InputError(f"{path}: 'path' names {data['path']!r}, which is not a file (relative to the JSON's folder)")
         return load_contour(contour, scale=1.0 if scale is None else scale), E, nu
     if allowed is _POINTS_KEYS:
-        return polygon(data["points"], data.get("holes", []), name=str(path)), E, nu
+        holes = data.get("holes", [])
+        _json_pairs(data["points"], "'points'", path)
+        if not isinstance(holes, list):
+            raise InputError(f"{path}: 'holes' must be a list of point lists, got {_json_text(holes)}")
+        for k, hole in enumerate(holes):
+            if isinstance(hole, list) and hole and not isinstance(hole[0], list):
+                # "holes": [[x, y], ...] is one hole written without its own brackets
+                raise InputError(f"{path}: 'holes' must be a list of point lists [[[x, y], ...], ...], "
+                                 f"got {_json_text(hole)} as hole {k + 1}")
+            _json_pairs(hole, f"hole {k + 1} of 'holes'", path)
+        return polygon(data["points"], holes, name=str(path)), E, nu
     return make_profile(kind, _json_params(data, path), name=str(path)), E, nu

@@ -219,6 +219,7 @@ def polygon(outer, holes: Sequence = (), name: str = "polygon") -> Profile:
         if _is_flat(loop, extent):
             what = "outer contour" if k == 0 else f"hole {k}"
             raise InputError(f"{name}: {what} has zero area")
+    check_extent(outer, name)
     crossing = first_crossing(loops, tol=1e-9)
     if crossing is not None:
         la, sa, lb, sb = crossing
@@ -243,6 +244,28 @@ def polygon(outer, holes: Sequence = (), name: str = "polygon") -> Profile:
 MIN_DIMENSION, MAX_DIMENSION, MAX_ASPECT = 1e-6, 1e6, 1e3
 
 
+def _ratio_text(ratio: float) -> str:
+    """``ratio`` with enough digits to differ from :data:`MAX_ASPECT` (1001, not 1e+03)."""
+    for digits in range(4, 16):
+        text = f"{ratio:.{digits}g}"
+        if float(text) != MAX_ASPECT:
+            return text
+    return f"{ratio!r}"
+
+
+def check_extent(loop: np.ndarray, name: str) -> None:
+    """Refuse a contour whose width or height lies outside MIN_DIMENSION to MAX_DIMENSION.
+
+    The same range as a parametric profile's dimensions: a contour file or point list at 1e7 was
+    accepted where a rectangle 1e7 wide was refused.
+    """
+    width, height = np.ptp(loop, axis=0)
+    for label, value in (("width", width), ("height", height)):
+        if not MIN_DIMENSION <= value <= MAX_DIMENSION:
+            raise InputError(f"{name}: the contour's {label} {value:g} is outside {MIN_DIMENSION:g} to "
+                             f"{MAX_DIMENSION:g}: check the units")
+
+
 def _check_params(kind: str, params, count: int, name: str) -> tuple:
     """Number and sign checks shared by the parametric types."""
     try:
@@ -261,8 +284,9 @@ def _check_params(kind: str, params, count: int, name: str) -> tuple:
                              f"{MAX_DIMENSION:g}: check the units")
     if max(values) > MAX_ASPECT * min(values):
         # the torsion mesh resolves the thinnest part over the whole profile: at 1e5 it ran out of memory
-        raise InputError(f"{name}: {kind} dimensions span {max(values) / min(values):.3g}x (largest over smallest), "
-                         f"more than {MAX_ASPECT:g}x: the torsion mesh cannot resolve such a profile")
+        raise InputError(f"{name}: {kind} dimensions span {_ratio_text(max(values) / min(values))}x "
+                         f"(largest over smallest), more than {MAX_ASPECT:g}x: "
+                         "the torsion mesh cannot resolve such a profile")
     return values
 
 
