@@ -103,3 +103,41 @@ def test_a_flat_state_that_folds_a_joint_is_opened_just_enough(tmp_path, capsys,
     # opened until the smooth minimum angle leaves room for a positive bound (KS ≤ every angle):
     # opened only until nothing folded (KS −0.10°), the optimization could fold a joint
     assert r["constraints"]["min_angle_deg"] > 0
+
+
+def test_the_written_case_deploys_the_optimized_design_and_the_report_describes_that_deployment(small_case, tmp_path):
+    from xshells.deploy.case import load_case
+
+    out = tmp_path / "out"
+    assert main(["optimize", str(small_case), "--out", str(out), "--max-iters", "2", "--no-baseline", "--no-progress"]) == 0
+    case = load_case(out / "case.json")  # what `xshells deploy OUT/case.json` reads
+    assert case.rest_lengths_path == str(out / "design_parameters.txt")
+    assert np.allclose(np.loadtxt(case.rest_lengths_path), json.loads((out / "result.json").read_text())["rest_lengths"])
+    r = json.loads((out / "result.json").read_text())
+    assert r["fresh_deployment"]["reached"] and set(r["state_distance"]) == {"flat", "deployed"}
+    for state in (r, r["optimizer_state"]):  # the weighted terms sum to J; the raw ratios are kept beside them
+        assert sum(state["terms"].values()) == pytest.approx(state["J"], rel=1e-12)
+        g = r["weights"]["gamma"]
+        assert state["terms"]["J_flat_energy_term"] == pytest.approx(g * state["ratios"]["flat_energy_over_E0"])
+    dep = json.loads((out / "deploy" / "result.json").read_text())  # the fresh deployment, as reported
+    assert r["energy_deployed"] == pytest.approx(dep["deployed"]["energy"], rel=1e-9)
+
+
+def test_a_degenerate_or_far_target_surface(small_case, tmp_path, capsys):
+    flat = tmp_path / "degen.obj"
+    flat.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
+    assert main(["optimize", str(small_case), "--out", str(tmp_path / "o"), "--no-progress", "--target-surface", str(flat)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "degen.obj: the target surface has zero area" in err and len(err.splitlines()) == 1, err
+    far = tmp_path / "far.obj"
+    far.write_text("v 1000 0 0\nv 1010 0 0\nv 1000 10 0\nf 1 2 3\n")
+    assert main(["optimize", str(small_case), "--out", str(tmp_path / "f"), "--no-progress", "--max-iters", "1",
+                 "--no-baseline", "--target-surface", str(far)]) == 0
+    r = json.loads((tmp_path / "f" / "result.json").read_text())
+    assert any("far.obj: the initially deployed joints lie" in w for w in r["warnings"]), r["warnings"]
+
+
+def test_an_angle_that_inverts_the_initial_deployment_is_refused(small_case, tmp_path, capsys):
+    assert main(["optimize", str(small_case), "--out", str(tmp_path / "o"), "--no-progress", "--angle", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "does not deploy to" in err and len(err.splitlines()) == 1, err

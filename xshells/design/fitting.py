@@ -291,6 +291,12 @@ def read_surface_noted(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
         v = int(big[0])
         raise InputError(f"{path}: vertex {v + 1} has a coordinate of {np.abs(V[v]).max():.3g}: too large to compute with "
                          f"(is the surface in the design's units?)")
+    if len(F):
+        T = V[F]
+        area = 0.5 * np.linalg.norm(np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]), axis=1)
+        size = float(np.linalg.norm(np.ptp(V[np.unique(F)], axis=0)))
+        if not (area > 1e-12 * size**2).any():  # nothing to project onto: every distance would be to a line or point
+            raise InputError(f"{path}: the target surface has zero area (all {len(F)} of its triangles are degenerate)")
     return V, F, face, note
 
 

@@ -75,6 +75,11 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
             bar.close()
     if not res.converged:
         raise InputError(f"{case_path}: the initial design does not deploy to {np.degrees(target):.2f}° ({res.message}){why}")
+    from ..deploy.simulate import folded_joint
+
+    folded = folded_joint(D)
+    if folded:  # e.g. a target angle below the flat one: nothing to optimize from
+        raise InputError(f"{case_path}: the initial design does not deploy to {np.degrees(target):.2f}°: {folded}{why}")
     from .fitting import FittingTerm, read_surface_noted
 
     surface = None
@@ -84,6 +89,10 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
         if note:  # a .3dm target: its layer and units, converted to mm, said as the design's are
             warnings = list(warnings) + [f"target surface {note}"]
     fitting = FittingTerm.paper_defaults(D, surface=surface)
+    if surface is not None:
+        far = _far_from_target(D, surface, target_surface)
+        if far:
+            warnings = list(warnings) + [far]
     spare = copy.deepcopy((L, D, fitting)) if keep_copy else None
 
     def make(L, D, fitting):
@@ -96,6 +105,24 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     if spare is not None:
         problem.fresh_copy = lambda: make(*copy.deepcopy(spare))
     return problem, case.name
+
+
+FAR_FROM_TARGET = 0.1
+"""A target surface whose mean distance from the initial deployed joints exceeds this share of the span is
+warned about (it is most likely in other units or another place than the design)."""
+
+
+def _far_from_target(D, surface, path) -> str:
+    """'' or a warning that the deployed joints of ``D`` lie far from the target ``surface`` (V, F)."""
+    from .fitting import point_mesh_squared_distance
+
+    P = D.joint_positions()
+    mean = float(np.sqrt(point_mesh_squared_distance(P, *surface)[0]).mean())
+    span = float(np.ptp(D.rods.points, axis=0).max())
+    if mean > FAR_FROM_TARGET * span:
+        return (f"target surface {path}: the initially deployed joints lie {mean:.4g} from it on average, "
+                f"{mean / span:.3g} of the design's span {span:.4g} (is it in the design's units and place?)")
+    return ""
 
 
 OPEN_STEP = np.radians(0.25)
@@ -141,11 +168,93 @@ def _open_just_enough(L, drawn: float, ks_sharpness: float):
 
 
 def _summary(problem, q) -> dict:
+    """J, its weighted terms (they sum to J: γ·E₂/E₀, (1−γ)·E₃/E₀, β/2·T/l₀², and the planar-buckling
+    penalty where it is on), the raw ratios E₂/E₀, E₃/E₀ and T/l₀², the energies and the constraints at ``q``."""
     t = problem.terms(q)
     flat, dep = problem.flat.L, problem.deployed.L
-    return {"J": t["J"], "J_flat_energy_term": t["flat_energy"], "J_deployed_energy_term": t["deployed_energy"],
-            "J_fit_term": t["fit"], "energy_flat": flat.energy(), "energy_deployed": dep.energy(),
+    w = problem.w
+    terms = {"J_flat_energy_term": w.gamma * t["flat_energy"], "J_deployed_energy_term": (1 - w.gamma) * t["deployed_energy"],
+             "J_fit_term": 0.5 * w.beta * t["fit"]}
+    if "planar_buckling" in t:
+        terms["J_planar_buckling_term"] = t["planar_buckling"]
+    return {"J": t["J"], "terms": terms,
+            "ratios": {"flat_energy_over_E0": t["flat_energy"], "deployed_energy_over_E0": t["deployed_energy"],
+                       "fit_over_l0_squared": t["fit"]},
+            "energy_flat": flat.energy(), "energy_deployed": dep.energy(),
             "planarity": problem.planarity(q), "min_angle_deg": float(np.degrees(problem.min_angle(q)))}
+
+
+STATE_TOLERANCE = 1e-6
+"""Above this distance (of the span) between the optimizer's states and a fresh deployment of the written
+case, ``result.json`` warns (its figures are always the fresh deployment's)."""
+
+
+def _write_case(case_path, out_dir, target: float, name: str) -> str:
+    """``OUT/case.json``: the input case with the optimized rest lengths (``design_parameters.txt``) and the
+    run's target angle, its paths relative to ``out_dir``; returns its path."""
+    from ..io.strict_json import loads
+
+    with open(case_path) as fh:
+        spec = loads(fh.read(), str(case_path))
+    base, out = os.path.dirname(os.path.abspath(case_path)), os.path.abspath(out_dir)
+
+    def moved(path):
+        path = path if os.path.isabs(path) else os.path.join(base, path)
+        try:
+            return os.path.relpath(path, out)
+        except ValueError:  # another drive
+            return path
+
+    for key in ("file", "flat_file"):
+        if spec.get(key):
+            spec[key] = moved(spec[key])
+    if isinstance(spec.get("material"), dict) and spec["material"].get("contour_file"):
+        spec["material"]["contour_file"] = moved(spec["material"]["contour_file"])
+    for key in ("angle_rad", "open_by_deg"):
+        spec.pop(key, None)
+    spec.update(name=name, angle_deg=float(np.degrees(target)), rest_lengths="design_parameters.txt")
+    path = os.path.join(out_dir, "case.json")
+    atomic_write_text(path, json.dumps(spec, indent=1) + "\n")
+    return path
+
+
+def _aligned(A, B):
+    """``B`` (n, 3) moved rigidly onto ``A`` (least squares, no reflection)."""
+    ca, cb = A.mean(axis=0), B.mean(axis=0)
+    U, _, Vt = np.linalg.svd((B - cb).T @ (A - ca))
+    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    return (B - cb) @ (U @ np.diag([1.0, 1.0, d]) @ Vt) + ca
+
+
+def _deploy_written_case(case_json, out_dir, problem, optimizer_final):
+    """Deploy ``case_json`` from flat as ``xshells deploy`` does (into ``OUT/deploy``); returns the summary of
+    that deployment in the optimizer's objective, its flat and deployed linkages, and each state's distance
+    from the optimizer's (max over rod points after a rigid alignment, relative to the span)."""
+    from ..deploy.run import run_deployment
+
+    case = load_case(case_json)
+    states = {}
+    deployed = run_deployment(case.design_path, material_from_spec(case.material), out_dir=os.path.join(out_dir, "deploy"),
+                   subdivision=case.subdivision, target_angle=case.angle_rad, steps=case.steps,
+                   rest_lengths_path=case.rest_lengths_path, direction=case.direction, progress=False, name=case.name,
+                   states=states)
+    distances = {}
+    for state, eq in (("flat", problem.flat), ("deployed", problem.deployed)):
+        A, B = eq.L.rods.points, states[state].rods.points
+        span = float(np.ptp(A, axis=0).max())
+        distances[state] = float(np.linalg.norm(_aligned(A, B) - A, axis=1).max() / span) if A.shape == B.shape else float("inf")
+    w, flat, dep = problem.w, states["flat"], states["deployed"]
+    P = problem.deployed.L.joint_positions()
+    e2, e3 = flat.energy() / problem.E0, dep.energy() / problem.E0
+    t = problem.fitting.value(_aligned(P, dep.joint_positions())) / problem.l0**2  # in the target's frame
+    terms = {"J_flat_energy_term": w.gamma * e2, "J_deployed_energy_term": (1 - w.gamma) * e3, "J_fit_term": 0.5 * w.beta * t}
+    extra = {k: v for k, v in optimizer_final["terms"].items() if k not in terms}  # the planar-buckling penalty, as optimized
+    terms.update(extra)
+    summary = {"J": float(sum(terms.values())), "terms": terms,
+               "ratios": {"flat_energy_over_E0": e2, "deployed_energy_over_E0": e3, "fit_over_l0_squared": t},
+               "energy_flat": flat.energy(), "energy_deployed": dep.energy()}
+    summary["reached"], summary["message"] = bool(deployed["reached"]), deployed["message"]
+    return summary, states, distances
 
 
 def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights(), options: OptimizeOptions = OptimizeOptions(),
@@ -191,25 +300,35 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         if bar is not None:
             bar.close()
     interrupted = res.interrupted
-    final = _summary(problem, res.q)
+    optimizer_final = _summary(problem, res.q)
     p = res.rest_lengths
     atomic_write_text(os.path.join(out_dir, "design_parameters.txt"), "".join(f"{v:.17g}\n" for v in p))
+    written_case = _write_case(case_path, out_dir, problem.deployed.angle, name)
+    # what is reported is what `xshells deploy OUT/case.json` reaches: the written case, deployed afresh
+    final, fresh, distances = _deploy_written_case(written_case, out_dir, problem, optimizer_final)
+    warnings = list(problem.input_warnings)
+    if not final["reached"]:
+        warnings.append(f"xshells deploy {written_case} does not reach the target: {final['message']}")
+    for state, d in distances.items():  # the flat state: deploy's free one, not the optimizer's at ᾱ₀ (informative only)
+        if state == "deployed" and d > STATE_TOLERANCE:
+            warnings.append(f"the {state} state of a fresh deployment of the written case lies {d:.3g} of the span from "
+                            f"the optimizer's (above {STATE_TOLERANCE:g}): the figures reported are the fresh deployment's")
     from ..io.fabrication import write_drawings
 
     write_drawings(out_dir, "flat_layout", problem.flat.L.graph.design, p)  # what to build: the optimized rest lengths
     from ..fabrication.run import write_outputs_of
 
-    write_outputs_of(out_dir, problem.flat.L, problem.flat.L.joint_angles(), problem.deployed.L.joint_angles(), p)
-    for state, L in (("flat", problem.flat.L), ("deployed", problem.deployed.L)):
+    write_outputs_of(out_dir, fresh["flat"], fresh["flat"].joint_angles(), fresh["deployed"].joint_angles(), p)
+    for state, L in (("flat", fresh["flat"]), ("deployed", fresh["deployed"])):
         vmax = max(scale[state], float(bending_field(L).max()))
         _write_outputs(out_dir, f"{state}_before", before[state], vmax=vmax)
         _write_outputs(out_dir, state, L, vmax=vmax)
     from ..fabrication.run import plan_of
     from ..rhino.write import write_3dm
 
-    flat_L = problem.flat.L  # the optimized design as one Rhino file: flat layout, deployed state, strips (mm)
+    flat_L = fresh["flat"]  # the optimized design as one Rhino file: flat layout, deployed state, strips (mm)
     write_3dm(os.path.join(out_dir, "deployed.3dm"), flat_design=flat_L.graph.design if flat_L.graph.is_planar else None,
-              deployed=problem.deployed.L, strips=plan_of(flat_L, flat_L.joint_angles(), problem.deployed.L.joint_angles(), p),
+              deployed=fresh["deployed"], strips=plan_of(flat_L, flat_L.joint_angles(), fresh["deployed"].joint_angles(), p),
               target=problem.fitting.surface if target_surface else None)  # the surface given, as fitted (mm)
     bfgs = None
     if with_baseline and not interrupted:
@@ -225,18 +344,22 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     result = {
         "name": name,
         "J": final["J"],
-        "terms": {k: final[k] for k in ("J_flat_energy_term", "J_deployed_energy_term", "J_fit_term")},
+        "terms": final["terms"],  # weighted: they sum to J
+        "ratios": final["ratios"],  # unweighted: E_flat/E0, E_deployed/E0, T/l0²
         "energy_flat": final["energy_flat"],
         "energy_deployed": final["energy_deployed"],
         "initial": {"J": initial["J"], "energy_flat": initial["energy_flat"], "energy_deployed": initial["energy_deployed"]},
-        "constraints": {"planarity": final["planarity"], "min_angle_deg": final["min_angle_deg"],
+        "constraints": {"planarity": optimizer_final["planarity"], "min_angle_deg": optimizer_final["min_angle_deg"],
                         "planarity_tolerance": options.planarity_tolerance},
+        "optimizer_state": {k: optimizer_final[k] for k in ("J", "terms", "ratios", "energy_flat", "energy_deployed")},
+        "fresh_deployment": {"reached": final["reached"], "message": final["message"], "folder": "deploy"},
+        "state_distance": distances,  # fresh deployment against the optimizer's states, max over rod points / span
         "method": options.method,
         "weights": asdict(weights),
         "target_angle_deg": float(np.degrees(problem.deployed.angle)),
         "flat_angle_deg": float(np.degrees(problem.flat.angle)),
         "flat_angle_note": problem.flat_note,
-        "warnings": list(problem.input_warnings),
+        "warnings": warnings,
         "input": problem.flat.L.graph.design.note,  # how a .3dm was read, else None
         "iterations": res.iterations,
         "time_s": res.time_s,
