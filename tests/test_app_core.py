@@ -118,6 +118,28 @@ def test_a_layout_turned_inside_out_is_a_topology_problem_at_once(tmp_path):
         s.close()
 
 
+def test_a_design_opened_with_crossing_beams_is_layered_and_may_keep_them(tmp_path):
+    """The paper's two-layer two-bump design crosses beams of one family 107 times by intent (the command
+    line deploys it, with a warning): the app opens and simulates it; a single-layer design still may not
+    gain such a crossing."""
+    from data_paths import DATA
+    from xshells.app.session import Session
+
+    if not DATA.is_dir():
+        pytest.skip("shared ElasticRods data not found")
+    case = next(c for c in json.loads((DATA / "cases.json").read_text())["cases"] if c["name"] == "two_layer_two_bump")
+    project = open_path(str(DATA / case["file"]))
+    assert any("would collide" in p for p in core.topology_problems(project.layout))
+    s = Session(project, out_dir=str(tmp_path))
+    try:
+        assert s.problems() == []
+        moved = core.move_joint(project.layout, 0, project.layout.vertices[0] + [1.0, 0.0])
+        assert s._problems(moved) == []
+    finally:
+        s.close()
+    assert core.topology_problems(core.move_joint(_symmetric_grid(), 5, (2.6, 1.5)))  # a single-layer one stays refused
+
+
 def test_picking(grid):
     v = 4
     assert core.nearest_vertex(grid, grid.vertices[v] + 1.0) == v

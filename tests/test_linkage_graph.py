@@ -221,6 +221,34 @@ def test_disconnected_design_names_components(tmp_path):
     assert "3 nodes incl. node 0 (line 1)" in msg and "3 nodes incl. node 3 (line 4)" in msg
 
 
+def _grid_with_diagonal():
+    """A 4 × 4 lattice of unit cells, and a segment across it from corner to corner without joints."""
+    xs, ys = np.meshgrid(np.arange(5.0), np.arange(5.0), indexing="ij")
+    V = np.c_[xs.ravel(), ys.ravel(), np.zeros(25)]
+    idx = np.arange(25).reshape(5, 5)
+    E = [(idx[i, j], idx[i + 1, j]) for i in range(4) for j in range(5)] + \
+        [(idx[i, j], idx[i, j + 1]) for i in range(5) for j in range(4)]
+    return V, E, (idx[0, 1], idx[1, 4])
+
+
+def test_segments_crossing_without_a_joint_are_named():
+    """No contact is modelled: such beams pass through each other. Said (it deployed with "reached the
+    target angle" and nothing else), not refused: a layered design crosses so by intent."""
+    V, E, diagonal = _grid_with_diagonal()
+    assert analyze(design_from_arrays(V, E)).crossings == ""  # segments meeting at shared nodes only
+    g = analyze(design_from_arrays(V, E + [diagonal], "x.obj"))
+    # from (0, 1) to (1, 4): across the segments x = 0..1 at y = 2 and y = 3 (the lattice's 2 x-segments there)
+    assert g.crossings.startswith("edge 40 (between ") and "crosses edge " in g.crossings
+    assert "without a joint (1 more such crossing)" in g.crossings and "no contact is modelled" in g.crossings
+
+
+@needs_data
+def test_the_papers_layered_design_is_analyzed_with_its_crossings_named():
+    case = next(c for c in json.loads((DATA / "cases.json").read_text())["cases"] if c["name"] == "two_layer_two_bump")
+    g = analyze(read_design(DATA / case["file"]))
+    assert g.is_planar and "106 more such crossings" in g.crossings
+
+
 def test_design_without_joint():
     with pytest.raises(InputError, match="no joint"):
         analyze(design_from_arrays([[0, 0, 0], [1, 0, 0]], [[0, 1]]))

@@ -310,13 +310,16 @@ def snap(xy, step: float) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- validation
-def topology_problems(layout: Layout) -> list[str]:
+def topology_problems(layout: Layout, allow_crossings: bool = False) -> list[str]:
     """Every defect that keeps the layout from being simulated, one line each (empty: fine).
 
     Checks: no segments, self-loops, valence above 4, duplicate edges,
     zero-length segments, disconnected parts; then the linkage analysis
     (e.g. a valence-3 joint that cannot be paired); then a layout turned
-    inside out (:func:`inversions`).
+    inside out (:func:`inversions`). ``allow_crossings``: beams of one family
+    may cross, as in a layered design that was opened so (the paper's
+    two-layer two-bump design crosses 107 times; the simulation models no
+    contact, and ``xshells deploy`` deploys it with a warning).
     """
     V, E = layout.vertices, layout.edges
     if len(E) == 0:
@@ -351,11 +354,11 @@ def topology_problems(layout: Layout) -> list[str]:
         except InputError as exc:
             out.append(str(exc).replace("<arrays>: ", ""))
         else:
-            out += inversions(layout, graph)
+            out += inversions(layout, graph, allow_crossings)
     return out
 
 
-def inversions(layout: Layout, graph) -> list[str]:
+def inversions(layout: Layout, graph, allow_crossings: bool = False) -> list[str]:
     """A layout turned inside out somewhere, one line each: a folded corner, beams of one family crossing.
 
     The analysis cannot see either: it gives every joint an opening angle in
@@ -393,6 +396,8 @@ def inversions(layout: Layout, graph) -> list[str]:
         more = f" (and corner{'s' * (len(folded) > 2)} {', '.join(str(f[0]) for f in folded[1:6])})" if len(folded) > 1 else ""
         out.append(f"joint {j} is folded through: it crossed the line from joint {u} to joint {w}, turning its cell inside "
                    f"out{more}; deployed, it would invert")
+    if allow_crossings:
+        return out
     # beams of one family that cross away from a joint (segments sharing a joint meet there)
     family = np.array([beam_family(graph, b) for b in range(graph.num_beams)])[np.asarray(graph.beam_of_segment)]
     P, Q = V[E[:, 0]], V[E[:, 1]]

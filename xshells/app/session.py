@@ -122,6 +122,8 @@ class Session:
             self.project = project
             self.name = project.name
             self.history = core.History(project.layout)
+            # a design opened with beams of one family crossing is layered by intent: its edits may keep them
+            self._layered = any("would collide" in p for p in core.topology_problems(project.layout))
             self.subdivision = project.subdivision
             self.rest_lengths = project.rest_lengths
             self.target_angle_deg = project.target_angle_deg
@@ -203,7 +205,7 @@ class Session:
         while the mouse moves): the latest position waits and is solved next.
         The edit on release (:meth:`edit`) solves to full accuracy from it.
         """
-        if self.angle_deg is None or core.topology_problems(layout):
+        if self.angle_deg is None or self._problems(layout):
             return
         with self._lock:
             self._preview_next = layout
@@ -244,7 +246,10 @@ class Session:
         self.worker.submit(job, key="preview", on_done=done, on_error=failed)
 
     def problems(self) -> list[str]:
-        return core.topology_problems(self.layout)
+        return self._problems(self.layout)
+
+    def _problems(self, layout) -> list[str]:
+        return core.topology_problems(layout, allow_crossings=getattr(self, "_layered", False))
 
     def _layout_changed(self) -> None:
         self._emit("layout", self.layout)
@@ -328,7 +333,7 @@ class Session:
             if cached is not None:  # an undo or redo back to a layout solved before
                 self.sim, self._sim_key, self.last_warm, self.alternative = cached, key, None, None
                 return cached
-        problems = core.topology_problems(layout)
+        problems = self._problems(layout)
         if problems:
             raise InputError("cannot simulate: " + problems[0])
         self._emit("progress", (0.02, "loading the solver…"))
