@@ -9,6 +9,7 @@ from xshells.cli import main
 from xshells.io.export import write_design_obj
 
 from test_deploy import warped_grid
+from data_paths import EXAMPLES
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +138,16 @@ def test_a_degenerate_or_far_target_surface(small_case, tmp_path, capsys):
     assert any("far.obj: the initially deployed joints lie" in w for w in r["warnings"]), r["warnings"]
 
 
-def test_an_angle_that_inverts_the_initial_deployment_is_refused(small_case, tmp_path, capsys):
-    assert main(["optimize", str(small_case), "--out", str(tmp_path / "o"), "--no-progress", "--angle", "1"]) == 2
+def test_an_angle_below_the_flat_state_is_refused_before_optimizing(tmp_path, capsys):
+    """The re-check's case: the nonuniform linkage (flat at 10.84°) optimized for --angle 5 "deployed" by closing
+    into inverted joints, J 4.58 -> 4527, and ended "complete" with exit 0."""
+    case = {"file": str(EXAMPLES / "nonuniform_linkage.obj"), "subdivision": 5, "steps": 10, "angle_deg": 70.0,
+            "material": {"type": "rectangle", "params": [0.04, 0.03], "E": 20000.0, "nu": 0.3}}
+    (tmp_path / "case.json").write_text(json.dumps(case))
+    args = ["optimize", str(tmp_path / "case.json"), "--angle", "5", "--max-iters", "2", "--no-baseline",
+            "--out", str(tmp_path / "o"), "--no-progress"]
+    assert main(args) == 2
     err = capsys.readouterr().err.strip()
-    assert "does not deploy to" in err and len(err.splitlines()) == 1, err
+    assert "the target angle 5.00° is not above the flat state's average angle 10.8" in err and len(err.splitlines()) == 1, err
+
+

@@ -62,6 +62,12 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
                              f"{np.degrees(OPEN_LIMIT):.0f}° above it; open that joint in the drawing{why}")
         flat_note = (f"flat state opened from the drawn {np.degrees(drawn):.2f}° to {np.degrees(flat_angle):.2f}°: at the "
                      f"drawn angle {folded}")
+    start_angle = drawn if flat_angle is None else flat_angle
+    if target <= start_angle:
+        # an X-shell deploys by opening: below the flat state's angle the optimizer "deployed" it by closing,
+        # into inverted joints (nonuniform linkage, --angle 5 against 10.84°: J 4.58 -> 4527, exit 0)
+        raise InputError(f"{case_path}: the target angle {np.degrees(target):.2f}° is not above the flat state's average "
+                         f"angle {np.degrees(start_angle):.2f}°: an X-shell deploys by opening; give a larger --angle{why}")
     steps = deploy_steps or case.steps
     bar = None
     if progress:
