@@ -52,7 +52,7 @@ def test_exchange_brings_back_a_joint_that_a_cut_cannot():
     # columns e1, e2, e3 active, and an idle joint e1 + e2; b needs e1 + e2 + 2 e3 of torque
     J = np.array([[1.0, 0, 0, 1], [0, 1, 0, 1], [0, 0, 1, 0]])
     b = -np.array([1.0, 1.0, 2.0])
-    (S, x), *_ = _exchange_sets(J, b, np.array([0, 1, 2]), 2, 3)
+    (S, x), *_ = _exchange_sets(J, b, np.array([0, 1, 2]), 3)
     assert list(S) == [2, 3] and np.allclose(x, [2.0, 1.0])  # an exact fit; the best pure cut leaves |e1|² or |e2|²
     _, gains = _set_fits(J.T @ J, -(J.T @ b), np.array([[0, 2], [1, 2], [2, 3]]), 0.0)
     assert np.allclose(gains, [5.0, 5.0, 6.0])
@@ -70,7 +70,7 @@ def test_exchange_sets_need_positive_torques_and_match_brute_force():
     sets = np.array(list(combinations(range(8), 4)))
     xs, gains = _set_fits(G, c, sets, 0.0)
     best = sets[np.argmax(gains)]
-    found = _exchange_sets(J, b, np.array([0, 1, 3, 5, 6]), 4, 3)
+    found = _exchange_sets(J, b, np.array([0, 1, 3, 5, 6]), 3)
     assert list(found[0][0]) == list(best)
     assert all(np.all(x > 0) for _, x in found)
 

@@ -345,14 +345,13 @@ def _set_fits(G, c, sets, ridge):
     return x, np.where((x > 0).all(axis=1), gain, -np.inf)
 
 
-def _exchange_sets(J, b, active, size, count, sweeps: int = 20):
-    """The linear model's best sets of ``size`` actuators reached from ``active`` by dropping and exchanging.
+def _exchange_sets(J, b, active, count, sweeps: int = 20):
+    """The linear model's best sets of one actuator fewer than ``active``, reached by dropping and exchanging.
 
     Greedy elimination never revisits a cut; where it stalls, a smaller set
     that keeps the fit may still exist with a joint cut earlier back in it.
-    From each ``active`` minus enough of its own actuators (every single
-    drop, cheapest first), a local search swaps one actuator of the set for
-    one outside it while that raises the fit's gain. ``J`` (rows, n) holds
+    From each ``active`` less one of its actuators, a local search swaps one
+    actuator of the set for one outside it while that raises the fit's gain. ``J`` (rows, n) holds
     the columns of every joint that may carry an actuator; ``active`` and
     the returned sets index into them. Returns up to ``count`` distinct sets
     (best first) with their linear-model torques.
@@ -361,13 +360,7 @@ def _exchange_sets(J, b, active, size, count, sweeps: int = 20):
     G = J.T @ J
     c = -(J.T @ b)
     ridge = 1e-10 * np.trace(G) / n + 1e-300
-    starts = []
-    for i in range(len(active)):
-        rest = np.delete(active, i)
-        if len(rest) > size:  # more than one to drop: keep the largest linear torques
-            x, _ = _set_fits(G, c, rest[None, :], ridge)
-            rest = rest[np.argsort(-x[0])[:size]]
-        starts.append(np.sort(rest))
+    starts = [np.delete(active, i) for i in range(len(active))]
     found = {}
     for S in starts:
         x, gain = _set_fits(G, c, S[None, :], ridge)
@@ -377,7 +370,7 @@ def _exchange_sets(J, b, active, size, count, sweeps: int = 20):
             outside = np.setdiff1d(np.arange(n), S)
             if not len(outside):
                 break
-            # every swap of one member for one outsider: (size × outside) sets
+            # every swap of one member for one outsider: (members × outsiders) sets
             swaps = np.repeat(S[None, :], len(S) * len(outside), axis=0)
             swaps[np.arange(len(swaps)), np.repeat(np.arange(len(S)), len(outside))] = np.tile(outside, len(S))
             sx, sg = _set_fits(G, c, swaps, ridge)
@@ -416,7 +409,7 @@ def _cuts_to_try(refit: _Refit, r, t, active, ub, batch: int, candidates: int, g
     allowed = np.flatnonzero(ub > 0)
     J_all = refit.jacobian(allowed)
     b = r - J_all[:, np.searchsorted(allowed, active)] @ t[active]
-    for S, x in _exchange_sets(J_all, b, np.searchsorted(allowed, active), k - 1, candidates):
+    for S, x in _exchange_sets(J_all, b, np.searchsorted(allowed, active), candidates):
         if tuple(allowed[S]) in fully_refitted:
             continue
         trial = np.zeros(n)
@@ -533,7 +526,6 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
     try:
         while not unholdable and len(active) > (target_count or 1):
             rounds += 1
-            J = refit.jacobian(active)
             k = len(active)
             far = fit_mean < 0.3 * o.max_fit
             batch = max(1, int(o.cut_fraction * k)) if far else max(1, int(0.05 * k)) if fit_mean < 0.7 * o.max_fit else 1

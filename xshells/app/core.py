@@ -358,6 +358,10 @@ def topology_problems(layout: Layout, allow_crossings: bool = False) -> list[str
     return out
 
 
+FAMILY_CROSSING = "beams of one family lie in one layer and would collide"
+"""The end of :func:`inversions`' line for beams of one family that cross (a session spots a layered design by it)."""
+
+
 def inversions(layout: Layout, graph, allow_crossings: bool = False) -> list[str]:
     """A layout turned inside out somewhere, one line each: a folded corner, beams of one family crossing.
 
@@ -413,8 +417,8 @@ def inversions(layout: Layout, graph, allow_crossings: bool = False) -> list[str
     cross = (orient(P[i], Q[i], P[k]) * orient(P[i], Q[i], Q[k]) < 0) & (orient(P[k], Q[k], P[i]) * orient(P[k], Q[k], Q[i]) < 0)
     if cross.any():
         a, b = int(i[cross][0]), int(k[cross][0])
-        out.append(f"segments {a} (joints {E[a, 0]}–{E[a, 1]}) and {b} (joints {E[b, 0]}–{E[b, 1]}) cross: beams of "
-                   f"one family lie in one layer and would collide")
+        out.append(f"segments {a} (joints {E[a, 0]}–{E[a, 1]}) and {b} (joints {E[b, 0]}–{E[b, 1]}) cross: "
+                   + FAMILY_CROSSING)
     return out
 
 

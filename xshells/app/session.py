@@ -123,7 +123,7 @@ class Session:
             self.name = project.name
             self.history = core.History(project.layout)
             # a design opened with beams of one family crossing is layered by intent: its edits may keep them
-            self._layered = any("would collide" in p for p in core.topology_problems(project.layout))
+            self._layered = any(p.endswith(core.FAMILY_CROSSING) for p in core.topology_problems(project.layout))
             self.subdivision = project.subdivision
             self.rest_lengths = project.rest_lengths
             self.target_angle_deg = project.target_angle_deg
