@@ -242,6 +242,26 @@ def test_segments_crossing_without_a_joint_are_named():
     assert "without a joint (1 more such crossing)" in g.crossings and "no contact is modelled" in g.crossings
 
 
+def test_a_segment_ending_on_another_without_a_node_is_named():
+    """A T drawn with one end on another beam's segment, that beam not split there: the drawing shows a
+    connection, the model leaves the end free (it deployed with "reached the target angle" and no word)."""
+    V, E, _ = _grid_with_diagonal()
+    # a stub from node 1 at (0, 1) to node 25 at (0.5, 2), the middle of the segment from (0, 2) to (1, 2)
+    V = np.vstack([V, [[0.5, 2.0, 0.0]]])
+    g = analyze(design_from_arrays(V, E + [(1, 25)], "t.obj"))
+    assert g.crossings.startswith("edge 40 ends at node 25 on edge ") and "not connected, that end is free" in g.crossings
+    # a gap of a hundredth of the segment is a gap, not a touch
+    V[25] = [0.5, 1.99, 0.0]
+    assert analyze(design_from_arrays(V, E + [(1, 25)], "t.obj")).crossings == ""
+
+
+@needs_data
+def test_no_paper_design_has_an_end_on_another_segment():
+    for case in json.loads((DATA / "cases.json").read_text())["cases"]:
+        g = analyze(read_design(DATA / (case.get("flat_file") or case["file"])))
+        assert " ends at " not in g.crossings, (case["name"], g.crossings)
+
+
 @needs_data
 def test_the_papers_layered_design_is_analyzed_with_its_crossings_named():
     case = next(c for c in json.loads((DATA / "cases.json").read_text())["cases"] if c["name"] == "two_layer_two_bump")

@@ -350,7 +350,7 @@ def _crossings(design: Design, normal: np.ndarray) -> str:
     cross = (((d1 > eps) & (d2 < -eps)) | ((d1 < -eps) & (d2 > eps))) & \
             (((d3 > eps) & (d4 < -eps)) | ((d3 < -eps) & (d4 > eps)))
     if not cross.any():
-        return ""
+        return _touching(design, P, s, t, length)
     k = np.flatnonzero(cross)
     first = k[np.argmin(np.maximum(s[k], t[k]))]  # the pair completed earliest in the file
     i, j = sorted((int(s[first]), int(t[first])))
@@ -359,6 +359,38 @@ def _crossings(design: Design, normal: np.ndarray) -> str:
             f"{design.where_vertex(int(E[j, 1]))}) crosses {design.where_edge(i)} without a joint{more}: the "
             f"simulation passes such beams through each other (no contact is modelled), as a layered design "
             f"intends; anywhere else put a node where they cross")
+
+
+TOUCH_TOLERANCE = 1e-3
+"""An end of a segment within this fraction of the shorter segment's length of another segment that
+shares no node with it touches that segment in the drawing (a T drawn with an end snapped onto a beam)."""
+
+
+def _touching(design: Design, P: np.ndarray, s: np.ndarray, t: np.ndarray, length: np.ndarray) -> str:
+    """A one-line warning naming a segment end that touches another segment without a node there ('' if none).
+
+    ``P``: the layout's points in its plane, (n, 2); ``s``, ``t``: candidate pairs of segments sharing no
+    node; ``length``: every segment's length. The drawing shows a connection that the model does not make:
+    the end stays free (a T-junction drawn without splitting the other beam at a node).
+    """
+    E = design.edges
+    for one, other in ((s, t), (t, s)):
+        a, b = P[E[one, 0]], P[E[one, 1]]
+        for end in (0, 1):
+            q = P[E[other, end]]
+            d = b - a
+            u = np.einsum("ij,ij->i", q - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
+            foot = a + np.clip(u, 0.0, 1.0)[:, None] * d
+            gap = np.linalg.norm(q - foot, axis=1)
+            hit = gap <= TOUCH_TOLERANCE * np.minimum(length[one], length[other])
+            if hit.any():
+                k = int(np.flatnonzero(hit)[0])
+                i, j, v = int(one[k]), int(other[k]), int(E[other[k], end])
+                return (f"{design.where_edge(j)} ends at {design.where_vertex(v)} on {design.where_edge(i)} "
+                        f"(between {design.where_vertex(int(E[i, 0]))} and {design.where_vertex(int(E[i, 1]))}) "
+                        f"without sharing a node: the two are not connected, that end is free; to join them, "
+                        f"split the other beam at a node there")
+    return ""
 
 
 def _incident_segments(E: np.ndarray, n: int) -> list[list[int]]:
