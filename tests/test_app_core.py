@@ -16,6 +16,8 @@ from xshells.app.exports import dxf_bytes, svg_text, write_case, write_dxf, writ
 from xshells.app.loading import MAX_UPLOAD_BYTES, UploadStore, grid_project, open_path
 from xshells.app.worker import Worker
 from xshells.errors import InputError
+from xshells.io import read_design
+from xshells.linkage.graph import analyze
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXAMPLES = os.path.join(ROOT, "xshells", "data", "examples")
@@ -615,6 +617,34 @@ def test_cage_rest_is_identity_and_handles_deform_smoothly():
         core.cage_move(lay, cage, 3, 0, (1, 0))
     with pytest.raises(InputError, match="at least 2"):
         core.Cage.around(lay, (1, 4))
+
+
+def test_a_move_that_would_re_pair_the_beams_at_a_neighbour_is_a_problem_not_another_linkage():
+    """The analysis pairs segments at a joint by straightness: joint 52 of the uniform grid moved by half a
+    segment made other segments the straighter continuation at joints 53 and 57, and the app deployed that
+    other linkage without a word. Now the edit is a problem until undone; a small move is not."""
+    from xshells.app.loading import Project
+    from xshells.app.session import Session
+
+    lay = core.layout_from_design(read_design(os.path.join(EXAMPLES, "uniform_linkage.obj")))
+    g = analyze(core.layout_to_design(lay))
+    base = core.beam_pairing(lay, g)
+    assert base[53][1] == frozenset({frozenset({3, 58}), frozenset({8, 52})})  # the drawn beams through joint 53
+    step = float(lay.segment_lengths().mean()) * np.array([1.0, 0.0])
+    s = Session(Project(name="grid", layout=lay, material={"type": "rectangle", "params": [0.1, 0.05], "E": 2e4, "nu": 0.3}))
+    try:
+        assert s.edit(core.move_joint, 52, lay.vertices[52] + 0.3 * step) and s.problems() == []
+        assert s.edit(core.move_joint, 52, lay.vertices[52] + 0.5 * step)
+        problems = s.problems()
+        assert len(problems) == 1 and problems[0].startswith("joint 53: its beams would re-pair (and joint 57)")
+        assert "3–52 and 8–58 instead of 3–58 and 8–52" in problems[0]
+        s.undo()
+        assert s.problems() == []
+        # the same layout opened as it is has no drawn pairing to keep: it is a linkage of its own
+        moved = core.move_joint(lay, 52, lay.vertices[52] + 0.5 * step)
+        assert core.topology_problems(moved) == [] and core.topology_problems(moved, pairing=base) == problems
+    finally:
+        s.close()
 
 
 def test_tools_are_undone_exactly():

@@ -310,7 +310,65 @@ def snap(xy, step: float) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- validation
-def topology_problems(layout: Layout, allow_crossings: bool = False) -> list[str]:
+_last_analysis: list = []  # [(layout, graph)] of the last layout analysed: a session asks twice per edit
+
+
+def analyzed(layout: Layout):
+    """:func:`xshells.linkage.graph.analyze` of ``layout`` (the last one's is kept); raises InputError."""
+    from ..linkage.graph import analyze
+
+    last = list(_last_analysis)  # another thread may replace it meanwhile
+    if last and last[0][0] is layout:
+        return last[0][1]
+    graph = analyze(layout_to_design(layout))
+    _last_analysis[:] = [(layout, graph)]
+    return graph
+
+
+def beam_pairing(layout: Layout, graph) -> dict:
+    """How the beams pass through each joint: vertex -> (its neighbours, the pairs of neighbours joined by one beam).
+
+    ``graph`` is the layout's :func:`xshells.linkage.graph.analyze`. At a valence-4 joint the two pairs are the
+    two beams crossing there (chosen by the analysis as the most nearly straight continuations), at a
+    valence-3 joint one pair continues through and the third neighbour ends there, at a valence-2 joint
+    both beams end. Neighbours are vertex indices, so the pairing survives renumbered segments.
+    """
+    E = layout.edges
+    other = lambda s, v: int(E[s, 1] if E[s, 0] == v else E[s, 0])  # noqa: E731
+    out = {}
+    for j, v in enumerate(np.asarray(graph.joint_vertex).tolist()):
+        slots = np.asarray(graph.joint_segments[j])
+        pairs = frozenset(frozenset(other(int(sg), v) for sg in row if sg >= 0) for row in slots)
+        neighbours = frozenset(int(n) for n in np.concatenate([E[E[:, 0] == v, 1], E[E[:, 1] == v, 0]]).tolist())
+        out[v] = (neighbours, pairs)
+    return out
+
+
+def repairings(layout: Layout, graph, baseline: dict) -> list[str]:
+    """Joints whose beams would pass through differently from ``baseline`` (a :func:`beam_pairing`), one line.
+
+    The analysis pairs the segments at a joint by straightness, so a drag that kinks a beam far enough at
+    a neighbouring joint makes other segments the straighter continuation there: the layout then holds
+    other beams than the ones drawn, and would deploy as another linkage without a word (a joint of the
+    uniform grid moved by half a segment re-paired two neighbours). Only joints whose neighbours are
+    those of the baseline are compared: a segment added or removed there is a new joint.
+    """
+    now = beam_pairing(layout, graph)
+    changed = [v for v, (nb, pairs) in now.items() if v in baseline and baseline[v][0] == nb and baseline[v][1] != pairs]
+    if not changed:
+        return []
+    v = changed[0]
+
+    def describe(pairs) -> str:
+        return " and ".join("–".join(str(n) for n in sorted(p)) for p in sorted(pairs, key=lambda p: sorted(p)) if len(p) == 2)
+
+    more = f" (and joint{'s' * (len(changed) > 2)} {', '.join(str(c) for c in changed[1:6])})" if len(changed) > 1 else ""
+    return [f"joint {v}: its beams would re-pair{more}, the beams through it joining neighbours {describe(now[v][1])} "
+            f"instead of {describe(baseline[v][1])}: a beam is bent so sharply there that another segment "
+            f"continues it more straightly; undo, or move less far"]
+
+
+def topology_problems(layout: Layout, allow_crossings: bool = False, pairing: dict | None = None) -> list[str]:
     """Every defect that keeps the layout from being simulated, one line each (empty: fine).
 
     Checks: no segments, self-loops, valence above 4, duplicate edges,
@@ -319,7 +377,9 @@ def topology_problems(layout: Layout, allow_crossings: bool = False) -> list[str
     inside out (:func:`inversions`). ``allow_crossings``: beams of one family
     may cross, as in a layered design that was opened so (the paper's
     two-layer two-bump design crosses 107 times; the simulation models no
-    contact, and ``xshells deploy`` deploys it with a warning).
+    contact, and ``xshells deploy`` deploys it with a warning). ``pairing``:
+    the :func:`beam_pairing` of the layout before the edit, whose beams must
+    pass through the joints as they did (:func:`repairings`).
     """
     V, E = layout.vertices, layout.edges
     if len(E) == 0:
@@ -348,13 +408,13 @@ def topology_problems(layout: Layout, allow_crossings: bool = False) -> list[str
         out.append(f"disconnected: the layout falls into {parts} parts")
     if not out:
         try:
-            from ..linkage.graph import analyze
-
-            graph = analyze(layout_to_design(layout))
+            graph = analyzed(layout)
         except InputError as exc:
             out.append(str(exc).replace("<arrays>: ", ""))
         else:
             out += inversions(layout, graph, allow_crossings)
+            if pairing is not None:
+                out += repairings(layout, graph, pairing)
     return out
 
 

@@ -124,6 +124,7 @@ class Session:
             self.history = core.History(project.layout)
             # a design opened with beams of one family crossing is layered by intent: its edits may keep them
             self._layered = any(p.endswith(core.FAMILY_CROSSING) for p in core.topology_problems(project.layout))
+            self._pairing = {}  # how the beams pass through each joint, as drawn: edits must keep it (core.repairings)
             self.subdivision = project.subdivision
             self.rest_lengths = project.rest_lengths
             self.target_angle_deg = project.target_angle_deg
@@ -249,11 +250,21 @@ class Session:
         return self._problems(self.layout)
 
     def _problems(self, layout) -> list[str]:
-        return core.topology_problems(layout, allow_crossings=getattr(self, "_layered", False))
+        return core.topology_problems(layout, allow_crossings=getattr(self, "_layered", False),
+                                      pairing=getattr(self, "_pairing", None))
 
     def _layout_changed(self) -> None:
         self._emit("layout", self.layout)
         problems = self.problems()
+        if not problems:
+            # a sound layout's joints (new ones, or with other neighbours) join the pairing that edits must keep;
+            # a joint deleted renumbers the vertices, and the pairing starts again from this layout
+            layout = self.layout
+            kept = getattr(self, "_pairing", {})
+            if getattr(self, "_pairing_size", None) != layout.num_vertices:
+                kept = {}
+            self._pairing = {**kept, **core.beam_pairing(layout, core.analyzed(layout))}
+            self._pairing_size = layout.num_vertices
         self._emit("problems", problems)
 
     # ------------------------------------------------------------------ material
