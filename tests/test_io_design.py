@@ -383,3 +383,26 @@ def test_rest_length_layouts(tmp_path):
     assert read_rest_lengths(path, 4).tolist() == [1.0, 2.0, 3.0, 4.0]
     with pytest.raises(InputError, match="cannot read file"):
         read_rest_lengths(tmp_path / "none.txt", 4)
+
+
+def test_the_msh_element_table_agrees_with_meshio_and_stands_without_its_private_one(tmp_path, monkeypatch):
+    """gmsh's element types are our own table (the MSH format's numbers); meshio's private one only adds
+    higher orders, so a meshio release that moves it does not stop .msh designs from reading."""
+    import sys
+
+    from meshio._common import num_nodes_per_cell
+    from meshio.gmsh.common import _gmsh_to_meshio_type
+
+    from xshells.io.design import _GMSH_ELEMENTS, _element_kinds
+
+    for t, kind in _GMSH_ELEMENTS.items():
+        if t in _gmsh_to_meshio_type:
+            assert kind == (_gmsh_to_meshio_type[t], num_nodes_per_cell[_gmsh_to_meshio_type[t]]), t
+    path = tmp_path / "two.msh"
+    _write_msh(path, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [("line", np.array([[0, 2], [1, 3]]))])
+    before = read_design(path)
+    monkeypatch.setitem(sys.modules, "meshio.gmsh.common", None)  # its import now fails
+    assert _element_kinds() == _GMSH_ELEMENTS
+    after = read_design(path)
+    np.testing.assert_array_equal(after.edges, before.edges)
+    np.testing.assert_array_equal(after.vertices, before.vertices)

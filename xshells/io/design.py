@@ -671,12 +671,34 @@ def _shown(text: str, limit: int = 40) -> str:
     return repr(text if len(text) <= limit else text[:limit] + "...")
 
 
-def _element_kinds() -> dict:
-    """gmsh element type -> (meshio's name for it, its number of nodes)."""
-    from meshio._common import num_nodes_per_cell
-    from meshio.gmsh.common import _gmsh_to_meshio_type
+# gmsh's element types 1-31 (the gmsh reference manual, "MSH file format": type number, node count), named as
+# meshio names them: the lines, surfaces and points a design holds, and the volumes a file may hold beside them
+_GMSH_ELEMENTS = {
+    1: ("line", 2), 2: ("triangle", 3), 3: ("quad", 4), 4: ("tetra", 4), 5: ("hexahedron", 8), 6: ("wedge", 6),
+    7: ("pyramid", 5), 8: ("line3", 3), 9: ("triangle6", 6), 10: ("quad9", 9), 11: ("tetra10", 10),
+    12: ("hexahedron27", 27), 13: ("wedge18", 18), 14: ("pyramid14", 14), 15: ("vertex", 1), 16: ("quad8", 8),
+    17: ("hexahedron20", 20), 18: ("wedge15", 15), 19: ("pyramid13", 13), 20: ("triangle9", 9),
+    21: ("triangle10", 10), 22: ("triangle12", 12), 23: ("triangle15", 15), 24: ("triangle15", 15),
+    25: ("triangle21", 21), 26: ("line4", 4), 27: ("line5", 5), 28: ("line6", 6), 29: ("tetra20", 20),
+    30: ("tetra35", 35), 31: ("tetra56", 56),
+}
 
-    return {t: (name, num_nodes_per_cell[name]) for t, name in _gmsh_to_meshio_type.items()}
+
+def _element_kinds() -> dict:
+    """gmsh element type -> (its name, its number of nodes): the table above, and the higher orders meshio knows.
+
+    meshio's table is private (``meshio.gmsh.common``): where a release moves it, the types above still read.
+    """
+    kinds = dict(_GMSH_ELEMENTS)
+    try:
+        from meshio._common import num_nodes_per_cell
+        from meshio.gmsh.common import _gmsh_to_meshio_type
+
+        for t, name in _gmsh_to_meshio_type.items():
+            kinds.setdefault(t, (name, num_nodes_per_cell[name]))
+    except (ImportError, AttributeError, KeyError):
+        pass
+    return kinds
 
 
 #: A median ratio of rest length to drawn segment length beyond this factor (either way) is a units mistake
