@@ -135,3 +135,41 @@ def test_deploy_writes_the_fabrication_files_with_deployed_angles(tmp_path):
     assert "deployed_angle_deg" in rows[0]
     deployed = np.array([float(r["deployed_angle_deg"]) for r in rows])
     assert deployed.mean() == pytest.approx(result["deployed"]["average_angle_deg"], abs=1e-4)  # 4 decimals in the file
+
+
+def _drawn_lengths(design_path):
+    d = read_design(design_path)
+    return np.linalg.norm(d.vertices[d.edges[:, 1]] - d.vertices[d.edges[:, 0]], axis=1)
+
+
+def test_rest_lengths_of_another_design_are_refused_naming_the_worst_segment(tmp_path, capsys):
+    # a design_parameters.txt of another design with the same segment count was cut and drilled without a word
+    p = _drawn_lengths(EXAMPLES / "manta_ray.obj")
+    ok, other = tmp_path / "ok.txt", tmp_path / "other.txt"
+    ok.write_text("".join(f"{v * 1.001:.17g}\n" for v in p))  # a genuine file: within 0.03 % (0.1 % here)
+    q = p.copy()
+    q[[3, 4, 5]] *= 0.9
+    q[7] *= 1.3
+    other.write_text("".join(f"{v:.17g}\n" for v in q))
+    args = ["fabricate", str(EXAMPLES / "manta_ray.obj"), "--no-progress", "--rest-lengths"]
+    assert main([*args, str(ok), "--out", str(tmp_path / "ok")]) == 0
+    assert main([*args, str(other), "--out", str(tmp_path / "other")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err and str(other) in err
+    assert "segment 7 " in err and f"{q[7]:.6g}" in err and f"{p[7]:.6g}" in err and "+30.0 %" in err
+    assert "4 of 312 segments differ by more than 5 %" in err
+    assert not (tmp_path / "other" / "cutlist.csv").exists()
+
+
+def test_deploy_with_rest_lengths_off_the_drawing_warns_and_draws_the_relaxed_flat_state(tmp_path):
+    design = EXAMPLES / "nonuniform_linkage.obj"
+    p = _drawn_lengths(design)
+    p[2] *= 1.08
+    (tmp_path / "rl.txt").write_text("".join(f"{v:.17g}\n" for v in p))
+    assert main(["deploy", str(design), "--material", "rectangle:0.05,0.035", "--angle", "60", "--steps", "2",
+                 "--subdivision", "5", "--rest-lengths", str(tmp_path / "rl.txt"), "--out", str(tmp_path / "o"),
+                 "--no-progress"]) == 0
+    result = json.loads((tmp_path / "o" / "result.json").read_text())
+    assert any("do not fit the drawn flat layout: segment 2 " in w for w in result["warnings"])
+    # the cut list is written, from the flat state these rest lengths relax to (within 5 % of them)
+    check_cutlist(tmp_path / "o" / "cutlist.csv", read_design(design).edges, p, margin=0.025, tol=1e-3)

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.export import atomic_write_bytes, atomic_write_text
-from .beams import beam_sections, joint_table, trace_beams, units_to_mm
+from .beams import beam_sections, joint_table, rest_length_mismatch, trace_beams, units_to_mm
 from .nesting import Nesting, nest_bars, nest_sheets, no_nesting
 
 CUTLIST_COLUMNS = ("beam", "family", "length_mm", "holes", "hole_positions_mm", "joints", "section")
@@ -133,7 +133,7 @@ def joints_csv(plan: FabricationPlan) -> str:
 
 
 def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions = FabricationOptions(), *,
-                     flat_angles=None, deployed_angles=None, xy=None) -> FabricationPlan:
+                     flat_angles=None, deployed_angles=None, xy=None, source: str | None = None) -> FabricationPlan:
     """The strips, their holes, the joint table and the nesting of a design.
 
     Parameters
@@ -147,7 +147,11 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
         Joint opening angles (radians) of the flat assembly state and of the
         deployed state (default flat: the design's own angles).
     xy : (n, 2) array, optional
-        The flat layout's in-plane coordinates (default: the design's).
+        The flat layout's in-plane coordinates (default: the design's); the
+        rest lengths must fit its segment lengths within 5 %
+        (:data:`~.beams.REST_LENGTH_TOLERANCE`), else one line says which.
+    source : str, optional
+        Where the rest lengths come from (a file), for that line.
     """
     from ..io.fabrication import flat_coordinates
 
@@ -171,6 +175,11 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
                              "the outermost holes would break out of the strip ends")
     XY = flat_coordinates(graph.design.vertices, graph.layout_normal) if xy is None else np.asarray(xy, float)
     beams = trace_beams(graph, rest_lengths, sections, xy=XY, end_margin=options.end_margin, to_mm=to_mm)
+    bad = rest_length_mismatch(rest_lengths, XY, graph.design.edges)
+    if bad:
+        hint = ("a file of another design? (Rest lengths that xshells optimize moved away from the drawn layout: its "
+                "own fabrication files draw the flat state they relax to.)" if source else "rest lengths of another design?")
+        raise InputError(f"{source + ': ' if source else ''}the rest lengths do not fit the flat layout: {bad}: {hint}")
     _check_hole_spacing(beams, hole, options.units)
     flat = graph.joint_opening_angles if flat_angles is None else flat_angles
     joints = joint_table(graph, beams, flat, deployed_angles, top=top)
@@ -218,28 +227,38 @@ def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
     return paths
 
 
-def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None, skipped: list | None = None) -> FabricationPlan | None:
+def flat_state_xy(linkage) -> np.ndarray:
+    """In-plane coordinates (n, 2) of every design vertex in ``linkage``'s current flat state, in the drawn layout's
+    axes: the layout that rest lengths other than the drawn ones (a file, an optimization) relax to."""
+    from ..io.fabrication import flat_coordinates
+
+    return flat_coordinates(linkage.vertex_positions(), linkage.graph.layout_normal, frame=linkage.graph.design.vertices)
+
+
+def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None, skipped: list | None = None,
+            xy=None) -> FabricationPlan | None:
     """The fabrication plan (default options) of a command that solved ``linkage``; None for a layout that is not
     flat, or that cannot be built with its section (then why goes into ``skipped``, if given).
 
     ``flat_angles``: the joint angles of its flat assembly state; ``rest_lengths``
-    default to the linkage's own.
+    default to the linkage's own; ``xy``: the flat layout (default the drawn
+    design; :func:`flat_state_xy` where the rest lengths are not the drawn ones).
     """
     if not linkage.graph.is_planar:
         return None
     p = linkage.rest_lengths if rest_lengths is None else rest_lengths
     mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
     try:
-        return fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles)
+        return fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles, xy=xy)
     except InputError as exc:  # a layout no one can build with its section: no drawings of it
         if skipped is not None:
             skipped.append(f"fabrication files not written: {exc}")
         return None
 
 
-def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> list[str]:
+def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None, xy=None) -> list[str]:
     """The fabrication files of a command that solved ``linkage`` (``optimize``, ``inverse``); [] for a non-flat layout."""
-    plan = plan_of(linkage, flat_angles, deployed_angles, rest_lengths)
+    plan = plan_of(linkage, flat_angles, deployed_angles, rest_lengths, xy=xy)
     return [] if plan is None else write_fabrication(out_dir, plan)
 
 
@@ -288,7 +307,8 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
         t1 = time.perf_counter()
         mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
         angles = linkage.joint_angles() if rest_lengths_path is None else linkage.graph.joint_opening_angles
-        plan = fabrication_plan(linkage.graph, linkage.rest_lengths, mats, options, flat_angles=angles)
+        plan = fabrication_plan(linkage.graph, linkage.rest_lengths, mats, options, flat_angles=angles,
+                                source=rest_lengths_path and str(rest_lengths_path))
         if bar is not None:
             bar.update(1)
             bar.set_postfix(stage="files")
