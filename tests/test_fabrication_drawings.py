@@ -100,3 +100,21 @@ def test_assembly_draws_the_top_family_over_the_other(manta):
     fam = re.findall(r'class="beam" data-beam="[AB]\d+" data-family="([AB])"', text_b)
     assert fam == sorted(fam, key=lambda f: f == "B")
     assert all(r.on_top.startswith("B") for r in top.joints)
+
+
+@pytest.mark.parametrize("top", ["A", "B"])
+def test_assembly_legend_names_the_colours_drawn(manta, top):
+    # with --top B the legend said "family B on top (orange)" over blue B strips
+    g, p, mat = manta
+    plan = fabrication_plan(g, p, mat, FabricationOptions(top=top))
+    root = ET.fromstring(assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter, top=top))
+    names = {"#d9822b": "orange", "#3f77b0": "blue"}
+    drawn = {}
+    for layer in ("upper", "lower"):
+        strips = root.findall(f".//{NS}g[@id='{layer}']/{NS}polyline[@class='beam']")
+        assert len({(s.get("data-family"), s.get("stroke")) for s in strips}) == 1
+        drawn[layer] = (strips[0].get("data-family"), names[strips[0].get("stroke")])
+    legend = next(t.text for t in root.iter(f"{NS}text") if t.text and t.text.startswith("assembly"))
+    assert drawn["upper"][0] == top
+    assert f"family {drawn['upper'][0]} on top ({drawn['upper'][1]})" in legend
+    assert f"family {drawn['lower'][0]} below ({drawn['lower'][1]}," in legend

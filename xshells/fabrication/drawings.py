@@ -15,6 +15,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 FAMILY_COLOURS = {"A": "#d9822b", "B": "#3f77b0"}
+FAMILY_COLOUR_NAMES = {"A": "orange", "B": "blue"}  # what the assembly's legend calls them
 
 
 @dataclass(frozen=True)
@@ -170,7 +171,8 @@ def assembly_svg(xy, beams, joints, hole_diameter: float, to_mm: float = 1.0, to
            f'viewBox="0 {-2 * fb:.3f} {W:.3f} {H + 2 * fb:.3f}">\n'
            f'<title>X-shell assembly, 1:1, mm</title>\n'
            f'<text x="{margin * 0.3:.3f}" y="{-0.6 * fb:.3f}" font-size="{fb:.3f}" font-family="sans-serif">'
-           f'assembly, seen from the up side: family {top} on top (orange), family {bottom} below (blue, centrelines dashed); '
+           f'assembly, seen from the up side: family {top} on top ({FAMILY_COLOUR_NAMES.get(top, "grey")}), family {bottom} '
+           f'below ({FAMILY_COLOUR_NAMES.get(bottom, "grey")}, centrelines dashed); '
            f'numbers at rivets: design vertex ids</text>\n']
 
     def polyline(b, stroke, width, cls, extra=""):
