@@ -1,6 +1,7 @@
 """``xshells fabricate`` end to end on bundled designs (OBJ with a rest-length solve, .msh with design_parameters.txt),
 checked against the design graph and the rest lengths; units; the files of ``deploy``; one-line errors."""
 import csv
+import re
 import json
 
 import numpy as np
@@ -173,3 +174,42 @@ def test_deploy_with_rest_lengths_off_the_drawing_warns_and_draws_the_relaxed_fl
     assert any("do not fit the drawn flat layout: segment 2 " in w for w in result["warnings"])
     # the cut list is written, from the flat state these rest lengths relax to (within 5 % of them)
     check_cutlist(tmp_path / "o" / "cutlist.csv", read_design(design).edges, p, margin=0.025, tol=1e-3)
+
+
+@pytest.mark.parametrize("stop", ["interrupt", "error"])
+def test_a_stop_or_error_while_writing_never_leaves_a_mix_of_two_runs(tmp_path, monkeypatch, capsys, stop):
+    # Ctrl-C while fabricate wrote its files left the first files of the new design beside the previous design's
+    import xshells.fabrication.run as fabrun
+    import xshells.io.export as export
+    from xshells.errors import STOP
+
+    out = tmp_path / "o"  # the previous run: the two bumps, 440 segments (the wings: 288, 26 beams)
+    assert main(["fabricate", str(EXAMPLES / "two_bumps_architectural" / "case.json"), "--out", str(out),
+                 "--no-progress"]) == 0
+    assert json.loads((out / "bom.json").read_text())["beams"] != 26
+    original, calls = export.atomic_write_bytes, []
+
+    def write(path, data):
+        calls.append(path)
+        if len(calls) == 3:  # in the middle of the set
+            if stop == "error":
+                raise OSError(28, "No space left on device", str(path))
+            STOP.request()  # what the signal handler does: raises, unless a stop is held off
+        original(path, data)
+
+    monkeypatch.setattr(STOP, "requested", False)  # put back after the test: the stop asked for here ends with it
+    monkeypatch.setattr(export, "atomic_write_bytes", write)
+    monkeypatch.setattr(fabrun, "atomic_write_bytes", write, raising=False)
+    rc = main(["fabricate", str(WINGS / "case.json"), "--out", str(out), "--no-progress"])
+    assert rc != 0
+    present = sorted(f.name for f in out.iterdir())
+    if stop == "error":  # none of the set rather than a mix
+        assert not set(present) & set(FILES), present
+        return
+    # the stop waited for the whole set: every file of the wings, none of the two bumps'
+    assert present == sorted(FILES)
+    n = len(read_cutlist(out / "cutlist.csv"))
+    bom = json.loads((out / "bom.json").read_text())
+    assert bom["beams"] == n == json.loads((out / "result.json").read_text())["bom"]["beams"] == 26
+    assert len(re.findall(r'class="strip"', (out / "beams.svg").read_text())) == n
+    assert len(set(re.findall(r'data-beam="([AB]\d+)"', (out / "assembly.svg").read_text()))) == n

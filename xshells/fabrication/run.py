@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..io.export import atomic_write_bytes, atomic_write_text
+from ..io.export import atomic_write_bytes
 from .beams import beam_sections, joint_table, rest_length_mismatch, trace_beams, units_to_mm
 from .nesting import Nesting, nest_bars, nest_sheets, no_nesting
 
@@ -213,18 +213,49 @@ def _check_hole_spacing(beams, hole: float, units: str) -> None:
                          f"in), or is the section too wide?")
 
 
-def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
-    """Write the files of :data:`FABRICATION_FILES` into ``out_dir`` (each atomically); the paths written."""
+def render_fabrication(plan: FabricationPlan) -> dict[str, bytes]:
+    """The content of every file of :data:`FABRICATION_FILES`, by name (nothing written)."""
     from .drawings import assembly_svg, beams_dxf, beams_svg
 
-    paths = [os.path.join(out_dir, f) for f in FABRICATION_FILES]
-    atomic_write_text(paths[0], cutlist_csv(plan))
-    atomic_write_text(paths[1], joints_csv(plan))
-    atomic_write_text(paths[2], beams_svg(plan.beams, plan.nesting, plan.hole_diameter))
-    atomic_write_bytes(paths[3], beams_dxf(plan.beams, plan.nesting, plan.hole_diameter))
-    atomic_write_text(paths[4], assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter, plan.to_mm, plan.top))
-    atomic_write_text(paths[5], json.dumps(plan.bill_of_materials(), indent=1))
+    text = {"cutlist.csv": cutlist_csv(plan), "joints.csv": joints_csv(plan),
+            "beams.svg": beams_svg(plan.beams, plan.nesting, plan.hole_diameter),
+            "assembly.svg": assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter, plan.to_mm, plan.top),
+            "bom.json": json.dumps(plan.bill_of_materials(), indent=1)}
+    files = {name: text[name].encode("utf-8") for name in text}
+    files["beams.dxf"] = beams_dxf(plan.beams, plan.nesting, plan.hole_diameter)
+    return {name: files[name] for name in FABRICATION_FILES}
+
+
+def write_file_set(out_dir: str, files: dict) -> list[str]:
+    """Write ``files`` (name → bytes) into ``out_dir`` as one set; the paths written.
+
+    A stop (Ctrl-C, SIGTERM) waits until the whole set is in place (a
+    fraction of a second; the caller checks :data:`~xshells.errors.STOP`
+    after): cut short, it left the first files of this run beside the rest
+    of the previous run's. A write that fails removes every file of the
+    set, old or new, before the error goes on: none, rather than a mix.
+    Each file is written atomically.
+    """
+    from ..errors import STOP
+
+    paths = [os.path.join(out_dir, name) for name in files]
+    with STOP.deferred():
+        try:
+            for path, data in zip(paths, files.values()):
+                atomic_write_bytes(path, data)
+        except BaseException:
+            for path in paths:
+                try:
+                    os.remove(path)
+                except OSError:
+                    pass
+            raise
     return paths
+
+
+def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
+    """Write the files of :data:`FABRICATION_FILES` into ``out_dir`` as one set (:func:`write_file_set`); the paths."""
+    return write_file_set(out_dir, render_fabrication(plan))
 
 
 def flat_state_xy(linkage) -> np.ndarray:
@@ -312,15 +343,30 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
         if bar is not None:
             bar.update(1)
             bar.set_postfix(stage="files")
-        paths = write_fabrication(out_dir, plan)
+        files = render_fabrication(plan)
         t_fab = time.perf_counter() - t1
+        bom = plan.bill_of_materials()
+        result = _fabricate_result(design_path, design, linkage, rest_lengths_path, name, bom, t_rest, t_fab, t0)
+        # result.json in the same set: an interrupted run left the new files beside the previous run's result
+        write_file_set(out_dir, {**files, "result.json": json.dumps(result, indent=1).encode("utf-8")})
         if bar is not None:
             bar.update(1)
     finally:
         if bar is not None:
             bar.close()
-    bom = plan.bill_of_materials()
-    result = {
+    from ..errors import STOP
+
+    STOP.check()  # a stop that waited for the files
+    if progress and plan.units != "mm":
+        print(f"note: {bom['units_note']}", file=sys.stderr)
+    return result
+
+
+def _fabricate_result(design_path, design, linkage, rest_lengths_path, name, bom, t_rest, t_fab, t0) -> dict:
+    """The ``result.json`` of ``xshells fabricate``."""
+    import time
+
+    return {
         "name": name or os.path.splitext(os.path.basename(str(design_path)))[0],
         "design": os.path.abspath(str(design_path)),
         "segments": linkage.num_segments,
@@ -328,10 +374,7 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
         "rest_lengths": "file: " + os.path.abspath(rest_lengths_path) if rest_lengths_path else "rest-length solve",
         "input": design.note,  # how a .3dm was read (its layer, units and the conversion to mm), else None
         "bom": bom,
-        "files": [os.path.basename(p) for p in paths],
+        "files": list(FABRICATION_FILES),
+        # fabrication: tracing, nesting and drawing the files (their writing, last, is not counted)
         "timings_s": {"rest_lengths": t_rest, "fabrication": t_fab, "total": time.perf_counter() - t0},
     }
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
-    if progress and plan.units != "mm":
-        print(f"note: {bom['units_note']}", file=sys.stderr)
-    return result
