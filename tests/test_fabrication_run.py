@@ -213,3 +213,19 @@ def test_a_stop_or_error_while_writing_never_leaves_a_mix_of_two_runs(tmp_path, 
     assert bom["beams"] == n == json.loads((out / "result.json").read_text())["bom"]["beams"] == 26
     assert len(re.findall(r'class="strip"', (out / "beams.svg").read_text())) == n
     assert len(set(re.findall(r'data-beam="([AB]\d+)"', (out / "assembly.svg").read_text()))) == n
+
+
+def test_deploy_removes_an_earlier_runs_fabrication_files_it_does_not_rewrite(tmp_path):
+    # the unit-sized grid with the default 10 mm section cannot be drilled: deploy writes no cut list, and the
+    # manta's, from an earlier run into the same folder, stayed beside the new result
+    out = tmp_path / "o"
+    assert main(["fabricate", str(EXAMPLES / "manta_ray.obj"), "--out", str(out), "--no-progress"]) == 0
+    (out / "mine.csv").write_text("not ours\n")
+    assert main(["deploy", str(EXAMPLES / "uniform_linkage.obj"), "--angle", "60", "--steps", "2",
+                 "--subdivision", "5", "--out", str(out), "--no-progress"]) == 0
+    for f in FILES[:-1]:
+        assert not (out / f).exists(), f
+    assert (out / "mine.csv").read_text() == "not ours\n"  # only the files it writes, by name
+    warnings = json.loads((out / "result.json").read_text())["warnings"]
+    assert any(w.startswith("fabrication files not written") for w in warnings)
+    assert any(w.startswith("removed an earlier run's fabrication files") and "cutlist.csv" in w for w in warnings)

@@ -94,10 +94,14 @@ def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles,
     writes the picture and the fabrication files (then :func:`_finish`'s deployment plot: 1.03 against 1.06 s of
     overhead with it after the Rhino file, median of 5), its lane 1 the Rhino file, and this process the meshes,
     at the same time; :func:`_finish` joins it. ``flat_xy``: the fabrication files' flat layout (default the drawn one)."""
-    from ..fabrication.run import plan_of, write_fabrication
+    from ..fabrication.run import plan_of, remove_fabrication_files, stale_note, write_fabrication
     from ..viz.render import render_linkage
 
     plan = plan_of(linkage, flat_angles, linkage.joint_angles(), skipped=warnings, xy=flat_xy)
+    if plan is None:  # none written: an earlier run's cut list would sit beside this design's result
+        removed = remove_fabrication_files(out_dir)
+        if removed and warnings is not None:
+            warnings.append(stale_note(removed))
     if writer is not None and writer.forked:  # the flat layout, the deployed state and the strips (docs/rhino.md)
         from ..linkage.state import snapshot
 

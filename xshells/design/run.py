@@ -326,7 +326,8 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
 
     # drawn from the flat state the optimized rest lengths relax to: they are not the drawn layout's (up to 30 % off)
     flat_xy = flat_state_xy(fresh["flat"]) if fresh["flat"].graph.is_planar else None
-    write_outputs_of(out_dir, fresh["flat"], fresh["flat"].joint_angles(), fresh["deployed"].joint_angles(), p, xy=flat_xy)
+    write_outputs_of(out_dir, fresh["flat"], fresh["flat"].joint_angles(), fresh["deployed"].joint_angles(), p, xy=flat_xy,
+                     warnings=warnings)
     for state, L in (("flat", fresh["flat"]), ("deployed", fresh["deployed"])):
         vmax = max(scale[state], float(bending_field(L).max()))
         _write_outputs(out_dir, f"{state}_before", before[state], vmax=vmax)

@@ -287,10 +287,35 @@ def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None, skipp
         return None
 
 
-def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None, xy=None) -> list[str]:
-    """The fabrication files of a command that solved ``linkage`` (``optimize``, ``inverse``); [] for a non-flat layout."""
-    plan = plan_of(linkage, flat_angles, deployed_angles, rest_lengths, xy=xy)
-    return [] if plan is None else write_fabrication(out_dir, plan)
+def remove_fabrication_files(out_dir: str) -> list[str]:
+    """Remove the files of :data:`FABRICATION_FILES` from ``out_dir``, where a command writes none this time; the names
+    removed. Only these names: left there, an earlier run's cut list sat beside another design's result."""
+    removed = []
+    for name in FABRICATION_FILES:
+        try:
+            os.remove(os.path.join(out_dir, name))
+        except FileNotFoundError:
+            continue
+        removed.append(name)
+    return removed
+
+
+def stale_note(removed: list[str]) -> str:
+    """The warning that says which earlier fabrication files were removed."""
+    return f"removed an earlier run's fabrication files, not written for this design: {', '.join(removed)}"
+
+
+def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None, xy=None,
+                     warnings: list | None = None) -> list[str]:
+    """The fabrication files of a command that solved ``linkage`` (``optimize``, ``inverse``); [] for a non-flat layout,
+    or one that cannot be built (then an earlier run's files are removed, and ``warnings``, if given, says so)."""
+    plan = plan_of(linkage, flat_angles, deployed_angles, rest_lengths, skipped=warnings, xy=xy)
+    if plan is None:
+        removed = remove_fabrication_files(out_dir)
+        if removed and warnings is not None:
+            warnings.append(stale_note(removed))
+        return []
+    return write_fabrication(out_dir, plan)
 
 
 def run_fabrication(design_path, material, *, out_dir, options: FabricationOptions = FabricationOptions(), subdivision=10,
