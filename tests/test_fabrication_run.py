@@ -229,3 +229,20 @@ def test_deploy_removes_an_earlier_runs_fabrication_files_it_does_not_rewrite(tm
     warnings = json.loads((out / "result.json").read_text())["warnings"]
     assert any(w.startswith("fabrication files not written") for w in warnings)
     assert any(w.startswith("removed an earlier run's fabrication files") and "cutlist.csv" in w for w in warnings)
+
+
+def test_strips_wider_than_their_arms_are_named_in_a_warning(tmp_path, capsys):
+    # the single linkage: one hole per strip, so no hole spacing to check; 10 mm strips on arms 0.16 mm long
+    # were written without a word
+    out = tmp_path / "o"
+    assert main(["fabricate", str(EXAMPLES / "single_linkage.obj"), "--out", str(out), "--no-progress"]) == 0
+    lines = [x for x in capsys.readouterr().out.splitlines() if "warning" in x]
+    assert len(lines) == 1 and "2 of 2 strips have an arm shorter than their section is wide" in lines[0]
+    assert "from its free end to joint 2 for a 10 mm wide section" in lines[0]
+    assert json.loads((out / "bom.json").read_text())["warnings"] == [lines[0].split("warning: ", 1)[1]]
+    assert json.loads((out / "result.json").read_text())["bom"]["warnings"]
+    assert json.loads((tmp_path / "o" / "bom.json").read_text())["beams"] == 2
+
+
+def test_slender_strips_get_no_warning(manta):
+    assert json.loads((manta / "bom.json").read_text())["warnings"] == []

@@ -98,6 +98,8 @@ def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles,
     from ..viz.render import render_linkage
 
     plan = plan_of(linkage, flat_angles, linkage.joint_angles(), skipped=warnings, xy=flat_xy)
+    if plan is not None and warnings is not None:  # parts that make no sense, written all the same
+        warnings.extend(plan.warnings)
     if plan is None:  # none written: an earlier run's cut list would sit beside this design's result
         removed = remove_fabrication_files(out_dir)
         if removed and warnings is not None:

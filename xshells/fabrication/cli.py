@@ -64,6 +64,8 @@ def _fabricate(args) -> int:
         print(f"  {st['stock_count']} {st['kind']}, utilization {100 * st['utilization']:.1f} %")
     if b["design_units"] != "mm":
         print(f"  {b['units_note']}")
+    for w in b["warnings"]:  # parts that make no sense, with or without progress
+        print(f"  warning: {w}")
     if r.get("input"):  # how a .3dm was read (its units converted to mm): a note, with or without progress
         print(f"  note: {r['input']}")
     print(f"  outputs in {args.out}/")

@@ -67,6 +67,7 @@ class FabricationPlan:
     units: str
     xy: np.ndarray = field(repr=False)
     top: str = "A"
+    warnings: tuple = ()  # one line each: parts that can be cut but make no sense (:func:`_short_arms`)
 
     def bill_of_materials(self) -> dict:
         """Totals per section, counts, stock used and how well it is used."""
@@ -96,6 +97,7 @@ class FabricationPlan:
             "longest_beam": max(self.beams, key=lambda b: b.length).label if self.beams else None,
             "longest_beam_mm": max((b.length for b in self.beams), default=0.0),
             "top_family": self.top,
+            "warnings": list(self.warnings),
             "stock": self.nesting.summary(),
             "placements": [{"beam": self.beams[q.item].label, "stock": q.stock + 1, "x_mm": q.x, "y_mm": q.y}
                            for q in self.nesting.placements] if self.nesting.kind != "none" else [],
@@ -181,6 +183,7 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
                 "own fabrication files draw the flat state they relax to.)" if source else "rest lengths of another design?")
         raise InputError(f"{source + ': ' if source else ''}the rest lengths do not fit the flat layout: {bad}: {hint}")
     _check_hole_spacing(beams, hole, options.units)
+    warnings = tuple(w for w in (_short_arms(beams, options.units),) if w)
     flat = graph.joint_opening_angles if flat_angles is None else flat_angles
     joints = joint_table(graph, beams, flat, deployed_angles, top=top)
     lengths = [b.length for b in beams]
@@ -194,7 +197,7 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
         nesting = nest_sheets(lengths, widths, options.sheet, options.kerf, labels)
     else:
         nesting = no_nesting(widths, options.kerf)
-    return FabricationPlan(beams, joints, nesting, float(hole), to_mm, str(options.units).strip().lower(), XY, top)
+    return FabricationPlan(beams, joints, nesting, float(hole), to_mm, str(options.units).strip().lower(), XY, top, warnings)
 
 
 def _check_hole_spacing(beams, hole: float, units: str) -> None:
@@ -251,6 +254,39 @@ def write_file_set(out_dir: str, files: dict) -> list[str]:
                     pass
             raise
     return paths
+
+
+def _short_arms(beams, units: str) -> str:
+    """One line when a strip's arm (joint to joint, or joint to free end) is shorter than its section is wide, else "".
+
+    Such a part can be cut, but it is a plate, not a beam (the slender rods
+    of the model): usually the design and the section are in different
+    units. The hole-spacing check misses it where a strip has one hole (the
+    bundled single linkage: 10 mm strips for arms 0.17 mm long, a hole
+    0.17 mm from a free end); deploy's slenderness warning is the same test.
+    """
+    worst, count = None, 0
+    for b in beams:
+        stops = list(np.asarray(b.hole_positions, float))
+        names = [f"joint {v}" for v in b.hole_vertices.tolist()]
+        if b.starts_free:
+            stops, names = [b.margin] + stops, ["its free end"] + names
+        if b.ends_free:
+            stops, names = stops + [b.length - b.margin], names + ["its free end"]
+        if len(stops) < 2:
+            continue
+        arms = np.diff(stops)
+        k = int(np.argmin(arms))
+        if arms[k] < b.section.width:
+            count += 1
+            if worst is None or arms[k] / b.section.width < worst[0]:
+                worst = (arms[k] / b.section.width, b, arms[k], names[k], names[k + 1])
+    if worst is None:
+        return ""
+    _, b, arm, a, c = worst
+    return (f"{count} of {len(beams)} strips have an arm shorter than their section is wide: strip {b.label}, "
+            f"{arm:.4g} mm from {a} to {c} for a {b.section.width:.4g} mm wide section; is the design drawn in {units} "
+            "(the units it is read in), or is the section too wide?")
 
 
 def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
@@ -315,6 +351,8 @@ def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, r
         if removed and warnings is not None:
             warnings.append(stale_note(removed))
         return []
+    if warnings is not None:
+        warnings.extend(plan.warnings)
     return write_fabrication(out_dir, plan)
 
 
