@@ -246,3 +246,25 @@ def test_strips_wider_than_their_arms_are_named_in_a_warning(tmp_path, capsys):
 
 def test_slender_strips_get_no_warning(manta):
     assert json.loads((manta / "bom.json").read_text())["warnings"] == []
+
+
+def test_upper_case_case_files_units_in_words_and_deploy_help(tmp_path, capsys):
+    case = json.loads((WINGS / "case.json").read_text())
+    for key in ("file", "flat_file", "rest_lengths"):  # the bundled case's paths, from a copy elsewhere
+        if isinstance(case.get(key), str):
+            case[key] = str(WINGS / case[key])
+    upper = tmp_path / "WINGS.JSON"
+    upper.write_text(json.dumps(case))
+    assert main(["fabricate", str(upper), "--out", str(tmp_path / "o"), "--no-progress"]) == 0  # was: unknown type
+    d = read_design(EXAMPLES / "manta_ray.obj")
+    m = tmp_path / "manta_in.obj"
+    m.write_text("".join(f"v {x / 25.4:.17g} {y / 25.4:.17g} {z / 25.4:.17g}\n" for x, y, z in d.vertices)
+                 + "".join(f"l {a + 1} {b + 1}\n" for a, b in d.edges))
+    capsys.readouterr()
+    assert main(["fabricate", str(m), "--material", "rectangle:0.4,0.3", "--units", "in", "--out",
+                 str(tmp_path / "i"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "the design's units are inches (in)" in out and "is in in" not in out
+    with pytest.raises(SystemExit):
+        main(["deploy", "--help"])
+    assert "fabrication files" in capsys.readouterr().out

@@ -41,7 +41,7 @@ def _fabricate(args) -> int:
     options = FabricationOptions(end_margin=args.end_margin, hole_diameter=args.hole_diameter,
                                  stock_length=args.stock_length, sheet=parse_sheet(args.sheet) if args.sheet else None,
                                  kerf=args.kerf, units=args.units, top=args.top)
-    if args.input.endswith(".json"):
+    if args.input.lower().endswith(".json"):
         from ..deploy.case import MATERIAL_OPTIONS, refuse_case_options
 
         refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision overrides the case's

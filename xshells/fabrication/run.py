@@ -21,6 +21,7 @@ from .beams import beam_sections, joint_table, rest_length_mismatch, trace_beams
 from .nesting import Nesting, nest_bars, nest_sheets, no_nesting
 
 CUTLIST_COLUMNS = ("beam", "family", "length_mm", "holes", "hole_positions_mm", "joints", "section")
+UNIT_NAMES = {"mm": "millimetres", "cm": "centimetres", "m": "metres", "in": "inches", "ft": "feet"}
 FABRICATION_FILES = ("cutlist.csv", "joints.csv", "beams.svg", "beams.dxf", "assembly.svg", "bom.json")
 
 
@@ -82,7 +83,8 @@ class FabricationPlan:
             "units": "mm",
             "design_units": self.units,
             "units_note": ("lengths are the design's, in mm" if self.units == "mm" else
-                           f"the design is in {self.units}; every length here is converted to mm (x{self.to_mm:g})"),
+                           f"the design's units are {UNIT_NAMES.get(self.units, self.units)} ({self.units}); every length "
+                           f"here is converted to mm (x{self.to_mm:g})"),
             "sections": list(per.values()),
             "orientation": "each strip lies flat: its section width in the layout plane, its depth along the layout's "
                            "normal; beams run from their cut start (hole positions are measured from it)",
