@@ -185,9 +185,9 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
                 "own fabrication files draw the flat state they relax to.)" if source else "rest lengths of another design?")
         raise InputError(f"{source + ': ' if source else ''}the rest lengths do not fit the flat layout: {bad}: {hint}")
     _check_hole_spacing(beams, hole, options.units)
-    warnings = tuple(w for w in (_short_arms(beams, options.units),) if w)
     flat = graph.joint_opening_angles if flat_angles is None else flat_angles
     joints = joint_table(graph, beams, flat, deployed_angles, top=top)
+    warnings = tuple(w for w in (_short_arms(beams, options.units), _same_family_joints(beams, joints)) if w)
     lengths = [b.length for b in beams]
     widths = [b.section.width for b in beams]
     labels = [b.label for b in beams]
@@ -256,6 +256,23 @@ def write_file_set(out_dir: str, files: dict) -> list[str]:
                     pass
             raise
     return paths
+
+
+def _same_family_joints(beams, joints) -> str:
+    """One line when some joint holds two beams of one family, else "": there "one family on top" cannot hold.
+
+    An odd cycle of crossing beams (three lines crossing pairwise) cannot be
+    split into two families that alternate at every joint; the joint table
+    then lists the first beam as on top, which says nothing about layers.
+    """
+    family = {b.label: b.family for b in beams}
+    same = [r for r in joints if family[r.beam_a] == family[r.beam_b]]
+    if not same:
+        return ""
+    r = same[0]
+    return (f"the strips cannot be layered one family over the other: at {len(same)} of {len(joints)} joints both strips "
+            f"are of one family (joint {r.joint}: {r.beam_a} and {r.beam_b}, both {family[r.beam_a]}; on_top there is "
+            f"{r.on_top}, the first listed): an odd cycle of crossing beams; decide those joints' layers by hand")
 
 
 def _short_arms(beams, units: str) -> str:
