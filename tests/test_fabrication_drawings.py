@@ -118,3 +118,37 @@ def test_assembly_legend_names_the_colours_drawn(manta, top):
     assert drawn["upper"][0] == top
     assert f"family {drawn['upper'][0]} on top ({drawn['upper'][1]})" in legend
     assert f"family {drawn['lower'][0]} below ({drawn['lower'][1]}," in legend
+
+
+def test_joint_numbers_stay_inside_their_strip_and_the_scale_is_written(manta, tmp_path):
+    # the last hole's number ran past the strip's end, across the cut line into the next strip
+    import ezdxf
+
+    g, p, mat = manta
+    plan = fabrication_plan(g, p, mat, FabricationOptions(stock_length=2500))
+    root = ET.fromstring(beams_svg(plan.beams, plan.nesting, plan.hole_diameter))
+    strips = {r.get("data-beam"): (float(r.get("x")), float(r.get("width")))
+              for r in root.findall(f".//{NS}rect[@class='strip']")}
+    labels = root.findall(f".//{NS}text[@class='hole-label']")
+    assert len(labels) == sum(len(b.hole_positions) for b in plan.beams)
+    for t in labels:
+        x, size, width = float(t.get("x")), float(t.get("font-size")), 0.55 * float(t.get("font-size")) * len(t.text)
+        lo, hi = (x, x + width) if t.get("text-anchor", "start") == "start" else (x - width, x)
+        x0, length = strips[t.get("data-beam")]
+        assert x0 < lo and hi < x0 + length, (t.get("data-beam"), t.text)
+    notes = [t.text for t in root.iter(f"{NS}text") if t.get("class") == "scale-note"]
+    assert notes == ["dimensions in mm, scale 1:1 (print at 100 %)"]
+    path = tmp_path / "beams.dxf"
+    path.write_bytes(beams_dxf(plan.beams, plan.nesting, plan.hole_diameter))
+    msp = ezdxf.readfile(path).modelspace()
+    assert [t.dxf.text for t in msp.query("TEXT[layer=='NOTES']")] == notes
+    cut = [np.array([v[:2] for v in e.get_points()]) for e in msp.query("LWPOLYLINE[layer=='CUT']")]
+    boxes = [(P[:, 0].min(), P[:, 1].min(), P[:, 0].max(), P[:, 1].max()) for P in cut]
+    numbers = [t for t in msp.query("TEXT[layer=='LABELS']") if t.dxf.text.isdigit()]
+    for t in numbers:
+        right = t.dxf.halign == 2  # aligned at its right end, before the hole
+        x, y = (t.dxf.align_point if right else t.dxf.insert).vec2
+        width = 0.55 * t.dxf.height * len(t.dxf.text)
+        lo, hi = (x - width, x) if right else (x, x + width)
+        assert any(b[0] < lo and hi < b[2] and b[1] < y < b[3] for b in boxes), t.dxf.text
+    assert any(t.dxf.halign == 2 for t in numbers)

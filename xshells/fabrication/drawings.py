@@ -4,7 +4,7 @@ Strips lie along x, read like a page: the first bar, sheet or row at the
 top. In the SVG y points down; the DXF mirrors y so that it reads the same.
 In the DXF the strips' outlines are on layer ``CUT``, the holes (one CIRCLE
 each) on ``HOLES``, beam and joint labels on ``LABELS``, and the outlines of
-bars and sheets on ``STOCK`` (not to be cut).
+bars and sheets on ``STOCK`` (not to be cut), the scale note on ``NOTES``.
 """
 from __future__ import annotations
 
@@ -16,6 +16,8 @@ import numpy as np
 
 FAMILY_COLOURS = {"A": "#d9822b", "B": "#3f77b0"}
 FAMILY_COLOUR_NAMES = {"A": "orange", "B": "blue"}  # what the assembly's legend calls them
+SCALE_NOTE = "dimensions in mm, scale 1:1 (print at 100 %)"
+NOTE_SIZE = 4.0  # mm: the scale note's text, in a band of twice that below the strips
 
 
 @dataclass(frozen=True)
@@ -68,6 +70,19 @@ def _label_x(beam) -> float:
     return float(0.5 * (stops[i] + stops[i + 1]))
 
 
+def _hole_label(pos: float, text: str, hole_diameter: float, size: float, length: float) -> tuple[float, str]:
+    """Where a hole's joint number goes along its strip (mm from the cut start) and which end of it is there.
+
+    After the hole, or before it where the text would run past the strip's
+    end: the last hole's number crossed the cut line into the next strip.
+    The width is estimated at 0.6 of the text size per digit.
+    """
+    gap = 0.5 * hole_diameter + 0.2 * size
+    if pos + gap + 0.6 * size * len(text) <= length:
+        return pos + gap, "start"
+    return pos - gap, "end"
+
+
 def beams_svg(beams, nesting, hole_diameter: float, margin: float = 10.0) -> str:
     """The strips on their stock as SVG at 1:1 in mm.
 
@@ -76,7 +91,7 @@ def beams_svg(beams, nesting, hole_diameter: float, margin: float = 10.0) -> str
     the strip's cut start, mm), stock ``<rect class="stock">``.
     """
     strips, stock, (w, h) = sheet_layout(beams, nesting)
-    W, H = w + 2 * margin, h + 2 * margin
+    W, H = w + 2 * margin, h + 2 * margin + 2 * NOTE_SIZE
     out = [f'<?xml version="1.0" encoding="UTF-8"?>\n'
            f'<svg xmlns="http://www.w3.org/2000/svg" width="{W:.3f}mm" height="{H:.3f}mm" viewBox="0 0 {W:.3f} {H:.3f}">\n'
            f'<title>X-shell strips, 1:1, mm ({nesting.kind})</title>\n'
@@ -104,23 +119,28 @@ def beams_svg(beams, nesting, hole_diameter: float, margin: float = 10.0) -> str
         out.append(f'<text class="beam-label" data-beam="{b.label}" x="{q.x + margin + _label_x(b):.4f}" '
                    f'y="{cy + 0.35 * fs:.4f}" font-size="{fs:.4f}" text-anchor="middle" font-weight="bold">{b.label}</text>\n')
         for v, pos in zip(b.hole_vertices.tolist(), b.hole_positions.tolist()):
-            out.append(f'<text class="hole-label" x="{q.x + margin + pos + 0.5 * hole_diameter + 0.2 * fj:.4f}" '
-                       f'y="{cy + 0.35 * fj:.4f}" font-size="{fj:.4f}">{v}</text>\n')
+            x, anchor = _hole_label(pos, str(v), hole_diameter, fj, b.length)
+            out.append(f'<text class="hole-label" data-beam="{b.label}" x="{q.x + margin + x:.4f}" y="{cy + 0.35 * fj:.4f}" '
+                       f'font-size="{fj:.4f}" text-anchor="{anchor}">{v}</text>\n')
     for x, y, sw, sh, label in stock:
         out.append(f'<text class="stock-label" x="{x + margin:.4f}" y="{y + margin - 0.5:.4f}" font-size="{max(2.0, 0.4 * min(sh, 20)):.3f}" '
                    f'fill="#666">{escape(label)}</text>\n')
+    out.append(f'<text class="scale-note" x="{margin:.4f}" y="{h + 2 * margin + 1.2 * NOTE_SIZE:.4f}" '
+               f'font-size="{NOTE_SIZE:g}" fill="#444">{escape(SCALE_NOTE)}</text>\n')
     out.append("</g>\n</svg>\n")
     return "".join(out)
 
 
 def beams_dxf(beams, nesting, hole_diameter: float) -> bytes:
-    """The strips on their stock as DXF in mm: layers CUT, HOLES, LABELS and STOCK (y mirrored to read as the SVG)."""
+    """The strips on their stock as DXF in mm: layers CUT, HOLES, LABELS, STOCK and NOTES (the scale note; y mirrored to
+    read as the SVG)."""
     import ezdxf
+    from ezdxf.enums import TextEntityAlignment
 
-    strips, stock, _ = sheet_layout(beams, nesting)
+    strips, stock, (_, h) = sheet_layout(beams, nesting)
     doc = ezdxf.new("R2010")
     doc.units = ezdxf.units.MM
-    for name, colour in (("CUT", 7), ("HOLES", 1), ("LABELS", 3), ("STOCK", 8)):
+    for name, colour in (("CUT", 7), ("HOLES", 1), ("LABELS", 3), ("STOCK", 8), ("NOTES", 8)):
         doc.layers.add(name, color=colour)
     msp = doc.modelspace()
 
@@ -137,10 +157,12 @@ def beams_dxf(beams, nesting, hole_diameter: float) -> bytes:
         for v, pos in zip(b.hole_vertices.tolist(), b.hole_positions.tolist()):
             msp.add_circle((q.x + pos, cy), radius=0.5 * hole_diameter, dxfattribs={"layer": "HOLES"})
             fj = 0.35 * b.section.width
-            msp.add_text(str(v), height=fj, dxfattribs={"layer": "LABELS",
-                                                         "insert": (q.x + pos + 0.5 * hole_diameter + 0.2 * fj, cy - 0.35 * fj)})
+            x, anchor = _hole_label(pos, str(v), hole_diameter, fj, b.length)
+            msp.add_text(str(v), height=fj, dxfattribs={"layer": "LABELS"}).set_placement(
+                (q.x + x, cy - 0.35 * fj), align=TextEntityAlignment.LEFT if anchor == "start" else TextEntityAlignment.RIGHT)
         fs = 0.55 * b.section.width
         msp.add_text(b.label, height=fs, dxfattribs={"layer": "LABELS", "insert": (q.x + _label_x(b) - 0.9 * fs, cy - 0.35 * fs)})
+    msp.add_text(SCALE_NOTE, height=NOTE_SIZE, dxfattribs={"layer": "NOTES", "insert": (0.0, -(h + 2 * NOTE_SIZE))})
     buf = io.StringIO()
     doc.write(buf)
     return buf.getvalue().encode("utf-8")
