@@ -91,7 +91,8 @@ def test_assembly_draws_the_top_family_over_the_other(manta):
     assert order == sorted(order, key=lambda f: f == "A")  # every B strip before (under) every A strip
     assert len(root.findall(f".//{NS}circle[@class='rivet']")) == g.num_joints
     labels = [t.get("data-beam") for t in root.findall(f".//{NS}text[@class='beam-label']")]
-    assert sorted(set(labels)) == sorted(b.label for b in plan.beams) and len(labels) == 2 * len(plan.beams)
+    assert sorted(set(labels)) == sorted(b.label for b in plan.beams)  # each strip at one end or both
+    assert max(labels.count(x) for x in labels) <= 2
     w = float(root.get("width").removesuffix("mm"))
     span = np.ptp(plan.xy[:, 0])
     assert span < w < span + 400  # the layout at 1:1 plus margins for the labels
@@ -152,3 +153,53 @@ def test_joint_numbers_stay_inside_their_strip_and_the_scale_is_written(manta, t
         lo, hi = (x - width, x) if right else (x, x + width)
         assert any(b[0] < lo and hi < b[2] and b[1] < y < b[3] for b in boxes), t.dxf.text
     assert any(t.dxf.halign == 2 for t in numbers)
+
+
+def _text_boxes(root, cls, width_per_char=0.55):
+    """Each text's box as 4 corners (drawing units), from its attributes: estimated extent, rotation applied."""
+    boxes = []
+    for t in root.iter(f"{NS}text"):
+        if t.get("class") != cls:
+            continue
+        x, y, fs = float(t.get("x")), float(t.get("y")), float(t.get("font-size") or 0) or None
+        fs = fs or float(next(g.get("font-size") for g in root.iter(f"{NS}g") if t in list(g)))
+        w = width_per_char * fs * len(t.text)
+        x0 = x - w if t.get("text-anchor") == "end" else x
+        C = np.array([[x0, y - 0.65 * fs], [x0 + w, y - 0.65 * fs], [x0 + w, y + 0.1 * fs], [x0, y + 0.1 * fs]])
+        m = re.match(r"rotate\(([-\d.e]+) ([-\d.e]+) ([-\d.e]+)\)", t.get("transform") or "")
+        if m:
+            a, cx, cy = (float(v) for v in m.groups())
+            R = np.array([[np.cos(np.radians(a)), -np.sin(np.radians(a))], [np.sin(np.radians(a)), np.cos(np.radians(a))]])
+            C = (C - [cx, cy]) @ R.T + [cx, cy]
+        boxes.append((t.text, C))
+    return boxes
+
+
+def _overlap(A, B):
+    """Whether two convex quadrilaterals overlap (separating axis test)."""
+    for P in (A, B):
+        for i in range(4):
+            e = P[(i + 1) % 4] - P[i]
+            n = np.array([-e[1], e[0]])
+            a, b = A @ n, B @ n
+            if a.max() <= b.min() or b.max() <= a.min():
+                return False
+    return True
+
+
+def test_assembly_labels_cover_neither_each_other_nor_the_joint_numbers_and_the_legend_fits():
+    # the uniform grid drawn in metres: strip labels piled over each other at the strips' ends, over the joint
+    # numbers, and the legend, sized with the segments, ran far past the drawing's right edge
+    d = read_design(EXAMPLES / "uniform_linkage.obj")
+    g = analyze(d)
+    p = np.linalg.norm(d.vertices[d.edges[:, 1]] - d.vertices[d.edges[:, 0]], axis=1)
+    plan = fabrication_plan(g, p, Material.uniform("rectangle", [0.01, 0.007], E=20000, nu=0.3),
+                            FabricationOptions(units="m"))
+    root = ET.fromstring(assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter, plan.to_mm))
+    labels = _text_boxes(root, "beam-label")
+    numbers = _text_boxes(root, "joint-label")
+    assert {t for t, _ in labels} == {b.label for b in plan.beams}
+    bad = [(s, t) for i, (s, A) in enumerate(labels) for t, B in labels[i + 1:] + numbers if _overlap(A, B)]
+    assert not bad, bad[:5]
+    legend = root.find(f"{NS}text[@class='legend']")
+    assert 0.55 * float(legend.get("font-size")) * len(legend.text) <= float(root.get("width").removesuffix("mm"))
