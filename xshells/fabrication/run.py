@@ -151,9 +151,13 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
         Joint opening angles (radians) of the flat assembly state and of the
         deployed state (default flat: the design's own angles).
     xy : (n, 2) array, optional
-        The flat layout's in-plane coordinates (default: the design's); the
-        rest lengths must fit its segment lengths within 5 %
-        (:data:`~.beams.REST_LENGTH_TOLERANCE`), else one line says which.
+        The flat layout's in-plane coordinates. By default the drawn
+        design's, whose segment lengths the rest lengths must fit within 5 %
+        (:data:`~.beams.REST_LENGTH_TOLERANCE`), else one line says which. A
+        caller that passes the flat state the rest lengths relax to
+        (:func:`flat_state_xy`) has them from a solve, not a file of another
+        design: not checked (an optimized design's strips bend in its flat
+        state, their chords up to 11 % short of their rest lengths).
     source : str, optional
         Where the rest lengths come from (a file), for that line.
     """
@@ -179,7 +183,7 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
                              "the outermost holes would break out of the strip ends")
     XY = flat_coordinates(graph.design.vertices, graph.layout_normal) if xy is None else np.asarray(xy, float)
     beams = trace_beams(graph, rest_lengths, sections, xy=XY, end_margin=options.end_margin, to_mm=to_mm)
-    bad = rest_length_mismatch(rest_lengths, XY, graph.design.edges)
+    bad = rest_length_mismatch(rest_lengths, XY, graph.design.edges) if xy is None else None
     if bad:
         hint = ("a file of another design? (Rest lengths that xshells optimize moved away from the drawn layout: its "
                 "own fabrication files draw the flat state they relax to.)" if source else "rest lengths of another design?")
