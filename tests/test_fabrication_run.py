@@ -1,8 +1,8 @@
 """``xshells fabricate`` end to end on bundled designs (OBJ with a rest-length solve, .msh with design_parameters.txt),
 checked against the design graph and the rest lengths; units; the files of ``deploy``; one-line errors."""
 import csv
-import re
 import json
+import re
 
 import numpy as np
 import pytest
