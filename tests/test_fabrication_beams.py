@@ -133,3 +133,26 @@ def test_units_and_bad_rest_lengths():
     V, E = _grid_with_free_ends()
     with pytest.raises(InputError, match="expected 12 values"):
         _plan(V, E, np.ones(5))
+
+
+def test_an_odd_cycle_of_beams_warns_that_one_family_cannot_lie_on_top():
+    # three lines crossing pairwise: two of the three joints can alternate families, the third cannot; the joint
+    # table listed its first beam as on top without a word
+    from xshells.fabrication import fabrication_plan
+
+    V = [[0, 0, 0], [1000, 0, 0], [500, 800, 0], [-200, 0, 0], [1200, 0, 0], [1106, -169.6, 0], [394, 969.6, 0],
+         [606, 969.6, 0], [-106, -169.6, 0]]
+    E = [[3, 0], [0, 1], [1, 4], [5, 1], [1, 2], [2, 6], [7, 2], [2, 0], [0, 8]]
+    g = analyze(Design(np.asarray(V, float), np.asarray(E)))
+    p = np.linalg.norm(np.diff(np.asarray(V, float)[E], axis=1)[:, 0], axis=1)
+    plan = fabrication_plan(g, p, MAT)
+    family = {b.label: b.family for b in plan.beams}
+    same = [r.joint for r in plan.joints if family[r.beam_a] == family[r.beam_b]]
+    assert len(same) == 1
+    (w,) = [w for w in plan.warnings if "cannot be layered" in w]
+    assert f"at 1 of 3 joints both strips are of one family (joint {same[0]}:" in w and "\n" not in w
+    assert plan.bill_of_materials()["warnings"] == [w]
+    V, E = _grid_with_free_ends()  # a grid alternates everywhere: no warning
+    g = analyze(Design(np.asarray(V, float), np.asarray(E)))
+    p = np.linalg.norm(np.diff(np.asarray(V, float)[np.asarray(E)], axis=1)[:, 0], axis=1)
+    assert fabrication_plan(g, p, MAT).warnings == ()

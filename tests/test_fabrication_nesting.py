@@ -89,3 +89,9 @@ def test_no_stock_lists_one_strip_per_row():
     n = no_nesting([5, 7], kerf=2)
     assert [(q.x, q.y) for q in n.placements] == [(0.0, 0.0), (0.0, 7.0)]
     assert n.utilization is None and np.isclose(n.kerf, 2)
+
+
+def test_a_sheet_too_small_names_the_longest_strip_that_does_not_fit():
+    # the first misfit in label order was named (A02, 1999 mm), not the longest (B12, 3138 mm)
+    with pytest.raises(InputError, match=r"beam B3 \(300.0 x 10 mm\), the longest, does not fit on a sheet \(nor do 1 more\)"):
+        nest_sheets([200, 120, 300], [10, 10, 10], (150, 100), labels=["A1", "B2", "B3"])

@@ -2,6 +2,7 @@
 checked against the design graph and the rest lengths; units; the files of ``deploy``; one-line errors."""
 import csv
 import json
+import re
 
 import numpy as np
 import pytest
@@ -135,3 +136,135 @@ def test_deploy_writes_the_fabrication_files_with_deployed_angles(tmp_path):
     assert "deployed_angle_deg" in rows[0]
     deployed = np.array([float(r["deployed_angle_deg"]) for r in rows])
     assert deployed.mean() == pytest.approx(result["deployed"]["average_angle_deg"], abs=1e-4)  # 4 decimals in the file
+
+
+def _drawn_lengths(design_path):
+    d = read_design(design_path)
+    return np.linalg.norm(d.vertices[d.edges[:, 1]] - d.vertices[d.edges[:, 0]], axis=1)
+
+
+def test_rest_lengths_of_another_design_are_refused_naming_the_worst_segment(tmp_path, capsys):
+    # a design_parameters.txt of another design with the same segment count was cut and drilled without a word
+    p = _drawn_lengths(EXAMPLES / "manta_ray.obj")
+    ok, other = tmp_path / "ok.txt", tmp_path / "other.txt"
+    ok.write_text("".join(f"{v * 1.001:.17g}\n" for v in p))  # a genuine file: within 0.03 % (0.1 % here)
+    q = p.copy()
+    q[[3, 4, 5]] *= 0.9
+    q[7] *= 1.3
+    other.write_text("".join(f"{v:.17g}\n" for v in q))
+    args = ["fabricate", str(EXAMPLES / "manta_ray.obj"), "--no-progress", "--rest-lengths"]
+    assert main([*args, str(ok), "--out", str(tmp_path / "ok")]) == 0
+    assert main([*args, str(other), "--out", str(tmp_path / "other")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err and str(other) in err
+    assert "segment 7 " in err and f"{q[7]:.6g}" in err and f"{p[7]:.6g}" in err and "+30.0 %" in err
+    assert "4 of 312 segments differ by more than 5 %" in err
+    assert not (tmp_path / "other" / "cutlist.csv").exists()
+
+
+def test_deploy_with_rest_lengths_off_the_drawing_warns_and_draws_the_relaxed_flat_state(tmp_path):
+    design = EXAMPLES / "nonuniform_linkage.obj"
+    p = _drawn_lengths(design)
+    p[2] *= 1.3  # more than the strips can take up straight: they bend in the flat state
+    (tmp_path / "rl.txt").write_text("".join(f"{v:.17g}\n" for v in p))
+    assert main(["deploy", str(design), "--material", "rectangle:0.05,0.035", "--angle", "60", "--steps", "2",
+                 "--subdivision", "5", "--rest-lengths", str(tmp_path / "rl.txt"), "--out", str(tmp_path / "o"),
+                 "--no-progress"]) == 0
+    result = json.loads((tmp_path / "o" / "result.json").read_text())
+    assert any("do not fit the drawn flat layout: segment 2 " in w for w in result["warnings"])
+    # the cut list is written, from the flat state these rest lengths relax to (within 5 % of them)
+    check_cutlist(tmp_path / "o" / "cutlist.csv", read_design(design).edges, p, margin=0.025, tol=1e-3)
+
+
+@pytest.mark.parametrize("stop", ["interrupt", "error"])
+def test_a_stop_or_error_while_writing_never_leaves_a_mix_of_two_runs(tmp_path, monkeypatch, capsys, stop):
+    # Ctrl-C while fabricate wrote its files left the first files of the new design beside the previous design's
+    import xshells.fabrication.run as fabrun
+    import xshells.io.export as export
+    from xshells.errors import STOP
+
+    out = tmp_path / "o"  # the previous run: the two bumps, 440 segments (the wings: 288, 26 beams)
+    assert main(["fabricate", str(EXAMPLES / "two_bumps_architectural" / "case.json"), "--out", str(out),
+                 "--no-progress"]) == 0
+    assert json.loads((out / "bom.json").read_text())["beams"] != 26
+    original, calls = export.atomic_write_bytes, []
+
+    def write(path, data):
+        calls.append(path)
+        if len(calls) == 3:  # in the middle of the set
+            if stop == "error":
+                raise OSError(28, "No space left on device", str(path))
+            STOP.request()  # what the signal handler does: raises, unless a stop is held off
+        original(path, data)
+
+    monkeypatch.setattr(STOP, "requested", False)  # put back after the test: the stop asked for here ends with it
+    monkeypatch.setattr(export, "atomic_write_bytes", write)
+    monkeypatch.setattr(fabrun, "atomic_write_bytes", write, raising=False)
+    rc = main(["fabricate", str(WINGS / "case.json"), "--out", str(out), "--no-progress"])
+    assert rc != 0
+    present = sorted(f.name for f in out.iterdir())
+    if stop == "error":  # none of the set rather than a mix
+        assert not set(present) & set(FILES), present
+        return
+    # the stop waited for the whole set: every file of the wings, none of the two bumps'
+    assert present == sorted(FILES)
+    n = len(read_cutlist(out / "cutlist.csv"))
+    bom = json.loads((out / "bom.json").read_text())
+    assert bom["beams"] == n == json.loads((out / "result.json").read_text())["bom"]["beams"] == 26
+    assert len(re.findall(r'class="strip"', (out / "beams.svg").read_text())) == n
+    assert len(set(re.findall(r'data-beam="([AB]\d+)"', (out / "assembly.svg").read_text()))) == n
+
+
+def test_deploy_removes_an_earlier_runs_fabrication_files_it_does_not_rewrite(tmp_path):
+    # the unit-sized grid with the default 10 mm section cannot be drilled: deploy writes no cut list, and the
+    # manta's, from an earlier run into the same folder, stayed beside the new result
+    out = tmp_path / "o"
+    assert main(["fabricate", str(EXAMPLES / "manta_ray.obj"), "--out", str(out), "--no-progress"]) == 0
+    (out / "mine.csv").write_text("not ours\n")
+    assert main(["deploy", str(EXAMPLES / "uniform_linkage.obj"), "--angle", "60", "--steps", "2",
+                 "--subdivision", "5", "--out", str(out), "--no-progress"]) == 0
+    for f in FILES[:-1]:
+        assert not (out / f).exists(), f
+    assert (out / "mine.csv").read_text() == "not ours\n"  # only the files it writes, by name
+    warnings = json.loads((out / "result.json").read_text())["warnings"]
+    assert any(w.startswith("fabrication files not written") for w in warnings)
+    assert any(w.startswith("removed an earlier run's fabrication files") and "cutlist.csv" in w for w in warnings)
+
+
+def test_strips_wider_than_their_arms_are_named_in_a_warning(tmp_path, capsys):
+    # the single linkage: one hole per strip, so no hole spacing to check; 10 mm strips on arms 0.16 mm long
+    # were written without a word
+    out = tmp_path / "o"
+    assert main(["fabricate", str(EXAMPLES / "single_linkage.obj"), "--out", str(out), "--no-progress"]) == 0
+    lines = [x for x in capsys.readouterr().out.splitlines() if "warning" in x]
+    assert len(lines) == 1 and "2 of 2 strips have an arm shorter than their section is wide" in lines[0]
+    assert "from its free end to joint 2 for a 10 mm wide section" in lines[0]
+    assert json.loads((out / "bom.json").read_text())["warnings"] == [lines[0].split("warning: ", 1)[1]]
+    assert json.loads((out / "result.json").read_text())["bom"]["warnings"]
+    assert json.loads((tmp_path / "o" / "bom.json").read_text())["beams"] == 2
+
+
+def test_slender_strips_get_no_warning(manta):
+    assert json.loads((manta / "bom.json").read_text())["warnings"] == []
+
+
+def test_upper_case_case_files_units_in_words_and_deploy_help(tmp_path, capsys):
+    case = json.loads((WINGS / "case.json").read_text())
+    for key in ("file", "flat_file", "rest_lengths"):  # the bundled case's paths, from a copy elsewhere
+        if isinstance(case.get(key), str):
+            case[key] = str(WINGS / case[key])
+    upper = tmp_path / "WINGS.JSON"
+    upper.write_text(json.dumps(case))
+    assert main(["fabricate", str(upper), "--out", str(tmp_path / "o"), "--no-progress"]) == 0  # was: unknown type
+    d = read_design(EXAMPLES / "manta_ray.obj")
+    m = tmp_path / "manta_in.obj"
+    m.write_text("".join(f"v {x / 25.4:.17g} {y / 25.4:.17g} {z / 25.4:.17g}\n" for x, y, z in d.vertices)
+                 + "".join(f"l {a + 1} {b + 1}\n" for a, b in d.edges))
+    capsys.readouterr()
+    assert main(["fabricate", str(m), "--material", "rectangle:0.4,0.3", "--units", "in", "--out",
+                 str(tmp_path / "i"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "the design's units are inches (in)" in out and "is in in" not in out
+    with pytest.raises(SystemExit):
+        main(["deploy", "--help"])
+    assert "fabrication files" in capsys.readouterr().out

@@ -42,7 +42,7 @@ def _analyze(args) -> int:
     check_counts(args.subdivision, args.steps)
     supports = parse_supports(args.supports)
     loads = [parse_load(t) for t in args.load]
-    if args.input.endswith(".json"):
+    if args.input.lower().endswith(".json"):
         refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision and --steps override the case's
         case = load_case(args.input)
         spec = with_material_options(case.material, args.grade, args.density, args.strength)

@@ -96,7 +96,7 @@ def material_spec_from_option(option: str | None, young: float | None = None, po
         spec.update(extra)
         return spec
     option = option or "rectangle:10,7"
-    if option.endswith(".json"):  # the section file has its own E and ν: override only what is given
+    if option.lower().endswith(".json"):  # the section file has its own E and ν: override only what is given
         spec = {"type": "contour", "contour_file": os.path.abspath(option)}
         spec.update({k: float(v) for k, v in (("E", young), ("nu", poisson)) if v is not None})
         return spec
@@ -167,7 +167,7 @@ def material_from_spec(spec: dict):
     if kind.lower() == "contour":  # case-insensitive, as the other types
         kind = "contour"
     axis = spec.get("stiff_axis")
-    if kind == "contour" and str(spec["contour_file"]).endswith(".json"):  # E and ν from the file unless given
+    if kind == "contour" and str(spec["contour_file"]).lower().endswith(".json"):  # E and ν from the file unless given
         return Material.from_file(spec["contour_file"], young=spec.get("E"), poisson=spec.get("nu"), stiff_axis=axis,
                                   density=density)
     E, nu = float(spec.get("E", 20000.0)), float(spec.get("nu", 0.3))
@@ -238,7 +238,7 @@ def case_path_from_args(args, command: str, steps_default: int) -> str:
     A case file with any of :data:`DESIGN_OPTIONS` is refused (they would contradict it).
     """
     path = args.case
-    if path.endswith(".json"):
+    if path.lower().endswith(".json"):
         refuse_case_options(args)
         return path
     if not path.lower().endswith((".obj", ".msh", ".3dm")):

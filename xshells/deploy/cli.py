@@ -11,7 +11,10 @@ DEMO_DESIGN = os.path.join(os.path.dirname(__file__), "..", "data", "examples", 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("deploy", help="find the assembly state of a flat design and deploy it",
-                              description="Deploy a flat X-shell design by joint torques. Units follow the input (the bundled data: mm, MPa).")
+                              description="Deploy a flat X-shell design by joint torques. Units follow the input (the bundled data: mm, MPa). "
+                                          "Besides the meshes, pictures and result.json, a flat design's fabrication files are written "
+                                          "into --out, as xshells fabricate writes them with default options: cutlist.csv, joints.csv "
+                                          "(with the deployed angles), beams.svg/.dxf, assembly.svg and bom.json (docs/fabrication.md).")
     p.add_argument("input", help="a case file (.json) or a design (.obj, .msh, .3dm)")
     p.add_argument("--material", help="TYPE:P1,P2,... (e.g. rectangle:10,7) or a cross-section JSON file")
     p.add_argument("--young", type=float, help="Young's modulus (default 20000, as in the paper, MPa)")
@@ -53,7 +56,7 @@ def _deploy(args) -> int:
     from .run import run_deployment
 
     check_counts(args.subdivision, args.steps)
-    if args.input.endswith(".json"):
+    if args.input.lower().endswith(".json"):
         refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision and --steps override the case's
         case = load_case(args.input)
         spec = with_material_options(case.material, args.grade, args.density, args.strength)

@@ -88,15 +88,22 @@ def _start_writer(out_dir: str, linkage: Linkage, design, background: bool):
     return Background(first, imports=_WRITER_IMPORTS, lanes=2, inline=not background)
 
 
-def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles, writer=None, warnings=None) -> None:
+def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles, writer=None, warnings=None,
+                            flat_xy=None) -> None:
     """The deployed state's files. ``writer``: from :func:`_start_writer` (None: all here); forked, its lane 0
     writes the picture and the fabrication files (then :func:`_finish`'s deployment plot: 1.03 against 1.06 s of
     overhead with it after the Rhino file, median of 5), its lane 1 the Rhino file, and this process the meshes,
-    at the same time; :func:`_finish` joins it."""
-    from ..fabrication.run import plan_of, write_fabrication
+    at the same time; :func:`_finish` joins it. ``flat_xy``: the fabrication files' flat layout (default the drawn one)."""
+    from ..fabrication.run import plan_of, remove_fabrication_files, stale_note, write_fabrication
     from ..viz.render import render_linkage
 
-    plan = plan_of(linkage, flat_angles, linkage.joint_angles(), skipped=warnings)
+    plan = plan_of(linkage, flat_angles, linkage.joint_angles(), skipped=warnings, xy=flat_xy)
+    if plan is not None and warnings is not None:  # parts that make no sense, written all the same
+        warnings.extend(plan.warnings)
+    if plan is None:  # none written: an earlier run's cut list would sit beside this design's result
+        removed = remove_fabrication_files(out_dir)
+        if removed and warnings is not None:
+            warnings.append(stale_note(removed))
     if writer is not None and writer.forked:  # the flat layout, the deployed state and the strips (docs/rhino.md)
         from ..linkage.state import snapshot
 
@@ -193,6 +200,15 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     warnings = list(linkage.input_warnings())
     if design.note:  # e.g. a .3dm's layer and its units, converted to mm
         warnings = [design.note] + list(warnings)
+    if p is not None and linkage.graph.is_planar:  # a file of another design deploys another shell: say so
+        from ..fabrication.beams import rest_length_mismatch
+        from ..io.fabrication import flat_coordinates
+
+        bad = rest_length_mismatch(p, flat_coordinates(design.vertices, linkage.graph.layout_normal), design.edges)
+        if bad:
+            warnings.append(f"{rest_lengths_path}: the rest lengths do not fit the drawn flat layout: {bad}: the flat "
+                            "state relaxes to another layout (rest lengths of another design?), which the fabrication "
+                            "files draw")
     if progress:
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)
@@ -206,6 +222,11 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     t_rest = time.perf_counter() - t1
     flat = _state_summary(linkage)
     flat_angles = linkage.joint_angles().copy()  # for the joint table of the fabrication files
+    flat_xy = None  # the fabrication files' layout: the drawn one, or the flat state that a file's rest lengths relax to
+    if p is not None and linkage.graph.is_planar:
+        from ..fabrication.run import flat_state_xy
+
+        flat_xy = flat_state_xy(linkage)
     if states is not None:
         import copy
 
@@ -266,7 +287,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
             states["deployed"] = linkage
         result = _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, {
             "name": name, "flat": flat, "target_angle_deg": float(np.degrees(target_angle)), "warnings": warnings,
-            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}, "steps": done_steps}, t0, writer)
+            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}, "steps": done_steps, "flat_xy": flat_xy},
+            t0, writer)
         writer = None
     finally:
         if writer is not None:  # an error on the way: the writer still ends before the command
@@ -292,7 +314,7 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
         deployed["stiffness_gap"] = res.stiffness_gap
         deployed["min_eigenvalue_at_fixed_angle"] = res.min_eigenvalue_at_fixed_angle
     try:  # a Ctrl-C outside the command line's handler: result.json is still written (each file is whole or absent)
-        _write_deployed_outputs(out_dir, linkage, design, flat_angles, writer, head["warnings"])
+        _write_deployed_outputs(out_dir, linkage, design, flat_angles, writer, head["warnings"], head.get("flat_xy"))
     except KeyboardInterrupt:
         interrupted = True
     steps_out = [asdict(s) for s in (res.steps if res is not None else head.get("steps", []))]

@@ -322,9 +322,12 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     from ..io.fabrication import write_drawings
 
     write_drawings(out_dir, "flat_layout", problem.flat.L.graph.design, p)  # what to build: the optimized rest lengths
-    from ..fabrication.run import write_outputs_of
+    from ..fabrication.run import flat_state_xy, write_outputs_of
 
-    write_outputs_of(out_dir, fresh["flat"], fresh["flat"].joint_angles(), fresh["deployed"].joint_angles(), p)
+    # drawn from the flat state the optimized rest lengths relax to: they are not the drawn layout's (up to 30 % off)
+    flat_xy = flat_state_xy(fresh["flat"]) if fresh["flat"].graph.is_planar else None
+    write_outputs_of(out_dir, fresh["flat"], fresh["flat"].joint_angles(), fresh["deployed"].joint_angles(), p, xy=flat_xy,
+                     warnings=warnings)
     for state, L in (("flat", fresh["flat"]), ("deployed", fresh["deployed"])):
         vmax = max(scale[state], float(bending_field(L).max()))
         _write_outputs(out_dir, f"{state}_before", before[state], vmax=vmax)
@@ -334,7 +337,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
 
     flat_L = fresh["flat"]  # the optimized design as one Rhino file: flat layout, deployed state, strips (mm)
     write_3dm(os.path.join(out_dir, "deployed.3dm"), flat_design=flat_L.graph.design if flat_L.graph.is_planar else None,
-              deployed=fresh["deployed"], strips=plan_of(flat_L, flat_L.joint_angles(), fresh["deployed"].joint_angles(), p),
+              deployed=fresh["deployed"], strips=plan_of(flat_L, flat_L.joint_angles(), fresh["deployed"].joint_angles(), p, xy=flat_xy),
               target=problem.fitting.surface if target_surface else None)  # the surface given, as fitted (mm)
     bfgs = None
     if with_baseline and not interrupted:

@@ -41,7 +41,7 @@ def _fabricate(args) -> int:
     options = FabricationOptions(end_margin=args.end_margin, hole_diameter=args.hole_diameter,
                                  stock_length=args.stock_length, sheet=parse_sheet(args.sheet) if args.sheet else None,
                                  kerf=args.kerf, units=args.units, top=args.top)
-    if args.input.endswith(".json"):
+    if args.input.lower().endswith(".json"):
         from ..deploy.case import MATERIAL_OPTIONS, refuse_case_options
 
         refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision overrides the case's
@@ -64,6 +64,8 @@ def _fabricate(args) -> int:
         print(f"  {st['stock_count']} {st['kind']}, utilization {100 * st['utilization']:.1f} %")
     if b["design_units"] != "mm":
         print(f"  {b['units_note']}")
+    for w in b["warnings"]:  # parts that make no sense, with or without progress
+        print(f"  warning: {w}")
     if r.get("input"):  # how a .3dm was read (its units converted to mm): a note, with or without progress
         print(f"  note: {r['input']}")
     print(f"  outputs in {args.out}/")

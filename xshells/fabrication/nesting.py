@@ -148,10 +148,12 @@ def nest_sheets(lengths, widths, sheet, kerf: float = 3.0, labels=None) -> Nesti
         raise InputError(f"--kerf {k:g} mm is not less than the sheet's short side {short:g} mm")
     lengths, widths = np.asarray(lengths, float), np.asarray(widths, float)
     names = labels if labels is not None else [str(i) for i in range(len(lengths))]
-    for i in range(len(lengths)):
-        if lengths[i] > long + 1e-9 or widths[i] > short + 1e-9:
-            raise InputError(f"--sheet {W:g}x{H:g}: beam {names[i]} ({lengths[i]:.1f} x {widths[i]:.4g} mm) "
-                             "does not fit on a sheet")
+    misfits = [i for i in range(len(lengths)) if lengths[i] > long + 1e-9 or widths[i] > short + 1e-9]
+    if misfits:  # named: the longest of them (the first in label order was named, A02 of 1999 mm beside B12 of 3138)
+        i = max(misfits, key=lambda j: (lengths[j], widths[j]))
+        others = f" (nor do {len(misfits) - 1} more)" if len(misfits) > 1 else ""
+        raise InputError(f"--sheet {W:g}x{H:g}: beam {names[i]} ({lengths[i]:.1f} x {widths[i]:.4g} mm), the longest, "
+                         f"does not fit on a sheet{others}")
     order = sorted(range(len(lengths)), key=lambda i: (-lengths[i], -widths[i], i))
     shelves: list[list] = []  # [sheet, y, height, end of the last strip]
     sheet_top: list[float] = []  # top of the last shelf on each sheet

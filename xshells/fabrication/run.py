@@ -16,11 +16,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..io.export import atomic_write_bytes, atomic_write_text
-from .beams import beam_sections, joint_table, trace_beams, units_to_mm
+from ..io.export import atomic_write_bytes
+from .beams import beam_sections, joint_table, rest_length_mismatch, trace_beams, units_to_mm
 from .nesting import Nesting, nest_bars, nest_sheets, no_nesting
 
 CUTLIST_COLUMNS = ("beam", "family", "length_mm", "holes", "hole_positions_mm", "joints", "section")
+UNIT_NAMES = {"mm": "millimetres", "cm": "centimetres", "m": "metres", "in": "inches", "ft": "feet"}
 FABRICATION_FILES = ("cutlist.csv", "joints.csv", "beams.svg", "beams.dxf", "assembly.svg", "bom.json")
 
 
@@ -67,6 +68,7 @@ class FabricationPlan:
     units: str
     xy: np.ndarray = field(repr=False)
     top: str = "A"
+    warnings: tuple = ()  # one line each: parts that can be cut but make no sense (:func:`_short_arms`)
 
     def bill_of_materials(self) -> dict:
         """Totals per section, counts, stock used and how well it is used."""
@@ -81,7 +83,8 @@ class FabricationPlan:
             "units": "mm",
             "design_units": self.units,
             "units_note": ("lengths are the design's, in mm" if self.units == "mm" else
-                           f"the design is in {self.units}; every length here is converted to mm (x{self.to_mm:g})"),
+                           f"the design's units are {UNIT_NAMES.get(self.units, self.units)} ({self.units}); every length "
+                           f"here is converted to mm (x{self.to_mm:g})"),
             "sections": list(per.values()),
             "orientation": "each strip lies flat: its section width in the layout plane, its depth along the layout's "
                            "normal; beams run from their cut start (hole positions are measured from it)",
@@ -96,6 +99,7 @@ class FabricationPlan:
             "longest_beam": max(self.beams, key=lambda b: b.length).label if self.beams else None,
             "longest_beam_mm": max((b.length for b in self.beams), default=0.0),
             "top_family": self.top,
+            "warnings": list(self.warnings),
             "stock": self.nesting.summary(),
             "placements": [{"beam": self.beams[q.item].label, "stock": q.stock + 1, "x_mm": q.x, "y_mm": q.y}
                            for q in self.nesting.placements] if self.nesting.kind != "none" else [],
@@ -133,7 +137,7 @@ def joints_csv(plan: FabricationPlan) -> str:
 
 
 def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions = FabricationOptions(), *,
-                     flat_angles=None, deployed_angles=None, xy=None) -> FabricationPlan:
+                     flat_angles=None, deployed_angles=None, xy=None, source: str | None = None) -> FabricationPlan:
     """The strips, their holes, the joint table and the nesting of a design.
 
     Parameters
@@ -147,7 +151,15 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
         Joint opening angles (radians) of the flat assembly state and of the
         deployed state (default flat: the design's own angles).
     xy : (n, 2) array, optional
-        The flat layout's in-plane coordinates (default: the design's).
+        The flat layout's in-plane coordinates. By default the drawn
+        design's, whose segment lengths the rest lengths must fit within 5 %
+        (:data:`~.beams.REST_LENGTH_TOLERANCE`), else one line says which. A
+        caller that passes the flat state the rest lengths relax to
+        (:func:`flat_state_xy`) has them from a solve, not a file of another
+        design: not checked (an optimized design's strips bend in its flat
+        state, their chords up to 11 % short of their rest lengths).
+    source : str, optional
+        Where the rest lengths come from (a file), for that line.
     """
     from ..io.fabrication import flat_coordinates
 
@@ -171,9 +183,15 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
                              "the outermost holes would break out of the strip ends")
     XY = flat_coordinates(graph.design.vertices, graph.layout_normal) if xy is None else np.asarray(xy, float)
     beams = trace_beams(graph, rest_lengths, sections, xy=XY, end_margin=options.end_margin, to_mm=to_mm)
+    bad = rest_length_mismatch(rest_lengths, XY, graph.design.edges) if xy is None else None
+    if bad:
+        hint = ("a file of another design? (Rest lengths that xshells optimize moved away from the drawn layout: its "
+                "own fabrication files draw the flat state they relax to.)" if source else "rest lengths of another design?")
+        raise InputError(f"{source + ': ' if source else ''}the rest lengths do not fit the flat layout: {bad}: {hint}")
     _check_hole_spacing(beams, hole, options.units)
     flat = graph.joint_opening_angles if flat_angles is None else flat_angles
     joints = joint_table(graph, beams, flat, deployed_angles, top=top)
+    warnings = tuple(w for w in (_short_arms(beams, options.units), _same_family_joints(beams, joints)) if w)
     lengths = [b.length for b in beams]
     widths = [b.section.width for b in beams]
     labels = [b.label for b in beams]
@@ -185,7 +203,7 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
         nesting = nest_sheets(lengths, widths, options.sheet, options.kerf, labels)
     else:
         nesting = no_nesting(widths, options.kerf)
-    return FabricationPlan(beams, joints, nesting, float(hole), to_mm, str(options.units).strip().lower(), XY, top)
+    return FabricationPlan(beams, joints, nesting, float(hole), to_mm, str(options.units).strip().lower(), XY, top, warnings)
 
 
 def _check_hole_spacing(beams, hole: float, units: str) -> None:
@@ -204,43 +222,161 @@ def _check_hole_spacing(beams, hole: float, units: str) -> None:
                          f"in), or is the section too wide?")
 
 
-def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
-    """Write the files of :data:`FABRICATION_FILES` into ``out_dir`` (each atomically); the paths written."""
+def render_fabrication(plan: FabricationPlan) -> dict[str, bytes]:
+    """The content of every file of :data:`FABRICATION_FILES`, by name (nothing written)."""
     from .drawings import assembly_svg, beams_dxf, beams_svg
 
-    paths = [os.path.join(out_dir, f) for f in FABRICATION_FILES]
-    atomic_write_text(paths[0], cutlist_csv(plan))
-    atomic_write_text(paths[1], joints_csv(plan))
-    atomic_write_text(paths[2], beams_svg(plan.beams, plan.nesting, plan.hole_diameter))
-    atomic_write_bytes(paths[3], beams_dxf(plan.beams, plan.nesting, plan.hole_diameter))
-    atomic_write_text(paths[4], assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter, plan.to_mm, plan.top))
-    atomic_write_text(paths[5], json.dumps(plan.bill_of_materials(), indent=1))
+    text = {"cutlist.csv": cutlist_csv(plan), "joints.csv": joints_csv(plan),
+            "beams.svg": beams_svg(plan.beams, plan.nesting, plan.hole_diameter),
+            "assembly.svg": assembly_svg(plan.xy, plan.beams, plan.joints, plan.hole_diameter, plan.to_mm, plan.top),
+            "bom.json": json.dumps(plan.bill_of_materials(), indent=1)}
+    files = {name: text[name].encode("utf-8") for name in text}
+    files["beams.dxf"] = beams_dxf(plan.beams, plan.nesting, plan.hole_diameter)
+    return {name: files[name] for name in FABRICATION_FILES}
+
+
+def write_file_set(out_dir: str, files: dict) -> list[str]:
+    """Write ``files`` (name → bytes) into ``out_dir`` as one set; the paths written.
+
+    A stop (Ctrl-C, SIGTERM) waits until the whole set is in place (a
+    fraction of a second; the caller checks :data:`~xshells.errors.STOP`
+    after): cut short, it left the first files of this run beside the rest
+    of the previous run's. A write that fails removes every file of the
+    set, old or new, before the error goes on: none, rather than a mix.
+    Each file is written atomically.
+    """
+    from ..errors import STOP
+
+    paths = [os.path.join(out_dir, name) for name in files]
+    with STOP.deferred():
+        try:
+            for path, data in zip(paths, files.values()):
+                atomic_write_bytes(path, data)
+        except BaseException:
+            for path in paths:
+                try:
+                    os.remove(path)
+                except OSError:
+                    pass
+            raise
     return paths
 
 
-def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None, skipped: list | None = None) -> FabricationPlan | None:
+def _same_family_joints(beams, joints) -> str:
+    """One line when some joint holds two beams of one family, else "": there "one family on top" cannot hold.
+
+    An odd cycle of crossing beams (three lines crossing pairwise) cannot be
+    split into two families that alternate at every joint; the joint table
+    then lists the first beam as on top, which says nothing about layers.
+    """
+    family = {b.label: b.family for b in beams}
+    same = [r for r in joints if family[r.beam_a] == family[r.beam_b]]
+    if not same:
+        return ""
+    r = same[0]
+    return (f"the strips cannot be layered one family over the other: at {len(same)} of {len(joints)} joints both strips "
+            f"are of one family (joint {r.joint}: {r.beam_a} and {r.beam_b}, both {family[r.beam_a]}; on_top there is "
+            f"{r.on_top}, the first listed): an odd cycle of crossing beams; decide those joints' layers by hand")
+
+
+def _short_arms(beams, units: str) -> str:
+    """One line when a strip's arm (joint to joint, or joint to free end) is shorter than its section is wide, else "".
+
+    Such a part can be cut, but it is a plate, not a beam (the slender rods
+    of the model): usually the design and the section are in different
+    units. The hole-spacing check misses it where a strip has one hole (the
+    bundled single linkage: 10 mm strips for arms 0.17 mm long, a hole
+    0.17 mm from a free end); deploy's slenderness warning is the same test.
+    """
+    worst, count = None, 0
+    for b in beams:
+        stops = list(np.asarray(b.hole_positions, float))
+        names = [f"joint {v}" for v in b.hole_vertices.tolist()]
+        if b.starts_free:
+            stops, names = [b.margin] + stops, ["its free end"] + names
+        if b.ends_free:
+            stops, names = stops + [b.length - b.margin], names + ["its free end"]
+        if len(stops) < 2:
+            continue
+        arms = np.diff(stops)
+        k = int(np.argmin(arms))
+        if arms[k] < b.section.width:
+            count += 1
+            if worst is None or arms[k] / b.section.width < worst[0]:
+                worst = (arms[k] / b.section.width, b, arms[k], names[k], names[k + 1])
+    if worst is None:
+        return ""
+    _, b, arm, a, c = worst
+    return (f"{count} of {len(beams)} strips have an arm shorter than their section is wide: strip {b.label}, "
+            f"{arm:.4g} mm from {a} to {c} for a {b.section.width:.4g} mm wide section; is the design drawn in {units} "
+            "(the units it is read in), or is the section too wide?")
+
+
+def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
+    """Write the files of :data:`FABRICATION_FILES` into ``out_dir`` as one set (:func:`write_file_set`); the paths."""
+    return write_file_set(out_dir, render_fabrication(plan))
+
+
+def flat_state_xy(linkage) -> np.ndarray:
+    """In-plane coordinates (n, 2) of every design vertex in ``linkage``'s current flat state, in the drawn layout's
+    axes: the layout that rest lengths other than the drawn ones (a file, an optimization) relax to."""
+    from ..io.fabrication import flat_coordinates
+
+    return flat_coordinates(linkage.vertex_positions(), linkage.graph.layout_normal, frame=linkage.graph.design.vertices)
+
+
+def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None, skipped: list | None = None,
+            xy=None) -> FabricationPlan | None:
     """The fabrication plan (default options) of a command that solved ``linkage``; None for a layout that is not
     flat, or that cannot be built with its section (then why goes into ``skipped``, if given).
 
     ``flat_angles``: the joint angles of its flat assembly state; ``rest_lengths``
-    default to the linkage's own.
+    default to the linkage's own; ``xy``: the flat layout (default the drawn
+    design; :func:`flat_state_xy` where the rest lengths are not the drawn ones).
     """
     if not linkage.graph.is_planar:
         return None
     p = linkage.rest_lengths if rest_lengths is None else rest_lengths
     mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
     try:
-        return fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles)
+        return fabrication_plan(linkage.graph, p, mats, flat_angles=flat_angles, deployed_angles=deployed_angles, xy=xy)
     except InputError as exc:  # a layout no one can build with its section: no drawings of it
         if skipped is not None:
             skipped.append(f"fabrication files not written: {exc}")
         return None
 
 
-def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None) -> list[str]:
-    """The fabrication files of a command that solved ``linkage`` (``optimize``, ``inverse``); [] for a non-flat layout."""
-    plan = plan_of(linkage, flat_angles, deployed_angles, rest_lengths)
-    return [] if plan is None else write_fabrication(out_dir, plan)
+def remove_fabrication_files(out_dir: str) -> list[str]:
+    """Remove the files of :data:`FABRICATION_FILES` from ``out_dir``, where a command writes none this time; the names
+    removed. Only these names: left there, an earlier run's cut list sat beside another design's result."""
+    removed = []
+    for name in FABRICATION_FILES:
+        try:
+            os.remove(os.path.join(out_dir, name))
+        except FileNotFoundError:
+            continue
+        removed.append(name)
+    return removed
+
+
+def stale_note(removed: list[str]) -> str:
+    """The warning that says which earlier fabrication files were removed."""
+    return f"removed an earlier run's fabrication files, not written for this design: {', '.join(removed)}"
+
+
+def write_outputs_of(out_dir: str, linkage, flat_angles, deployed_angles=None, rest_lengths=None, xy=None,
+                     warnings: list | None = None) -> list[str]:
+    """The fabrication files of a command that solved ``linkage`` (``optimize``, ``inverse``); [] for a non-flat layout,
+    or one that cannot be built (then an earlier run's files are removed, and ``warnings``, if given, says so)."""
+    plan = plan_of(linkage, flat_angles, deployed_angles, rest_lengths, skipped=warnings, xy=xy)
+    if plan is None:
+        removed = remove_fabrication_files(out_dir)
+        if removed and warnings is not None:
+            warnings.append(stale_note(removed))
+        return []
+    if warnings is not None:
+        warnings.extend(plan.warnings)
+    return write_fabrication(out_dir, plan)
 
 
 def run_fabrication(design_path, material, *, out_dir, options: FabricationOptions = FabricationOptions(), subdivision=10,
@@ -288,19 +424,35 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
         t1 = time.perf_counter()
         mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
         angles = linkage.joint_angles() if rest_lengths_path is None else linkage.graph.joint_opening_angles
-        plan = fabrication_plan(linkage.graph, linkage.rest_lengths, mats, options, flat_angles=angles)
+        plan = fabrication_plan(linkage.graph, linkage.rest_lengths, mats, options, flat_angles=angles,
+                                source=rest_lengths_path and str(rest_lengths_path))
         if bar is not None:
             bar.update(1)
             bar.set_postfix(stage="files")
-        paths = write_fabrication(out_dir, plan)
+        files = render_fabrication(plan)
         t_fab = time.perf_counter() - t1
+        bom = plan.bill_of_materials()
+        result = _fabricate_result(design_path, design, linkage, rest_lengths_path, name, bom, t_rest, t_fab, t0)
+        # result.json in the same set: an interrupted run left the new files beside the previous run's result
+        write_file_set(out_dir, {**files, "result.json": json.dumps(result, indent=1).encode("utf-8")})
         if bar is not None:
             bar.update(1)
     finally:
         if bar is not None:
             bar.close()
-    bom = plan.bill_of_materials()
-    result = {
+    from ..errors import STOP
+
+    STOP.check()  # a stop that waited for the files
+    if progress and plan.units != "mm":
+        print(f"note: {bom['units_note']}", file=sys.stderr)
+    return result
+
+
+def _fabricate_result(design_path, design, linkage, rest_lengths_path, name, bom, t_rest, t_fab, t0) -> dict:
+    """The ``result.json`` of ``xshells fabricate``."""
+    import time
+
+    return {
         "name": name or os.path.splitext(os.path.basename(str(design_path)))[0],
         "design": os.path.abspath(str(design_path)),
         "segments": linkage.num_segments,
@@ -308,10 +460,7 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
         "rest_lengths": "file: " + os.path.abspath(rest_lengths_path) if rest_lengths_path else "rest-length solve",
         "input": design.note,  # how a .3dm was read (its layer, units and the conversion to mm), else None
         "bom": bom,
-        "files": [os.path.basename(p) for p in paths],
+        "files": list(FABRICATION_FILES),
+        # fabrication: tracing, nesting and drawing the files (their writing, last, is not counted)
         "timings_s": {"rest_lengths": t_rest, "fabrication": t_fab, "total": time.perf_counter() - t0},
     }
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
-    if progress and plan.units != "mm":
-        print(f"note: {bom['units_note']}", file=sys.stderr)
-    return result

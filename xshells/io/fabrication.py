@@ -16,7 +16,7 @@ from ..errors import InputError
 from .export import atomic_write_bytes, atomic_write_text
 
 
-def flat_coordinates(vertices, normal=None) -> np.ndarray:
+def flat_coordinates(vertices, normal=None, frame=None) -> np.ndarray:
     """In-plane coordinates (n, 2) of a flat design's vertices (n, 3), seen from the layout's up side.
 
     A design in the z = 0 plane keeps its x, y; one drawn in another plane
@@ -26,12 +26,17 @@ def flat_coordinates(vertices, normal=None) -> np.ndarray:
     plane's normal with its largest component positive. Without it the axes'
     order was the SVD's, and a design drawn in a tilted plane was drawn, in
     four of six random orientations, as seen from below: mirrored.
+    ``frame`` (m, 3), default ``vertices``: the points whose plane sets the
+    axes, e.g. the drawn design for a state of it relaxed in its plane,
+    which its own round-off out of the plane would otherwise turn to its
+    principal axes.
     """
     V = np.asarray(vertices, float)
-    if np.ptp(V[:, 2]) == 0:
+    F = V if frame is None else np.asarray(frame, float)
+    if np.ptp(F[:, 2]) == 0:
         return V[:, :2].copy()
-    c = V.mean(axis=0)
-    _, _, vt = np.linalg.svd(V - c, full_matrices=False)
+    c = F.mean(axis=0)
+    _, _, vt = np.linalg.svd(F - c, full_matrices=False)
     if normal is None:  # the rule of linkage.graph's layout plane (this module sits below it)
         normal = vt[2] if vt[2][np.argmax(np.abs(vt[2]))] > 0 else -vt[2]
     axes = vt[:2].copy()

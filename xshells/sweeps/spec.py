@@ -105,7 +105,7 @@ def load_spec(path, *, max_tasks: int | None = MAX_TASKS) -> SweepSpec:
         raise InputError(f"{path}: cannot read sweep file ({exc.strerror})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text file (a sweep file is YAML or JSON in UTF-8)") from None
-    if path.endswith((".yaml", ".yml")):
+    if path.lower().endswith((".yaml", ".yml")):
         import yaml
 
         try:
