@@ -143,8 +143,9 @@ def _drawn_lengths(design_path):
     return np.linalg.norm(d.vertices[d.edges[:, 1]] - d.vertices[d.edges[:, 0]], axis=1)
 
 
-def test_rest_lengths_of_another_design_are_refused_naming_the_worst_segment(tmp_path, capsys):
-    # a design_parameters.txt of another design with the same segment count was cut and drilled without a word
+def test_rest_lengths_off_the_drawing_are_named_and_the_strips_drawn_as_they_relax(tmp_path, capsys):
+    # a design_parameters.txt of another design with the same segment count was cut and drilled without a word;
+    # rest lengths that xshells optimize moved look the same, so it is said (a warning), not refused
     p = _drawn_lengths(EXAMPLES / "manta_ray.obj")
     ok, other = tmp_path / "ok.txt", tmp_path / "other.txt"
     ok.write_text("".join(f"{v * 1.001:.17g}\n" for v in p))  # a genuine file: within 0.03 % (0.1 % here)
@@ -154,12 +155,18 @@ def test_rest_lengths_of_another_design_are_refused_naming_the_worst_segment(tmp
     other.write_text("".join(f"{v:.17g}\n" for v in q))
     args = ["fabricate", str(EXAMPLES / "manta_ray.obj"), "--no-progress", "--rest-lengths"]
     assert main([*args, str(ok), "--out", str(tmp_path / "ok")]) == 0
-    assert main([*args, str(other), "--out", str(tmp_path / "other")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "Traceback" not in err and str(other) in err
-    assert "segment 7 " in err and f"{q[7]:.6g}" in err and f"{p[7]:.6g}" in err and "+30.0 %" in err
-    assert "4 of 312 segments differ by more than 5 %" in err
-    assert not (tmp_path / "other" / "cutlist.csv").exists()
+    assert "warning" not in capsys.readouterr().out
+    assert main([*args, str(other), "--out", str(tmp_path / "other")]) == 0
+    captured = capsys.readouterr()
+    notes = [w for w in captured.out.splitlines() if str(other) in w]
+    assert len(notes) == 1 and "Traceback" not in captured.err
+    w = notes[0]
+    assert "segment 7 " in w and f"{q[7]:.6g}" in w and f"{p[7]:.6g}" in w and "+30.0 %" in w
+    assert "4 of 312 segments differ by more than 5 %" in w and "drawn in the flat state they relax to" in w
+    bom = json.loads((tmp_path / "other" / "bom.json").read_text())
+    assert any("segment 7 " in x for x in bom["warnings"])
+    # the strips are cut to the file's rest lengths
+    check_cutlist(tmp_path / "other" / "cutlist.csv", read_design(EXAMPLES / "manta_ray.obj").edges, q, tol=1e-3)
 
 
 def test_deploy_with_rest_lengths_off_the_drawing_warns_and_draws_the_relaxed_flat_state(tmp_path):
@@ -171,7 +178,7 @@ def test_deploy_with_rest_lengths_off_the_drawing_warns_and_draws_the_relaxed_fl
                  "--subdivision", "5", "--rest-lengths", str(tmp_path / "rl.txt"), "--out", str(tmp_path / "o"),
                  "--no-progress"]) == 0
     result = json.loads((tmp_path / "o" / "result.json").read_text())
-    assert any("do not fit the drawn flat layout: segment 2 " in w for w in result["warnings"])
+    assert any("are not the drawn flat layout's: segment 2 " in w for w in result["warnings"])
     # the cut list is written, from the flat state these rest lengths relax to (within 5 % of them)
     check_cutlist(tmp_path / "o" / "cutlist.csv", read_design(design).edges, p, margin=0.025, tol=1e-3)
 

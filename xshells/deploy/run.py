@@ -200,15 +200,10 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     warnings = list(linkage.input_warnings())
     if design.note:  # e.g. a .3dm's layer and its units, converted to mm
         warnings = [design.note] + list(warnings)
-    if p is not None and linkage.graph.is_planar:  # a file of another design deploys another shell: say so
-        from ..fabrication.beams import rest_length_mismatch
-        from ..io.fabrication import flat_coordinates
+    if p is not None:  # rest lengths far from the drawing: the flat state relaxes to another layout, said
+        from ..fabrication.run import rest_lengths_note
 
-        bad = rest_length_mismatch(p, flat_coordinates(design.vertices, linkage.graph.layout_normal), design.edges)
-        if bad:
-            warnings.append(f"{rest_lengths_path}: the rest lengths do not fit the drawn flat layout: {bad}: the flat "
-                            "state relaxes to another layout (rest lengths of another design?), which the fabrication "
-                            "files draw")
+        warnings += rest_lengths_note(linkage, design, rest_lengths_path)
     if progress:
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)

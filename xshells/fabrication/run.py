@@ -11,7 +11,7 @@ import csv
 import io
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -317,6 +317,26 @@ def write_fabrication(out_dir: str, plan: FabricationPlan) -> list[str]:
     return write_file_set(out_dir, render_fabrication(plan))
 
 
+def rest_lengths_note(linkage, design, rest_lengths_path) -> list[str]:
+    """A warning (a list of at most one line) where the rest lengths of ``rest_lengths_path`` are far from the drawn
+    segments (:data:`~.beams.REST_LENGTH_TOLERANCE`): the flat state then relaxes to another layout.
+
+    Not refused: xshells optimize keeps the drawn design and moves its rest lengths by design (30 % on a unit
+    grid); a file of another design with the same segment count looks the same, so it is said.
+    """
+    from ..io.fabrication import flat_coordinates
+
+    if not linkage.graph.is_planar:
+        return []
+    bad = rest_length_mismatch(linkage.rest_lengths, flat_coordinates(design.vertices, linkage.graph.layout_normal),
+                               design.edges)
+    if not bad:
+        return []
+    return [f"{rest_lengths_path}: the rest lengths are not the drawn flat layout's: {bad}: the strips are cut to "
+            "the rest lengths and drawn in the flat state they relax to (as after xshells optimize; if the file is "
+            "another design's, this is not that design)"]
+
+
 def flat_state_xy(linkage) -> np.ndarray:
     """In-plane coordinates (n, 2) of every design vertex in ``linkage``'s current flat state, in the drawn layout's
     axes: the layout that rest lengths other than the drawn ones (a file, an optimization) relax to."""
@@ -413,19 +433,29 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
     try:
         if bar is not None:
             bar.set_postfix(stage="rest lengths" if rest_lengths_path is None else "rest lengths (file)")
+        xy, warnings = None, []
         if rest_lengths_path is None:
             from ..deploy.simulate import rest_length_solve
 
             rest_length_solve(linkage)
+        else:
+            # the strips are cut to the file's rest lengths, and drawn in the flat state those relax to, as
+            # `xshells deploy` draws them (rest lengths that xshells optimize moved, or another design's)
+            warnings += rest_lengths_note(linkage, design, rest_lengths_path)
+            from ..solve import NewtonOptions, minimize
+
+            minimize(linkage, fixed=linkage.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+            xy = flat_state_xy(linkage)
         t_rest = time.perf_counter() - t0
         if bar is not None:
             bar.update(1)
             bar.set_postfix(stage="beams and nesting")
         t1 = time.perf_counter()
         mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
-        angles = linkage.joint_angles() if rest_lengths_path is None else linkage.graph.joint_opening_angles
-        plan = fabrication_plan(linkage.graph, linkage.rest_lengths, mats, options, flat_angles=angles,
-                                source=rest_lengths_path and str(rest_lengths_path))
+        plan = fabrication_plan(linkage.graph, linkage.rest_lengths, mats, options, flat_angles=linkage.joint_angles(),
+                                xy=xy, source=rest_lengths_path and str(rest_lengths_path))
+        if warnings:
+            plan = replace(plan, warnings=tuple(warnings) + tuple(plan.warnings))
         if bar is not None:
             bar.update(1)
             bar.set_postfix(stage="files")
