@@ -364,3 +364,31 @@ def test_a_sweep_of_more_tasks_than_the_limit_is_refused_before_it_is_expanded(t
     with pytest.raises(InputError, match=r"^axes: 2 cases × sleep_s 2 make 4 tasks, more than the limit of 3: "):
         spec_from_dict(data, str(tmp_path), max_tasks=3)
     assert len(spec_from_dict(data, str(tmp_path), max_tasks=None).tasks) == 4  # what --force passes
+
+
+@pytest.mark.parametrize("task, module, runner", [("sparsify", "xshells.actuation.run", "run_selection"),
+                                                  ("optimize", "xshells.design.run", "run_optimize")])
+def test_sparsify_and_optimize_tasks_get_the_direction_in_their_case(tmp_path, monkeypatch, task, module, runner):
+    # the case file a task wrote left direction out: a sparsify sweep over [up, down] ran "up" twice
+    import importlib
+
+    seen = []
+
+    def fake(case, out_dir, *args, **kwargs):
+        seen.append(json.loads(open(case).read()).get("direction"))
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(importlib.import_module(module), runner, fake)
+    small_grid(tmp_path / "grid.obj")
+    spec = spec_from_dict({"task": task, "base": {"file": "grid.obj", "angle_deg": 60}, "axes": {"direction": ["up", "down"]}},
+                          str(tmp_path))
+    run_sweep(spec, str(tmp_path / "out"), SweepSettings(workers=0))
+    assert seen == ["up", "down"]
+
+
+@pytest.mark.parametrize("task", ["sparsify", "optimize"])
+def test_start_is_refused_for_the_tasks_that_do_not_use_it(tmp_path, task):
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError, match=rf"^axes.start\[0\]: only the deploy task takes start .*the {task} task does not"):
+        spec_from_dict({"task": task, "base": {"file": "grid.obj"}, "axes": {"start": ["average"]}}, str(tmp_path))
+    assert spec_from_dict({"base": {"file": "grid.obj"}, "axes": {"start": ["average"]}}, str(tmp_path)).tasks

@@ -50,12 +50,16 @@ ANGLE_KEYS = ("angle_deg", "angle_rad", "open_by_deg")
 MAX_TASKS = 100_000
 
 # The case keys are checked by the case files' own schema (xshells.io.case_schema), one field at a
-# time here and as a whole case once expanded; direction and start are the deploy task's options.
+# time here and as a whole case once expanded; direction is a case key too (every task reads it from
+# the case), start only the deploy task's option.
 CASE_KEYS = ("name", "file", "rest_lengths", "subdivision", "steps", "angle_deg", "angle_rad", "open_by_deg",
              "material.type", "material.E", "material.nu", "material.params", "material.stiff_axis",
              "material.contour_file")
 CASE_CHECKS = {k: field_check(k) for k in CASE_KEYS}
 CASE_CHECKS.update({"direction": T.choice("up", "down"), "start": T.choice("auto", "average", "central-joint")})
+#: case keys that only the deploy task honours (key -> where it comes from): refused for the other tasks, whose
+#: dense deployment always starts "auto" (the key was accepted and silently not used)
+DEPLOY_ONLY = {"start": "xshells deploy --start"}
 
 
 @dataclass(frozen=True)
@@ -166,6 +170,8 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
     _unknown(data, TOP_KEYS, "")
     task = T.get_task(data.get("task", "deploy"))
     allowed = dict(CASE_CHECKS) if task.case else {}
+    if task.case and task.name != "deploy":
+        allowed.update({k: _deploy_only(k, task.name) for k in DEPLOY_ONLY})
     allowed.update(task.params)
     base = _overrides(data.get("base") or {}, "base", allowed, base_dir)
     if task.case and not any(k.startswith("material.") for k in base):
@@ -250,6 +256,14 @@ def _check_size(cases: list, axes: dict, axis_values: list, max_tasks: int | Non
         f"{raw} {len(values)}" for raw, (_, values) in zip(axes, axis_values)]
     raise InputError(f"axes: {' × '.join(factors)} make {count:,} tasks, more than the limit of {max_tasks:,}: "
                      "give fewer values, or --force to run them all")
+
+
+def _deploy_only(key: str, task: str):
+    """The check of a deploy-only key for another task: refuses any value, saying why."""
+    def refuse(value):
+        raise ValueError(f"only the deploy task takes {key} ({DEPLOY_ONLY[key]}); the {task} task does not use it")
+
+    return refuse
 
 
 def _unknown_key(where: str, raw, known) -> InputError:
