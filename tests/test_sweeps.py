@@ -392,3 +392,54 @@ def test_start_is_refused_for_the_tasks_that_do_not_use_it(tmp_path, task):
     with pytest.raises(InputError, match=rf"^axes.start\[0\]: only the deploy task takes start .*the {task} task does not"):
         spec_from_dict({"task": task, "base": {"file": "grid.obj"}, "axes": {"start": ["average"]}}, str(tmp_path))
     assert spec_from_dict({"base": {"file": "grid.obj"}, "axes": {"start": ["average"]}}, str(tmp_path)).tasks
+
+
+def curved_quad(path):
+    """A .3dm of four arcs around a 80 × 314 rectangle: read only with --sample."""
+    rhino3dm = pytest.importorskip("rhino3dm")
+    f = rhino3dm.File3dm()
+    f.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Millimeters
+    corners = [(-40, -157), (-40, 157), (40, 157), (40, -157)]
+    for (x0, y0), (x1, y1) in zip(corners, corners[1:] + corners[:1]):
+        mid = rhino3dm.Point3d(0.55 * (x0 + x1), 0.55 * (y0 + y1), 0)
+        f.Objects.AddCurve(rhino3dm.Arc(rhino3dm.Point3d(x0, y0, 0), mid, rhino3dm.Point3d(x1, y1, 0)).ToNurbsCurve())
+    assert f.Write(str(path), 7)
+    return path
+
+
+def test_layer_and_sample_are_task_parameters(tmp_path):
+    # they were set in the client process only: workers refused the curved design ("give --sample N"), and a
+    # re-run with another --sample took the earlier result for its own (the task id did not change)
+    from xshells.io import read_design
+    from xshells.rhino.read import set_defaults
+    from xshells.sweeps.run import execute_task
+
+    curved_quad(tmp_path / "c.3dm")
+    small_grid(tmp_path / "grid.obj")
+    data = {"base": {"file": "c.3dm", "subdivision": 3, "steps": 2}}
+    s4, s8 = (spec_from_dict(data, str(tmp_path), design_options={"layer": None, "sample": n}) for n in (4, 8))
+    assert s4.tasks[0].params["sample"] == 4 and s4.tasks[0].id != s8.tasks[0].id
+    assert "sample" not in spec_from_dict(data, str(tmp_path)).tasks[0].params
+    mixed = spec_from_dict({"base": {"subdivision": 3}, "axes": {"file": ["c.3dm", "grid.obj"]}}, str(tmp_path),
+                           design_options={"sample": 4})
+    assert [t.params.get("sample") for t in mixed.tasks] == [4, None]  # an .obj task's id is the same as without
+    assert mixed.tasks[1].id == spec_from_dict({"base": {"file": "grid.obj", "subdivision": 3}}, str(tmp_path)).tasks[0].id
+    with pytest.raises(InputError, match=r"^--sample reads a .3dm design: no task's file is one$"):
+        spec_from_dict({"base": {"file": "grid.obj"}}, str(tmp_path), design_options={"sample": 4})
+    with pytest.raises(InputError, match=r"^--sample must be from 1 to 1000 segments per curve, got 0$"):
+        spec_from_dict(data, str(tmp_path), design_options={"sample": 0})
+    set_defaults()  # as in a worker process: the command line's options never reached it
+    rec = execute_task("count", lambda p, out: {"segments": read_design(p["file"]).num_segments}, s8.tasks[0].id,
+                       s8.tasks[0].params, str(tmp_path / "t"), None)
+    assert rec["status"] == "ok" and rec["result"]["segments"] == 32
+
+
+def test_a_3dm_sweep_with_sample_runs_on_workers_and_reruns_for_another_sample(tmp_path, capsys, reset_3dm_options):
+    curved_quad(tmp_path / "c.3dm")
+    (tmp_path / "s.yaml").write_text("base: {file: c.3dm, subdivision: 3, steps: 2, material: {params: [4, 2]}}\n")
+    out = str(tmp_path / "out")
+    for workers, n in (("1", 4), ("0", 8)):
+        main(["sweep", str(tmp_path / "s.yaml"), "--out", out, "--workers", workers, "--sample", str(n), "--no-progress"])
+        assert "1 run now" in capsys.readouterr().out
+        rec = [json.loads(p.read_text()) for p in (tmp_path / "out" / "tasks").glob("*/task.json")]
+        assert sorted(r["result"].get("segments") for r in rec) == ([16] if n == 4 else [16, 32]), rec[-1]["error"]

@@ -34,7 +34,9 @@ def _sweep(args) -> int:
         raise InputError(f"--max-tasks must be at least 1, got {args.max_tasks} (leave it out to run every task)")
     if args.workers is not None and args.scheduler:
         raise InputError("--workers sizes a local cluster; it contradicts --scheduler")
-    spec = load_spec(args.spec, max_tasks=None if args.force else MAX_TASKS)
+    # --layer and --sample (xshells.cli) become task parameters: set only here, the workers would not see them
+    options = {k: getattr(args, k, None) for k in ("layer", "sample")}
+    spec = load_spec(args.spec, max_tasks=None if args.force else MAX_TASKS, design_options=options)
     settings = SweepSettings(workers=args.workers, scheduler=args.scheduler, ship_files=args.ship_files,
                              retry_failed=args.retry_failed, max_tasks=args.max_tasks)
     bar = None

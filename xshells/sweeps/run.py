@@ -293,7 +293,8 @@ def estimated_size(params: dict, cache: dict | None = None) -> float:
         try:
             from ..io import read_design
 
-            cache[path] = read_design(path).num_segments
+            with design_reading(params):
+                cache[path] = read_design(path).num_segments
         except Exception:  # a task's own checks report a bad file; the order does not matter then
             cache[path] = 0
     angle = 1.0
@@ -435,7 +436,8 @@ def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, f
             out_dir = os.path.join(scratch, "out")
         os.makedirs(out_dir, exist_ok=True)
         try:
-            result = TaskDef(task_name, fn)(params, out_dir)
+            with design_reading(params):
+                result = TaskDef(task_name, fn)(params, out_dir)
             status = "ok" if result.get("converged", True) else "diverged"
             error = "" if status == "ok" else str(result.get("message", "did not converge"))
         except Exception as exc:  # a task's failure is data, the sweep goes on
@@ -448,6 +450,20 @@ def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, f
     finally:
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def design_reading(params: dict):
+    """Read ``.3dm`` designs with the task's ``layer`` and ``sample`` (:data:`xshells.sweeps.spec.DESIGN_OPTIONS`)
+    meanwhile: the reader's options are process-wide, and a worker process never saw the command line's."""
+    from ..rhino.read import get_defaults, set_defaults
+
+    saved = get_defaults()
+    set_defaults(layer=params.get("layer"), sample=params.get("sample"), target_layer=saved["target_layer"])
+    try:
+        yield
+    finally:
+        set_defaults(**saved)
 
 
 def _record(task_name, task_id, params, status, error, result, elapsed, started, cpu=None) -> dict:

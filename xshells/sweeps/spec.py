@@ -95,10 +95,12 @@ class SweepSpec:
     varying_keys: tuple
 
 
-def load_spec(path, *, max_tasks: int | None = MAX_TASKS) -> SweepSpec:
+def load_spec(path, *, max_tasks: int | None = MAX_TASKS, design_options: dict | None = None) -> SweepSpec:
     """Read and check a sweep file (``.yaml``, ``.yml`` or ``.json``); one-line InputError on any problem.
 
     A sweep of more than ``max_tasks`` tasks is refused before it is expanded (None: no limit).
+    ``design_options``: how to read its ``.3dm`` designs (the command line's ``--layer`` and ``--sample``),
+    see :func:`spec_from_dict`.
     """
     path = os.fspath(path)
     check_input_file(path, "sweep file")
@@ -125,7 +127,8 @@ def load_spec(path, *, max_tasks: int | None = MAX_TASKS) -> SweepSpec:
 
         data = loads(raw, path)
     name = os.path.splitext(os.path.basename(path))[0]
-    return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name, max_tasks=max_tasks)
+    return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name, max_tasks=max_tasks,
+                          design_options=design_options)
 
 
 def _yaml_loader():
@@ -162,9 +165,15 @@ def _yaml_loader():
     return Loader
 
 
-def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_tasks: int | None = MAX_TASKS) -> SweepSpec:
+def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_tasks: int | None = MAX_TASKS,
+                   design_options: dict | None = None) -> SweepSpec:
     """Check a parsed sweep and expand it into tasks (paths relative to ``base_dir``); more than ``max_tasks``
-    tasks (None: no limit) are refused before they are expanded."""
+    tasks (None: no limit) are refused before they are expanded.
+
+    ``design_options`` (``{"layer": ..., "sample": ...}``, None values ignored) become parameters of each task
+    whose design is a ``.3dm``: so they reach the workers (other processes, other machines) and enter the
+    task's id, and a re-run with another ``--sample`` does not take the earlier result for its own.
+    """
     if not isinstance(data, dict):
         raise InputError("sweep: must be a mapping with keys task, base, axes (and optionally name, cases)")
     _unknown(data, TOP_KEYS, "")
@@ -220,6 +229,8 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
         for p in points:
             if "file" not in p:
                 raise InputError("base.file: missing (give a design file in base, an axis or every case)")
+    _add_design_options(points, design_options)
+    if task.case:
         _check_profiles(points)
         for i, p in enumerate(points):  # the whole case, as a case file: the rules across keys too
             validate_case(_nest({k: v for k, v in p.items() if k in CASE_KEYS}), f"sweep task {i}")
@@ -245,6 +256,32 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
 
 
 # ---------------------------------------------------------------- helpers
+
+
+#: the command line's options of a .3dm design, which become task parameters (xshells.cli: --layer, --sample)
+DESIGN_OPTIONS = ("layer", "sample")
+
+
+def _add_design_options(points: list, options: dict | None) -> None:
+    """Give each task whose design is a ``.3dm`` the ``options`` given; refuse them where no design is one."""
+    given = {k: v for k, v in (options or {}).items() if v is not None}
+    if not given:
+        return
+    unknown = set(given) - set(DESIGN_OPTIONS)
+    if unknown:
+        raise ValueError(f"design options are {', '.join(DESIGN_OPTIONS)}, got {', '.join(sorted(unknown))}")
+    sample = given.get("sample")
+    if sample is not None:
+        from ..rhino.read import MAX_SAMPLE
+
+        if isinstance(sample, bool) or not isinstance(sample, int) or not 1 <= sample <= MAX_SAMPLE:
+            raise InputError(f"--sample must be from 1 to {MAX_SAMPLE} segments per curve, got {sample}")
+    hits = [p for p in points if str(p.get("file") or "").lower().endswith(".3dm")]
+    if not hits:  # they would be ignored, as xshells deploy refuses them with an .obj
+        names = [f"--{k}" for k in DESIGN_OPTIONS if k in given]
+        raise InputError(f"{' and '.join(names)} read{'s' * (len(names) == 1)} a .3dm design: no task's file is one")
+    for p in hits:
+        p.update(given)
 
 
 def _check_size(cases: list, axes: dict, axis_values: list, max_tasks: int | None) -> None:
