@@ -223,7 +223,7 @@ def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
     ({"base": {"file": "grid.obj"}, "axes": {"eta": [0.1]}}, "axes.eta: unknown key"),
     ({"task": "sparsify", "base": {"file": "grid.obj"}, "axes": {"p": [0.5, 2]}}, "axes.p[1]: Input should be less than or equal to 1, got 2"),
     ({"task": "explode", "base": {"file": "grid.obj"}}, "task: unknown task 'explode'"),
-    ({"base": {"file": "grid.obj"}, "cases": [{"material": {"type": "recangle"}}]}, "material: unknown cross-section type"),
+    ({"base": {"file": "grid.obj"}, "cases": [{"material": {"type": "recangle"}}]}, "'material': unknown cross-section type"),
     ({"base": {"file": "grid.obj"}, "axes": {"params": [[4, 1.5], [4]]}}, "material: rectangle takes 2 parameters"),
     ({"axes": {"angle_deg": [70]}}, "base.file: missing"),
     ({"base": {"file": "grid.obj", "start": "joint"}}, "base.start: Input should be 'auto', 'average' or 'central-joint'"),
@@ -443,3 +443,28 @@ def test_a_3dm_sweep_with_sample_runs_on_workers_and_reruns_for_another_sample(t
         assert "1 run now" in capsys.readouterr().out
         rec = [json.loads(p.read_text()) for p in (tmp_path / "out" / "tasks").glob("*/task.json")]
         assert sorted(r["result"].get("segments") for r in rec) == ([16] if n == 4 else [16, 32]), rec[-1]["error"]
+
+
+@pytest.mark.parametrize("base", [{"E": 2e4}, {"material": {"E": 2e4}}, {"material": {"type": "rectangle"}}, {"nu": 0.3},
+                                  {"material": {"type": "Rect", "params": []}}])
+def test_a_partial_material_gets_the_case_file_default_for_each_missing_key(tmp_path, base):
+    # only a base without any material key got the defaults: E alone was refused ("rectangle takes 2 parameters")
+    small_grid(tmp_path / "grid.obj")
+    spec = spec_from_dict({"base": {"file": "grid.obj", **base}}, str(tmp_path))
+    material = spec.tasks[0].params["material"]
+    assert {**material, "type": material["type"].lower()} in (
+        {"type": t, "E": 20000, "nu": 0.3, "params": [10, 7]} for t in ("rectangle", "rect"))
+
+
+@pytest.mark.parametrize("data, words", [
+    # an ellipse axis ran with the default rectangle's 10 × 7, where a case file refuses it
+    ({"axes": {"material.type": ["rectangle", "ellipse"]}}, "sweep task 1: key 'material': type 'ellipse' needs its "
+                                                            "dimensions in 'params'"),
+    ({"base": {"material": {"type": "contour"}}}, "sweep task 0: key 'material': type 'contour' needs contour_file"),
+])
+def test_a_material_is_refused_as_a_case_file_refuses_it(tmp_path, data, words):
+    small_grid(tmp_path / "grid.obj")
+    data["base"] = {"file": "grid.obj", **data.get("base", {})}
+    with pytest.raises(InputError) as exc:
+        spec_from_dict(data, str(tmp_path))
+    assert str(exc.value).startswith(words)

@@ -183,10 +183,6 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
         allowed.update({k: _deploy_only(k, task.name) for k in DEPLOY_ONLY})
     allowed.update(task.params)
     base = _overrides(data.get("base") or {}, "base", allowed, base_dir)
-    if task.case and not any(k.startswith("material.") for k in base):
-        from ..deploy.case import DEFAULT_MATERIAL  # as a case file without a material
-
-        base.update({f"material.{k}": v for k, v in DEFAULT_MATERIAL.items()})
     axes = data.get("axes") or {}
     if not isinstance(axes, dict):
         raise InputError("axes: must be a mapping key -> list of values")
@@ -231,9 +227,10 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
                 raise InputError("base.file: missing (give a design file in base, an axis or every case)")
     _add_design_options(points, design_options)
     if task.case:
-        _check_profiles(points)
         for i, p in enumerate(points):  # the whole case, as a case file: the rules across keys too
             validate_case(_nest({k: v for k, v in p.items() if k in CASE_KEYS}), f"sweep task {i}")
+            _default_material(p)
+        _check_profiles(points)
     if task.check is not None:  # the task's own rules across its keys, before anything runs
         for i, p in enumerate(points):
             task.check(p, f"sweep task {i}")
@@ -359,6 +356,26 @@ def _check(key: str, value, where: str, allowed: dict, base_dir: str):
             raise InputError(f"{where}: no such file {value!r}")
         value = path
     return value
+
+
+def _default_material(p: dict) -> None:
+    """The case file's default for each material key a task leaves out (``xshells.deploy.case``), in place.
+
+    Key by key, as a case file's ``{"material": {"E": 20000}}`` is a 10 × 7 rectangle of ν 0.3: filling
+    only a base without any material key refused ``E: 2e4`` alone ("rectangle takes 2 parameters, got 0")
+    and gave an ``ellipse`` axis the rectangle's 10 × 7. Called after the case check, which refuses a
+    type other than the rectangle without its params; a contour keeps its section file's E and ν.
+    """
+    from ..deploy.case import DEFAULT_MATERIAL
+    from ..section.profiles import canonical_type
+
+    kind = p.setdefault("material.type", DEFAULT_MATERIAL["type"])
+    if str(kind).strip().lower() == "contour":
+        return
+    for key in ("E", "nu"):
+        p.setdefault(f"material.{key}", DEFAULT_MATERIAL[key])
+    if not p.get("material.params") and canonical_type(kind) == "rectangle":
+        p["material.params"] = list(DEFAULT_MATERIAL["params"])
 
 
 def _check_profiles(points) -> None:
