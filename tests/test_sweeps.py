@@ -468,3 +468,21 @@ def test_a_material_is_refused_as_a_case_file_refuses_it(tmp_path, data, words):
     with pytest.raises(InputError) as exc:
         spec_from_dict(data, str(tmp_path))
     assert str(exc.value).startswith(words)
+
+
+@pytest.mark.parametrize("data, words", [
+    # the later silently replaced the other: 1 rad ran, 60° did not
+    ({"axes": {"angle_deg": [60], "angle_rad": [1]}}, "axes.angle_deg and axes.angle_rad: give one of"),
+    # refused as "tasks 0 and 1 have identical parameters"
+    ({"axes": {"open_by_deg": [30]}, "cases": [{"angle_deg": 60}, {"angle_deg": 70}]},
+     "cases[0].angle_deg and axes.open_by_deg: give one of"),
+    ({"cases": [{}, {"angle_deg": 60, "open_by_deg": 5}]}, "cases[1].angle_deg and cases[1].open_by_deg: give one of"),
+])
+def test_two_kinds_of_angle_together_are_refused_naming_both(tmp_path, data, words):
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict({"base": {"file": "grid.obj"}, **data}, str(tmp_path))
+    assert str(exc.value).startswith(words) and str(exc.value).endswith("(they set the same angle)")
+    # an axis of another kind replaces the base's angle
+    spec = spec_from_dict({"base": {"file": "grid.obj", "angle_deg": 70}, "axes": {"open_by_deg": [20, 30]}}, str(tmp_path))
+    assert [t.params.get("angle_deg") for t in spec.tasks] == [None, None]

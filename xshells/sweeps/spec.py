@@ -209,6 +209,7 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
     cases = [_overrides(c, f"cases[{i}]", allowed, base_dir) for i, c in enumerate(cases)]
     if len({k for k, _ in axis_values}) != len(axis_values):
         raise InputError("axes: a key appears twice (aliases such as E and material.E name the same key)")
+    _check_angle_keys(base, cases, [k for k, _ in axis_values])
     _check_size(cases, axes, axis_values, max_tasks)
 
     points = []
@@ -279,6 +280,21 @@ def _add_design_options(points: list, options: dict | None) -> None:
         raise InputError(f"{' and '.join(names)} read{'s' * (len(names) == 1)} a .3dm design: no task's file is one")
     for p in hits:
         p.update(given)
+
+
+def _check_angle_keys(base: dict, cases: list, axis_keys: list) -> None:
+    """One kind of angle (angle_deg, angle_rad or open_by_deg) in the base, and in each case with the axes.
+
+    A case's or an axis's angle replaces the base's, whatever its kind; but of two kinds given together the
+    later silently replaced the other (``axes: {angle_deg: [60], angle_rad: [1]}`` ran 1 rad only), or made
+    the cases' tasks identical (a cases angle under an ``open_by_deg`` axis).
+    """
+    axes = [f"axes.{k}" for k in axis_keys if k in ANGLE_KEYS]
+    groups = [[f"base.{k}" for k in base if k in ANGLE_KEYS]]
+    groups += [[f"cases[{i}].{k}" for k in case if k in ANGLE_KEYS] + axes for i, case in enumerate(cases)]
+    for names in groups:
+        if len({n.rsplit(".", 1)[1] for n in names}) > 1:
+            raise InputError(f"{' and '.join(names)}: give one of {', '.join(ANGLE_KEYS)} (they set the same angle)")
 
 
 def _check_size(cases: list, axes: dict, axis_values: list, max_tasks: int | None) -> None:
