@@ -486,3 +486,18 @@ def test_two_kinds_of_angle_together_are_refused_naming_both(tmp_path, data, wor
     # an axis of another kind replaces the base's angle
     spec = spec_from_dict({"base": {"file": "grid.obj", "angle_deg": 70}, "axes": {"open_by_deg": [20, 30]}}, str(tmp_path))
     assert [t.params.get("angle_deg") for t in spec.tasks] == [None, None]
+
+
+def test_local_workers_are_at_most_one_per_task_and_core(tmp_path, capsys):
+    # --workers 1000 for one task started 1000 worker processes on 2 cores and hung
+    from xshells.sweeps.run import _cores, local_workers
+
+    cores = _cores()
+    assert local_workers(None, 100) == (cores, "") and local_workers(1, 100) == (1, "")
+    assert local_workers(1000, 1) == (1, "--workers 1000: 1 local worker (1 task to run)" if cores > 1 else
+                                      "--workers 1000: 1 local worker (1 core here)")
+    assert local_workers(1000, 10**6)[0] == cores
+    (tmp_path / "s.yaml").write_text("task: noop\nbase: {sleep_s: 0}\n")
+    assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--workers", "1000", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("note: --workers 1000: 1 local worker (") and "1 tasks, 1 run now" in out

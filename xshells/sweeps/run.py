@@ -202,7 +202,7 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(f"--scheduler {settings.scheduler}: cannot connect ({_one_line(exc)})") from None
     else:
-        n = settings.workers or _cores()
+        n = local_workers(settings.workers, len(todo))[0]
         # no statistical profiler (it samples the task thread's stack every 10 ms, taking the GIL from the
         # solver: it doubled the worker's own CPU time, to about 4% of a core beside the task); glibc's
         # malloc as in a serial run (WORKER_CONFIG)
@@ -304,6 +304,20 @@ def estimated_size(params: dict, cache: dict | None = None) -> float:
             angle = float(value) * scale
             break
     return cache[path] * int(params.get("subdivision", 10)) * int(params.get("steps", 40)) * angle
+
+
+def local_workers(requested: int | None, tasks: int) -> tuple[int, str]:
+    """The worker processes of a local cluster for ``tasks`` tasks, and a line saying why when fewer than asked.
+
+    ``requested`` (None: one per core), but at most one per task and one per core: more would only wait
+    (``--workers 1000`` for one task started 1000 processes on 2 cores and hung).
+    """
+    cores = _cores()
+    n = max(1, min(cores if requested is None else requested, tasks, cores))
+    if requested is None or n >= requested:
+        return n, ""
+    why = f"{tasks} task{'s' * (tasks != 1)} to run" if tasks < cores else f"{cores} core{'s' * (cores != 1)} here"
+    return n, f"--workers {requested}: {n} local worker{'s' * (n != 1)} ({why})"
 
 
 def _cores() -> int:
