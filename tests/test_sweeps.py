@@ -501,3 +501,17 @@ def test_local_workers_are_at_most_one_per_task_and_core(tmp_path, capsys):
     assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--workers", "1000", "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("note: --workers 1000: 1 local worker (") and "1 tasks, 1 run now" in out
+
+
+@pytest.mark.parametrize("data, words", [
+    ({"base": {"file": "grid.obj", "E": 1e4, "material": {"E": 3e4}}}, "base: E and material.E name the same key"),
+    ({"base": {"file": "grid.obj"}, "cases": [{"E": 1e4, "young": 2e4}]}, "cases[0]: E and young name the same key"),
+    ({"base": {"file": "grid.obj", "material": {"E": 1e4, "young": 2e4}}}, "base: material.E and material.young name"),
+    ({"base": {"file": "grid.obj"}, "axes": {"E": [1e4], "material.E": [2e4]}}, "axes: E and material.E name the same key"),
+])
+def test_one_key_given_twice_through_an_alias_is_refused_naming_both(tmp_path, data, words):
+    # the later was kept without a word
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict(data, str(tmp_path))
+    assert str(exc.value).startswith(words) and str(exc.value).endswith("(material.E): give it once")

@@ -207,8 +207,11 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
     if not isinstance(cases, list) or not cases:
         raise InputError("cases: must be a non-empty list of mappings")
     cases = [_overrides(c, f"cases[{i}]", allowed, base_dir) for i, c in enumerate(cases)]
-    if len({k for k, _ in axis_values}) != len(axis_values):
-        raise InputError("axes: a key appears twice (aliases such as E and material.E name the same key)")
+    spelled = {}
+    for raw, (key, _) in zip(axes, axis_values):
+        if key in spelled:
+            raise InputError(f"axes: {spelled[key]} and {raw} name the same key ({key}): give it once")
+        spelled[key] = raw
     _check_angle_keys(base, cases, [k for k, _ in axis_values])
     _check_size(cases, axes, axis_values, max_tasks)
 
@@ -343,17 +346,23 @@ def _overrides(d, where: str, allowed: dict, base_dir: str) -> dict:
     """A mapping of case keys -> checked values, ``material: {...}`` flattened into ``material.*``."""
     if not isinstance(d, dict):
         raise InputError(f"{where}: must be a mapping, got {d!r}")
-    out = {}
+    out, spelled = {}, {}
+
+    def put(key, name, value):
+        # two spellings of one key (E and material.E, E and young) kept the later without a word
+        if key in out:
+            raise InputError(f"{where}: {spelled[key]} and {name} name the same key ({key}): give it once")
+        out[key], spelled[key] = _check(key, value, f"{where}.{name}", allowed, base_dir), name
+
     for raw, value in d.items():
         if raw == "material" and "material.type" in allowed:
             if not isinstance(value, dict):
                 raise InputError(f"{where}.material: must be a mapping {{type, E, nu, params, stiff_axis}}")
             for sub, v in value.items():
                 key = _key("material." + str(sub) if sub != "young" else "material.E", allowed, f"{where}.material.{sub}")
-                out[key] = _check(key, v, f"{where}.material.{sub}", allowed, base_dir)
+                put(key, f"material.{sub}", v)
             continue
-        key = _key(raw, allowed, f"{where}.{raw}")
-        out[key] = _check(key, value, f"{where}.{raw}", allowed, base_dir)
+        put(_key(raw, allowed, f"{where}.{raw}"), raw, value)
     return out
 
 
