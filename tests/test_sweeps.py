@@ -216,7 +216,7 @@ def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
     ({"base": {"file": "missing.obj"}}, "base.file: no such file 'missing.obj'"),
     ({"base": {"file": "grid.obj"}, "axes": {"file": ["*.msh"]}}, "axes.file[0]: no file matches"),
     ({"base": {"file": "grid.obj", "steps": "ten"}}, "base.steps: Input should be a valid integer"),
-    ({"base": {"file": "grid.obj"}, "axes": {"E": [2000, -1]}}, "axes.E[1]: Input should be greater than 0"),
+    ({"base": {"file": "grid.obj"}, "axes": {"E": [2000, -1]}}, "axes.E[1]: Input should be greater than 0, got -1"),
     ({"base": {"file": "grid.obj"}, "axes": {"angle_deg": [60, 185]}}, "axes.angle_deg[1]: Input should be less than 180"),
     ({"base": {"file": "grid.obj", "angle_deg": 60, "open_by_deg": 10}}, "give one of angle_deg, angle_rad, open_by_deg"),
     ({"base": {"file": "grid.obj", "material": {"type": "rectangle", "parms": [1, 2]}}}, "base.material.parms: unknown key"),
@@ -515,3 +515,23 @@ def test_one_key_given_twice_through_an_alias_is_refused_naming_both(tmp_path, d
     with pytest.raises(InputError) as exc:
         spec_from_dict(data, str(tmp_path))
     assert str(exc.value).startswith(words) and str(exc.value).endswith("(material.E): give it once")
+
+
+def test_a_file_that_is_not_a_design_is_refused_before_anything_runs(tmp_path):
+    # a glob's stray .txt was accepted and failed when its task ran
+    small_grid(tmp_path / "grid.obj")
+    (tmp_path / "notes.txt").write_text("not a design")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict({"base": {"subdivision": 3}, "axes": {"file": ["*"]}}, str(tmp_path))
+    assert str(exc.value) == ("axes.file[1]: 'notes.txt' is not a design file (unknown type '.txt': expected .obj, "
+                              ".msh or .3dm)")
+
+
+def test_the_errors_shown_in_the_docs_are_the_ones_given(tmp_path):
+    # docs/sweeps.md showed "must be > 0, got -1" where pydantic's words came (as for a case file)
+    from data_paths import REPO
+
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict({"base": {"file": "grid.obj"}, "axes": {"E": [20000, -1]}}, str(tmp_path))
+    assert f"xshells sweep: error: {exc.value}\n" in (REPO / "docs" / "sweeps.md").read_text()

@@ -379,6 +379,13 @@ def _check(key: str, value, where: str, allowed: dict, base_dir: str):
             raise InputError(f"{where}: {exc}") from None
         if not os.path.isfile(path):
             raise InputError(f"{where}: no such file {value!r}")
+        if key == "file":  # a glob's stray .txt was found only when its task ran
+            from ..io.design import DESIGN_SUFFIXES
+
+            suffix = os.path.splitext(path)[1].lower()
+            if suffix not in DESIGN_SUFFIXES:
+                raise InputError(f"{where}: {os.path.relpath(path, base_dir)!r} is not a design file (unknown type "
+                                 f"{suffix!r}: expected {', '.join(DESIGN_SUFFIXES[:-1])} or {DESIGN_SUFFIXES[-1]})")
         value = path
     return value
 
