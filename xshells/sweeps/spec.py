@@ -220,7 +220,7 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
         for combo in itertools.product(*[v for _, v in axis_values]):
             flat = dict(base)
             for key, value in list(case.items()) + [(k, v) for (k, _), v in zip(axis_values, combo)]:
-                if key in ANGLE_KEYS:  # a later angle of another kind replaces the earlier one
+                if key in ANGLE_KEYS:  # replaces the base's angle of any kind (two kinds in a case and the axes are refused above)
                     for other in ANGLE_KEYS:
                         flat.pop(other, None)
                 flat[key] = value
