@@ -216,14 +216,14 @@ def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
     ({"base": {"file": "missing.obj"}}, "base.file: no such file 'missing.obj'"),
     ({"base": {"file": "grid.obj"}, "axes": {"file": ["*.msh"]}}, "axes.file[0]: no file matches"),
     ({"base": {"file": "grid.obj", "steps": "ten"}}, "base.steps: Input should be a valid integer"),
-    ({"base": {"file": "grid.obj"}, "axes": {"E": [2000, -1]}}, "axes.E[1]: Input should be greater than 0"),
+    ({"base": {"file": "grid.obj"}, "axes": {"E": [2000, -1]}}, "axes.E[1]: Input should be greater than 0, got -1"),
     ({"base": {"file": "grid.obj"}, "axes": {"angle_deg": [60, 185]}}, "axes.angle_deg[1]: Input should be less than 180"),
     ({"base": {"file": "grid.obj", "angle_deg": 60, "open_by_deg": 10}}, "give one of angle_deg, angle_rad, open_by_deg"),
     ({"base": {"file": "grid.obj", "material": {"type": "rectangle", "parms": [1, 2]}}}, "base.material.parms: unknown key"),
     ({"base": {"file": "grid.obj"}, "axes": {"eta": [0.1]}}, "axes.eta: unknown key"),
     ({"task": "sparsify", "base": {"file": "grid.obj"}, "axes": {"p": [0.5, 2]}}, "axes.p[1]: Input should be less than or equal to 1, got 2"),
     ({"task": "explode", "base": {"file": "grid.obj"}}, "task: unknown task 'explode'"),
-    ({"base": {"file": "grid.obj"}, "cases": [{"material": {"type": "recangle"}}]}, "material: unknown cross-section type"),
+    ({"base": {"file": "grid.obj"}, "cases": [{"material": {"type": "recangle"}}]}, "'material': unknown cross-section type"),
     ({"base": {"file": "grid.obj"}, "axes": {"params": [[4, 1.5], [4]]}}, "material: rectangle takes 2 parameters"),
     ({"axes": {"angle_deg": [70]}}, "base.file: missing"),
     ({"base": {"file": "grid.obj", "start": "joint"}}, "base.start: Input should be 'auto', 'average' or 'central-joint'"),
@@ -364,3 +364,174 @@ def test_a_sweep_of_more_tasks_than_the_limit_is_refused_before_it_is_expanded(t
     with pytest.raises(InputError, match=r"^axes: 2 cases × sleep_s 2 make 4 tasks, more than the limit of 3: "):
         spec_from_dict(data, str(tmp_path), max_tasks=3)
     assert len(spec_from_dict(data, str(tmp_path), max_tasks=None).tasks) == 4  # what --force passes
+
+
+@pytest.mark.parametrize("task, module, runner", [("sparsify", "xshells.actuation.run", "run_selection"),
+                                                  ("optimize", "xshells.design.run", "run_optimize")])
+def test_sparsify_and_optimize_tasks_get_the_direction_in_their_case(tmp_path, monkeypatch, task, module, runner):
+    # the case file a task wrote left direction out: a sparsify sweep over [up, down] ran "up" twice
+    import importlib
+
+    seen = []
+
+    def fake(case, out_dir, *args, **kwargs):
+        seen.append(json.loads(open(case).read()).get("direction"))
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(importlib.import_module(module), runner, fake)
+    small_grid(tmp_path / "grid.obj")
+    spec = spec_from_dict({"task": task, "base": {"file": "grid.obj", "angle_deg": 60}, "axes": {"direction": ["up", "down"]}},
+                          str(tmp_path))
+    run_sweep(spec, str(tmp_path / "out"), SweepSettings(workers=0))
+    assert seen == ["up", "down"]
+
+
+@pytest.mark.parametrize("task", ["sparsify", "optimize"])
+def test_start_is_refused_for_the_tasks_that_do_not_use_it(tmp_path, task):
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError, match=rf"^axes.start\[0\]: only the deploy task takes start .*the {task} task does not"):
+        spec_from_dict({"task": task, "base": {"file": "grid.obj"}, "axes": {"start": ["average"]}}, str(tmp_path))
+    assert spec_from_dict({"base": {"file": "grid.obj"}, "axes": {"start": ["average"]}}, str(tmp_path)).tasks
+
+
+def curved_quad(path):
+    """A .3dm of four arcs around a 80 × 314 rectangle: read only with --sample."""
+    rhino3dm = pytest.importorskip("rhino3dm")
+    f = rhino3dm.File3dm()
+    f.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Millimeters
+    corners = [(-40, -157), (-40, 157), (40, 157), (40, -157)]
+    for (x0, y0), (x1, y1) in zip(corners, corners[1:] + corners[:1]):
+        mid = rhino3dm.Point3d(0.55 * (x0 + x1), 0.55 * (y0 + y1), 0)
+        f.Objects.AddCurve(rhino3dm.Arc(rhino3dm.Point3d(x0, y0, 0), mid, rhino3dm.Point3d(x1, y1, 0)).ToNurbsCurve())
+    assert f.Write(str(path), 7)
+    return path
+
+
+def test_layer_and_sample_are_task_parameters(tmp_path):
+    # they were set in the client process only: workers refused the curved design ("give --sample N"), and a
+    # re-run with another --sample took the earlier result for its own (the task id did not change)
+    from xshells.io import read_design
+    from xshells.rhino.read import set_defaults
+    from xshells.sweeps.run import execute_task
+
+    curved_quad(tmp_path / "c.3dm")
+    small_grid(tmp_path / "grid.obj")
+    data = {"base": {"file": "c.3dm", "subdivision": 3, "steps": 2}}
+    s4, s8 = (spec_from_dict(data, str(tmp_path), design_options={"layer": None, "sample": n}) for n in (4, 8))
+    assert s4.tasks[0].params["sample"] == 4 and s4.tasks[0].id != s8.tasks[0].id
+    assert "sample" not in spec_from_dict(data, str(tmp_path)).tasks[0].params
+    mixed = spec_from_dict({"base": {"subdivision": 3}, "axes": {"file": ["c.3dm", "grid.obj"]}}, str(tmp_path),
+                           design_options={"sample": 4})
+    assert [t.params.get("sample") for t in mixed.tasks] == [4, None]  # an .obj task's id is the same as without
+    assert mixed.tasks[1].id == spec_from_dict({"base": {"file": "grid.obj", "subdivision": 3}}, str(tmp_path)).tasks[0].id
+    with pytest.raises(InputError, match=r"^--sample reads a .3dm design: no task's file is one$"):
+        spec_from_dict({"base": {"file": "grid.obj"}}, str(tmp_path), design_options={"sample": 4})
+    with pytest.raises(InputError, match=r"^--sample must be from 1 to 1000 segments per curve, got 0$"):
+        spec_from_dict(data, str(tmp_path), design_options={"sample": 0})
+    set_defaults()  # as in a worker process: the command line's options never reached it
+    rec = execute_task("count", lambda p, out: {"segments": read_design(p["file"]).num_segments}, s8.tasks[0].id,
+                       s8.tasks[0].params, str(tmp_path / "t"), None)
+    assert rec["status"] == "ok" and rec["result"]["segments"] == 32
+
+
+def test_a_3dm_sweep_with_sample_runs_on_workers_and_reruns_for_another_sample(tmp_path, capsys, reset_3dm_options):
+    curved_quad(tmp_path / "c.3dm")
+    (tmp_path / "s.yaml").write_text("base: {file: c.3dm, subdivision: 3, steps: 2, material: {params: [4, 2]}}\n")
+    out = str(tmp_path / "out")
+    for workers, n in (("1", 4), ("0", 8)):
+        main(["sweep", str(tmp_path / "s.yaml"), "--out", out, "--workers", workers, "--sample", str(n), "--no-progress"])
+        assert "1 run now" in capsys.readouterr().out
+        rec = [json.loads(p.read_text()) for p in (tmp_path / "out" / "tasks").glob("*/task.json")]
+        assert sorted(r["result"].get("segments") for r in rec) == ([16] if n == 4 else [16, 32]), rec[-1]["error"]
+
+
+@pytest.mark.parametrize("base", [{"E": 2e4}, {"material": {"E": 2e4}}, {"material": {"type": "rectangle"}}, {"nu": 0.3},
+                                  {"material": {"type": "Rect", "params": []}}])
+def test_a_partial_material_gets_the_case_file_default_for_each_missing_key(tmp_path, base):
+    # only a base without any material key got the defaults: E alone was refused ("rectangle takes 2 parameters")
+    small_grid(tmp_path / "grid.obj")
+    spec = spec_from_dict({"base": {"file": "grid.obj", **base}}, str(tmp_path))
+    material = spec.tasks[0].params["material"]
+    assert {**material, "type": material["type"].lower()} in (
+        {"type": t, "E": 20000, "nu": 0.3, "params": [10, 7]} for t in ("rectangle", "rect"))
+
+
+@pytest.mark.parametrize("data, words", [
+    # an ellipse axis ran with the default rectangle's 10 × 7, where a case file refuses it
+    ({"axes": {"material.type": ["rectangle", "ellipse"]}}, "sweep task 1: key 'material': type 'ellipse' needs its "
+                                                            "dimensions in 'params'"),
+    ({"base": {"material": {"type": "contour"}}}, "sweep task 0: key 'material': type 'contour' needs contour_file"),
+])
+def test_a_material_is_refused_as_a_case_file_refuses_it(tmp_path, data, words):
+    small_grid(tmp_path / "grid.obj")
+    data["base"] = {"file": "grid.obj", **data.get("base", {})}
+    with pytest.raises(InputError) as exc:
+        spec_from_dict(data, str(tmp_path))
+    assert str(exc.value).startswith(words)
+
+
+@pytest.mark.parametrize("data, words", [
+    # the later silently replaced the other: 1 rad ran, 60° did not
+    ({"axes": {"angle_deg": [60], "angle_rad": [1]}}, "axes.angle_deg and axes.angle_rad: give one of"),
+    # refused as "tasks 0 and 1 have identical parameters"
+    ({"axes": {"open_by_deg": [30]}, "cases": [{"angle_deg": 60}, {"angle_deg": 70}]},
+     "cases[0].angle_deg and axes.open_by_deg: give one of"),
+    ({"cases": [{}, {"angle_deg": 60, "open_by_deg": 5}]}, "cases[1].angle_deg and cases[1].open_by_deg: give one of"),
+])
+def test_two_kinds_of_angle_together_are_refused_naming_both(tmp_path, data, words):
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict({"base": {"file": "grid.obj"}, **data}, str(tmp_path))
+    assert str(exc.value).startswith(words) and str(exc.value).endswith("(they set the same angle)")
+    # an axis of another kind replaces the base's angle
+    spec = spec_from_dict({"base": {"file": "grid.obj", "angle_deg": 70}, "axes": {"open_by_deg": [20, 30]}}, str(tmp_path))
+    assert [t.params.get("angle_deg") for t in spec.tasks] == [None, None]
+
+
+def test_local_workers_are_at_most_one_per_task_and_core(tmp_path, capsys):
+    # --workers 1000 for one task started 1000 worker processes on 2 cores and hung
+    from xshells.sweeps.run import _cores, local_workers
+
+    cores = _cores()
+    assert local_workers(None, 100) == (cores, "") and local_workers(1, 100) == (1, "")
+    assert local_workers(1000, 1) == (1, "--workers 1000: 1 local worker (1 task to run)" if cores > 1 else
+                                      "--workers 1000: 1 local worker (1 core here)")
+    assert local_workers(1000, 10**6)[0] == cores
+    (tmp_path / "s.yaml").write_text("task: noop\nbase: {sleep_s: 0}\n")
+    assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--workers", "1000", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("note: --workers 1000: 1 local worker (") and "1 tasks, 1 run now" in out
+
+
+@pytest.mark.parametrize("data, words", [
+    ({"base": {"file": "grid.obj", "E": 1e4, "material": {"E": 3e4}}}, "base: E and material.E name the same key"),
+    ({"base": {"file": "grid.obj"}, "cases": [{"E": 1e4, "young": 2e4}]}, "cases[0]: E and young name the same key"),
+    ({"base": {"file": "grid.obj", "material": {"E": 1e4, "young": 2e4}}}, "base: material.E and material.young name"),
+    ({"base": {"file": "grid.obj"}, "axes": {"E": [1e4], "material.E": [2e4]}}, "axes: E and material.E name the same key"),
+])
+def test_one_key_given_twice_through_an_alias_is_refused_naming_both(tmp_path, data, words):
+    # the later was kept without a word
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict(data, str(tmp_path))
+    assert str(exc.value).startswith(words) and str(exc.value).endswith("(material.E): give it once")
+
+
+def test_a_file_that_is_not_a_design_is_refused_before_anything_runs(tmp_path):
+    # a glob's stray .txt was accepted and failed when its task ran
+    small_grid(tmp_path / "grid.obj")
+    (tmp_path / "notes.txt").write_text("not a design")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict({"base": {"subdivision": 3}, "axes": {"file": ["*"]}}, str(tmp_path))
+    assert str(exc.value) == ("axes.file[1]: 'notes.txt' is not a design file (unknown type '.txt': expected .obj, "
+                              ".msh or .3dm)")
+
+
+def test_the_errors_shown_in_the_docs_are_the_ones_given(tmp_path):
+    # docs/sweeps.md showed "must be > 0, got -1" where pydantic's words came (as for a case file)
+    from data_paths import REPO
+
+    small_grid(tmp_path / "grid.obj")
+    with pytest.raises(InputError) as exc:
+        spec_from_dict({"base": {"file": "grid.obj"}, "axes": {"E": [20000, -1]}}, str(tmp_path))
+    assert f"xshells sweep: error: {exc.value}\n" in (REPO / "docs" / "sweeps.md").read_text()

@@ -177,8 +177,8 @@ def field_check(name: str):
     def check(value):
         try:
             return adapter.validate_python(value, strict=True)
-        except ValidationError as exc:
-            raise ValueError(exc.errors()[0]["msg"].removeprefix("Value error, ")) from None
+        except ValidationError as exc:  # with the value, as a case file's error and a sweep task parameter's give it
+            raise ValueError(f"{exc.errors()[0]['msg'].removeprefix('Value error, ')}, got {value!r}") from None
 
     return check
 

@@ -248,6 +248,10 @@ def _check_duplicates(d: Design) -> None:
         seen[(a, b)] = s
 
 
+#: the design files :func:`read_design` reads, by extension (lower case)
+DESIGN_SUFFIXES = (".obj", ".msh", ".3dm")
+
+
 def read_design(path: str | os.PathLike) -> Design:
     """Read a design, choosing the reader from the file extension.
 
@@ -271,7 +275,8 @@ def read_design(path: str | os.PathLike) -> Design:
         from ..rhino.read import read_3dm_design
 
         return read_3dm_design(path)
-    raise InputError(f"{path}: unknown design file type {suffix!r} (expected .obj, .msh or .3dm)")
+    raise InputError(f"{path}: unknown design file type {suffix!r} (expected {', '.join(DESIGN_SUFFIXES[:-1])} "
+                     f"or {DESIGN_SUFFIXES[-1]})")
 
 
 def _read_text(path: str | os.PathLike) -> str:

@@ -13,7 +13,7 @@ def register(subparsers) -> None:
     p.add_argument("spec", help="sweep file (.yaml, .yml or .json); see docs/sweeps.md")
     p.add_argument("--out", required=True, help="output folder (results.csv, tasks/<id>/, plots)")
     p.add_argument("--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786")
-    p.add_argument("--workers", type=int, help="local worker processes (default: one per core; 0: run serially in this process)")
+    p.add_argument("--workers", type=int, help="local worker processes (default: one per core; at most one per task and core; 0: run serially in this process)")
     p.add_argument("--ship-files", action="store_true", help="send input files to the workers and outputs back (no shared file system)")
     p.add_argument("--retry-failed", action="store_true", help="re-run tasks recorded as failed or diverged")
     p.add_argument("--max-tasks", type=int, help="run at most this many unfinished tasks now")
@@ -34,16 +34,22 @@ def _sweep(args) -> int:
         raise InputError(f"--max-tasks must be at least 1, got {args.max_tasks} (leave it out to run every task)")
     if args.workers is not None and args.scheduler:
         raise InputError("--workers sizes a local cluster; it contradicts --scheduler")
-    spec = load_spec(args.spec, max_tasks=None if args.force else MAX_TASKS)
+    # --layer and --sample (xshells.cli) become task parameters: set only here, the workers would not see them
+    options = {k: getattr(args, k, None) for k in ("layer", "sample")}
+    spec = load_spec(args.spec, max_tasks=None if args.force else MAX_TASKS, design_options=options)
     settings = SweepSettings(workers=args.workers, scheduler=args.scheduler, ship_files=args.ship_files,
                              retry_failed=args.retry_failed, max_tasks=args.max_tasks)
+    from .run import local_workers, pending, read_record
+
+    todo = pending(spec, {t.id: read_record(args.out, t) for t in spec.tasks}, settings)
+    if todo and not settings.serial and not settings.scheduler:
+        note = local_workers(settings.workers, len(todo))[1]
+        if note:
+            print(f"note: {note}")
     bar = None
     if not args.no_progress:
         from tqdm import tqdm
 
-        from .run import pending, read_record
-
-        todo = pending(spec, {t.id: read_record(args.out, t) for t in spec.tasks}, settings)
         bar = tqdm(total=len(todo), desc=f"sweep {spec.name}", unit="task")  # tqdm's rate gives the ETA
 
     def on_progress(info) -> bool:

@@ -202,7 +202,7 @@ def _run_dask(spec, out_dir, settings, fn, todo, finish, preload=()) -> bool:
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(f"--scheduler {settings.scheduler}: cannot connect ({_one_line(exc)})") from None
     else:
-        n = settings.workers or _cores()
+        n = local_workers(settings.workers, len(todo))[0]
         # no statistical profiler (it samples the task thread's stack every 10 ms, taking the GIL from the
         # solver: it doubled the worker's own CPU time, to about 4% of a core beside the task); glibc's
         # malloc as in a serial run (WORKER_CONFIG)
@@ -293,7 +293,8 @@ def estimated_size(params: dict, cache: dict | None = None) -> float:
         try:
             from ..io import read_design
 
-            cache[path] = read_design(path).num_segments
+            with design_reading(params):
+                cache[path] = read_design(path).num_segments
         except Exception:  # a task's own checks report a bad file; the order does not matter then
             cache[path] = 0
     angle = 1.0
@@ -303,6 +304,20 @@ def estimated_size(params: dict, cache: dict | None = None) -> float:
             angle = float(value) * scale
             break
     return cache[path] * int(params.get("subdivision", 10)) * int(params.get("steps", 40)) * angle
+
+
+def local_workers(requested: int | None, tasks: int) -> tuple[int, str]:
+    """The worker processes of a local cluster for ``tasks`` tasks, and a line saying why when fewer than asked.
+
+    ``requested`` (None: one per core), but at most one per task and one per core: more would only wait
+    (``--workers 1000`` for one task started 1000 processes on 2 cores and hung).
+    """
+    cores = _cores()
+    n = max(1, min(cores if requested is None else requested, tasks, cores))
+    if requested is None or n >= requested:
+        return n, ""
+    why = f"{tasks} task{'s' * (tasks != 1)} to run" if tasks < cores else f"{cores} core{'s' * (cores != 1)} here"
+    return n, f"--workers {requested}: {n} local worker{'s' * (n != 1)} ({why})"
 
 
 def _cores() -> int:
@@ -435,7 +450,8 @@ def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, f
             out_dir = os.path.join(scratch, "out")
         os.makedirs(out_dir, exist_ok=True)
         try:
-            result = TaskDef(task_name, fn)(params, out_dir)
+            with design_reading(params):
+                result = TaskDef(task_name, fn)(params, out_dir)
             status = "ok" if result.get("converged", True) else "diverged"
             error = "" if status == "ok" else str(result.get("message", "did not converge"))
         except Exception as exc:  # a task's failure is data, the sweep goes on
@@ -448,6 +464,20 @@ def execute_task(task_name: str, fn, task_id: str, params: dict, out_dir: str, f
     finally:
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def design_reading(params: dict):
+    """Read ``.3dm`` designs with the task's ``layer`` and ``sample`` (:data:`xshells.sweeps.spec.DESIGN_OPTIONS`)
+    meanwhile: the reader's options are process-wide, and a worker process never saw the command line's."""
+    from ..rhino.read import get_defaults, set_defaults
+
+    saved = get_defaults()
+    set_defaults(layer=params.get("layer"), sample=params.get("sample"), target_layer=saved["target_layer"])
+    try:
+        yield
+    finally:
+        set_defaults(**saved)
 
 
 def _record(task_name, task_id, params, status, error, result, elapsed, started, cpu=None) -> dict:

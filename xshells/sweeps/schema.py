@@ -2,7 +2,7 @@
 
 A spec's ``base`` and ``cases`` entries take the case files' keys (their
 schema: :mod:`xshells.io.case_schema`), the material's keys as dotted paths
-or short aliases, the deploy task's ``direction`` and ``start``, and the
+or short aliases, ``direction`` (every task) and ``start`` (the deploy task only), and the
 chosen task's own parameters (each registered with a pydantic-backed check
 that carries its JSON Schema); ``axes`` maps the same keys to lists of
 values. Regenerate with::
@@ -16,7 +16,7 @@ import sys
 
 from ..io.case_schema import json_schema as case_json_schema
 from . import tasks as T
-from .spec import ALIASES, CASE_CHECKS, CASE_KEYS
+from .spec import ALIASES, CASE_CHECKS, CASE_KEYS, DEPLOY_ONLY
 
 def _case_key_schemas() -> dict:
     case = case_json_schema()
@@ -26,7 +26,8 @@ def _case_key_schemas() -> dict:
         prop = material[key.split(".", 1)[1]] if key.startswith("material.") else case["properties"][key]
         out[key] = {k: v for k, v in prop.items() if k not in ("title", "default")}
     for key in ("direction", "start"):
-        out[key] = dict(CASE_CHECKS[key].json_schema, description=f"deploy task: xshells deploy --{key}")
+        only = " (deploy task only)" if key in DEPLOY_ONLY else ""
+        out[key] = dict(CASE_CHECKS[key].json_schema, description=f"xshells deploy --{key}{only}")
     out["material"] = {"$ref": "#/$defs/MaterialSpec", "description": "the material as an object, as in a case file"}
     for alias, target in ALIASES.items():
         if target in out:
@@ -41,7 +42,7 @@ def json_schema() -> dict:
     variants = []
     for name in sorted(T.BUILTIN_TASKS):
         task = T.REGISTRY[name]
-        props = dict(keys) if task.case else {}
+        props = {k: v for k, v in keys.items() if name == "deploy" or k not in DEPLOY_ONLY} if task.case else {}
         props.update({k: dict(getattr(check, "json_schema", {}), description=f"{name} task parameter")
                       for k, check in task.params.items()})
         entry = {"type": "object", "properties": props, "additionalProperties": False}

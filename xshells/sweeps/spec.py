@@ -50,12 +50,16 @@ ANGLE_KEYS = ("angle_deg", "angle_rad", "open_by_deg")
 MAX_TASKS = 100_000
 
 # The case keys are checked by the case files' own schema (xshells.io.case_schema), one field at a
-# time here and as a whole case once expanded; direction and start are the deploy task's options.
+# time here and as a whole case once expanded; direction is a case key too (every task reads it from
+# the case), start only the deploy task's option.
 CASE_KEYS = ("name", "file", "rest_lengths", "subdivision", "steps", "angle_deg", "angle_rad", "open_by_deg",
              "material.type", "material.E", "material.nu", "material.params", "material.stiff_axis",
              "material.contour_file")
 CASE_CHECKS = {k: field_check(k) for k in CASE_KEYS}
 CASE_CHECKS.update({"direction": T.choice("up", "down"), "start": T.choice("auto", "average", "central-joint")})
+#: case keys that only the deploy task honours (key -> where it comes from): refused for the other tasks, whose
+#: dense deployment always starts "auto" (the key was accepted and silently not used)
+DEPLOY_ONLY = {"start": "xshells deploy --start"}
 
 
 @dataclass(frozen=True)
@@ -91,10 +95,12 @@ class SweepSpec:
     varying_keys: tuple
 
 
-def load_spec(path, *, max_tasks: int | None = MAX_TASKS) -> SweepSpec:
+def load_spec(path, *, max_tasks: int | None = MAX_TASKS, design_options: dict | None = None) -> SweepSpec:
     """Read and check a sweep file (``.yaml``, ``.yml`` or ``.json``); one-line InputError on any problem.
 
     A sweep of more than ``max_tasks`` tasks is refused before it is expanded (None: no limit).
+    ``design_options``: how to read its ``.3dm`` designs (the command line's ``--layer`` and ``--sample``),
+    see :func:`spec_from_dict`.
     """
     path = os.fspath(path)
     check_input_file(path, "sweep file")
@@ -121,7 +127,8 @@ def load_spec(path, *, max_tasks: int | None = MAX_TASKS) -> SweepSpec:
 
         data = loads(raw, path)
     name = os.path.splitext(os.path.basename(path))[0]
-    return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name, max_tasks=max_tasks)
+    return spec_from_dict(data, os.path.dirname(os.path.abspath(path)), default_name=name, max_tasks=max_tasks,
+                          design_options=design_options)
 
 
 def _yaml_loader():
@@ -158,20 +165,24 @@ def _yaml_loader():
     return Loader
 
 
-def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_tasks: int | None = MAX_TASKS) -> SweepSpec:
+def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_tasks: int | None = MAX_TASKS,
+                   design_options: dict | None = None) -> SweepSpec:
     """Check a parsed sweep and expand it into tasks (paths relative to ``base_dir``); more than ``max_tasks``
-    tasks (None: no limit) are refused before they are expanded."""
+    tasks (None: no limit) are refused before they are expanded.
+
+    ``design_options`` (``{"layer": ..., "sample": ...}``, None values ignored) become parameters of each task
+    whose design is a ``.3dm``: so they reach the workers (other processes, other machines) and enter the
+    task's id, and a re-run with another ``--sample`` does not take the earlier result for its own.
+    """
     if not isinstance(data, dict):
         raise InputError("sweep: must be a mapping with keys task, base, axes (and optionally name, cases)")
     _unknown(data, TOP_KEYS, "")
     task = T.get_task(data.get("task", "deploy"))
     allowed = dict(CASE_CHECKS) if task.case else {}
+    if task.case and task.name != "deploy":
+        allowed.update({k: _deploy_only(k, task.name) for k in DEPLOY_ONLY})
     allowed.update(task.params)
     base = _overrides(data.get("base") or {}, "base", allowed, base_dir)
-    if task.case and not any(k.startswith("material.") for k in base):
-        from ..deploy.case import DEFAULT_MATERIAL  # as a case file without a material
-
-        base.update({f"material.{k}": v for k, v in DEFAULT_MATERIAL.items()})
     axes = data.get("axes") or {}
     if not isinstance(axes, dict):
         raise InputError("axes: must be a mapping key -> list of values")
@@ -196,8 +207,12 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
     if not isinstance(cases, list) or not cases:
         raise InputError("cases: must be a non-empty list of mappings")
     cases = [_overrides(c, f"cases[{i}]", allowed, base_dir) for i, c in enumerate(cases)]
-    if len({k for k, _ in axis_values}) != len(axis_values):
-        raise InputError("axes: a key appears twice (aliases such as E and material.E name the same key)")
+    spelled = {}
+    for raw, (key, _) in zip(axes, axis_values):
+        if key in spelled:
+            raise InputError(f"axes: {spelled[key]} and {raw} name the same key ({key}): give it once")
+        spelled[key] = raw
+    _check_angle_keys(base, cases, [k for k, _ in axis_values])
     _check_size(cases, axes, axis_values, max_tasks)
 
     points = []
@@ -205,7 +220,7 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
         for combo in itertools.product(*[v for _, v in axis_values]):
             flat = dict(base)
             for key, value in list(case.items()) + [(k, v) for (k, _), v in zip(axis_values, combo)]:
-                if key in ANGLE_KEYS:  # a later angle of another kind replaces the earlier one
+                if key in ANGLE_KEYS:  # replaces the base's angle of any kind (two kinds in a case and the axes are refused above)
                     for other in ANGLE_KEYS:
                         flat.pop(other, None)
                 flat[key] = value
@@ -214,9 +229,12 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
         for p in points:
             if "file" not in p:
                 raise InputError("base.file: missing (give a design file in base, an axis or every case)")
-        _check_profiles(points)
+    _add_design_options(points, design_options)
+    if task.case:
         for i, p in enumerate(points):  # the whole case, as a case file: the rules across keys too
             validate_case(_nest({k: v for k, v in p.items() if k in CASE_KEYS}), f"sweep task {i}")
+            _default_material(p)
+        _check_profiles(points)
     if task.check is not None:  # the task's own rules across its keys, before anything runs
         for i, p in enumerate(points):
             task.check(p, f"sweep task {i}")
@@ -241,6 +259,47 @@ def spec_from_dict(data, base_dir: str, *, default_name: str = "sweep", max_task
 # ---------------------------------------------------------------- helpers
 
 
+#: the command line's options of a .3dm design, which become task parameters (xshells.cli: --layer, --sample)
+DESIGN_OPTIONS = ("layer", "sample")
+
+
+def _add_design_options(points: list, options: dict | None) -> None:
+    """Give each task whose design is a ``.3dm`` the ``options`` given; refuse them where no design is one."""
+    given = {k: v for k, v in (options or {}).items() if v is not None}
+    if not given:
+        return
+    unknown = set(given) - set(DESIGN_OPTIONS)
+    if unknown:
+        raise ValueError(f"design options are {', '.join(DESIGN_OPTIONS)}, got {', '.join(sorted(unknown))}")
+    sample = given.get("sample")
+    if sample is not None:
+        from ..rhino.read import MAX_SAMPLE
+
+        if isinstance(sample, bool) or not isinstance(sample, int) or not 1 <= sample <= MAX_SAMPLE:
+            raise InputError(f"--sample must be from 1 to {MAX_SAMPLE} segments per curve, got {sample}")
+    hits = [p for p in points if str(p.get("file") or "").lower().endswith(".3dm")]
+    if not hits:  # they would be ignored, as xshells deploy refuses them with an .obj
+        names = [f"--{k}" for k in DESIGN_OPTIONS if k in given]
+        raise InputError(f"{' and '.join(names)} read{'s' * (len(names) == 1)} a .3dm design: no task's file is one")
+    for p in hits:
+        p.update(given)
+
+
+def _check_angle_keys(base: dict, cases: list, axis_keys: list) -> None:
+    """One kind of angle (angle_deg, angle_rad or open_by_deg) in the base, and in each case with the axes.
+
+    A case's or an axis's angle replaces the base's, whatever its kind; but of two kinds given together the
+    later silently replaced the other (``axes: {angle_deg: [60], angle_rad: [1]}`` ran 1 rad only), or made
+    the cases' tasks identical (a cases angle under an ``open_by_deg`` axis).
+    """
+    axes = [f"axes.{k}" for k in axis_keys if k in ANGLE_KEYS]
+    groups = [[f"base.{k}" for k in base if k in ANGLE_KEYS]]
+    groups += [[f"cases[{i}].{k}" for k in case if k in ANGLE_KEYS] + axes for i, case in enumerate(cases)]
+    for names in groups:
+        if len({n.rsplit(".", 1)[1] for n in names}) > 1:
+            raise InputError(f"{' and '.join(names)}: give one of {', '.join(ANGLE_KEYS)} (they set the same angle)")
+
+
 def _check_size(cases: list, axes: dict, axis_values: list, max_tasks: int | None) -> None:
     """Refuse a sweep of more than ``max_tasks`` tasks, naming the factors of the product."""
     count = len(cases) * math.prod(len(values) for _, values in axis_values)
@@ -250,6 +309,14 @@ def _check_size(cases: list, axes: dict, axis_values: list, max_tasks: int | Non
         f"{raw} {len(values)}" for raw, (_, values) in zip(axes, axis_values)]
     raise InputError(f"axes: {' × '.join(factors)} make {count:,} tasks, more than the limit of {max_tasks:,}: "
                      "give fewer values, or --force to run them all")
+
+
+def _deploy_only(key: str, task: str):
+    """The check of a deploy-only key for another task: refuses any value, saying why."""
+    def refuse(value):
+        raise ValueError(f"only the deploy task takes {key} ({DEPLOY_ONLY[key]}); the {task} task does not use it")
+
+    return refuse
 
 
 def _unknown_key(where: str, raw, known) -> InputError:
@@ -279,17 +346,23 @@ def _overrides(d, where: str, allowed: dict, base_dir: str) -> dict:
     """A mapping of case keys -> checked values, ``material: {...}`` flattened into ``material.*``."""
     if not isinstance(d, dict):
         raise InputError(f"{where}: must be a mapping, got {d!r}")
-    out = {}
+    out, spelled = {}, {}
+
+    def put(key, name, value):
+        # two spellings of one key (E and material.E, E and young) kept the later without a word
+        if key in out:
+            raise InputError(f"{where}: {spelled[key]} and {name} name the same key ({key}): give it once")
+        out[key], spelled[key] = _check(key, value, f"{where}.{name}", allowed, base_dir), name
+
     for raw, value in d.items():
         if raw == "material" and "material.type" in allowed:
             if not isinstance(value, dict):
                 raise InputError(f"{where}.material: must be a mapping {{type, E, nu, params, stiff_axis}}")
             for sub, v in value.items():
                 key = _key("material." + str(sub) if sub != "young" else "material.E", allowed, f"{where}.material.{sub}")
-                out[key] = _check(key, v, f"{where}.material.{sub}", allowed, base_dir)
+                put(key, f"material.{sub}", v)
             continue
-        key = _key(raw, allowed, f"{where}.{raw}")
-        out[key] = _check(key, value, f"{where}.{raw}", allowed, base_dir)
+        put(_key(raw, allowed, f"{where}.{raw}"), raw, value)
     return out
 
 
@@ -306,8 +379,35 @@ def _check(key: str, value, where: str, allowed: dict, base_dir: str):
             raise InputError(f"{where}: {exc}") from None
         if not os.path.isfile(path):
             raise InputError(f"{where}: no such file {value!r}")
+        if key == "file":  # a glob's stray .txt was found only when its task ran
+            from ..io.design import DESIGN_SUFFIXES
+
+            suffix = os.path.splitext(path)[1].lower()
+            if suffix not in DESIGN_SUFFIXES:
+                raise InputError(f"{where}: {os.path.relpath(path, base_dir)!r} is not a design file (unknown type "
+                                 f"{suffix!r}: expected {', '.join(DESIGN_SUFFIXES[:-1])} or {DESIGN_SUFFIXES[-1]})")
         value = path
     return value
+
+
+def _default_material(p: dict) -> None:
+    """The case file's default for each material key a task leaves out (``xshells.deploy.case``), in place.
+
+    Key by key, as a case file's ``{"material": {"E": 20000}}`` is a 10 × 7 rectangle of ν 0.3: filling
+    only a base without any material key refused ``E: 2e4`` alone ("rectangle takes 2 parameters, got 0")
+    and gave an ``ellipse`` axis the rectangle's 10 × 7. Called after the case check, which refuses a
+    type other than the rectangle without its params; a contour keeps its section file's E and ν.
+    """
+    from ..deploy.case import DEFAULT_MATERIAL
+    from ..section.profiles import canonical_type
+
+    kind = p.setdefault("material.type", DEFAULT_MATERIAL["type"])
+    if str(kind).strip().lower() == "contour":
+        return
+    for key in ("E", "nu"):
+        p.setdefault(f"material.{key}", DEFAULT_MATERIAL[key])
+    if not p.get("material.params") and canonical_type(kind) == "rectangle":
+        p["material.params"] = list(DEFAULT_MATERIAL["params"])
 
 
 def _check_profiles(points) -> None:

@@ -243,14 +243,19 @@ def deploy_task(params: dict, out_dir: str) -> dict:
     }
 
 
+#: the sweep's case keys that a case file carries to ``xshells sparsify`` and ``optimize`` (a key left out here
+#: was accepted by the spec and silently not used: a sparsify sweep over ``direction`` ran every task "up")
+CASE_FILE_KEYS = ("name", "file", "subdivision", "material", "angle_deg", "angle_rad", "open_by_deg", "steps",
+                  "rest_lengths", "direction")
+
+
 def _write_case(params: dict, path: str) -> str:
     """A case JSON for the jobs that take one (paths are absolute, so it can live anywhere)."""
     import json
 
     from ..io.export import atomic_write_text
 
-    keys = ("name", "file", "subdivision", "material", "angle_deg", "angle_rad", "open_by_deg", "steps", "rest_lengths")
-    atomic_write_text(path, json.dumps({k: params[k] for k in keys if params.get(k) is not None}, indent=1))
+    atomic_write_text(path, json.dumps({k: params[k] for k in CASE_FILE_KEYS if params.get(k) is not None}, indent=1))
     return path
 
 
