@@ -69,3 +69,25 @@ def test_case_files_check_strength_density_and_grade(tmp_path, capsys):
         assert main(["deploy", str(case), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
         err = capsys.readouterr().err.strip()
         assert words in err and "\n" not in err
+
+
+def test_an_interrupt_inside_a_steps_stresses_keeps_the_steps_before(tmp_path, monkeypatch):
+    # Ctrl-C while a step's stresses are computed: that step is dropped whole, the ones before keep their
+    # utilization (the step was recorded before its stresses: KeyError 'utilization_max', rc 3, no result.json)
+    import xshells.deploy.run as R
+
+    real, calls = R._stress_row, []
+
+    def interrupted(*a, **k):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(R, "_stress_row", interrupted)
+    code = main(["deploy", str(EXAMPLES / "nonuniform_linkage.obj"), "--material", "rectangle:0.05,0.035", "--angle", "60",
+                 "--steps", "6", "--subdivision", "5", "--strength", "200", "--out", str(tmp_path), "--no-progress"])
+    assert code == 130
+    r = json.loads((tmp_path / "result.json").read_text())
+    assert r["status"] == "interrupted" and len(r["steps"]) == 2
+    assert all(s["utilization_max"] > 0 for s in r["steps"])
