@@ -128,3 +128,60 @@ def test_an_analysis_that_stops_says_so_and_why(quad_case, tmp_path, capsys):
     assert code == 1 and r["status"] == "stopped"
     line = f"  stopped at load factor {r['load_factor_reached']:.4g} of 1: {r['message']}"
     assert line in capsys.readouterr().out.splitlines()
+
+
+@pytest.fixture(scope="module")
+def snapping(tmp_path_factory):
+    """The shell of ``run`` on its supports, with its load: (deployed linkage, held variables, load vector)."""
+    import numpy as np
+
+    from xshells.analysis.run import parse_load
+    from xshells.analysis.static import Load, Support, held_variables, load_vector, lowest_supports, translate
+    from xshells.deploy.case import material_from_spec
+    from xshells.deploy.run import run_deployment
+
+    states = {}
+    spec = {"type": "rectangle", "E": 20000, "nu": 0.3, "params": [0.05, 0.035], "density": 1.9e-9}
+    run_deployment(DESIGN, material_from_spec(spec), out_dir=str(tmp_path_factory.mktemp("dep")), subdivision=5,
+                   target_angle=np.radians(60), steps=6, progress=False, states=states)
+    L = states["deployed"]
+    translate(L, -L.vertex_positions().mean(axis=0))
+    held = held_variables(L, [Support(v) for v in lowest_supports(L, 4)], "locked")
+    f, _ = load_vector(L, [Load("self-weight"), parse_load("point:3:0,0,-1e-3")])
+    return L, held, f
+
+
+def test_the_critical_load_does_not_depend_on_how_the_load_is_split(snapping):
+    # The same total load at the snap, whatever the reference load (1x, 1.5x, 3x) and the factor applied (1, or
+    # past the snap): the search once started from the requested factor and let the snap through a long step
+    # (the boat: 40.2 N found from 30 N, 2.83x30 N from 1.47x30 N, 0.5x100 N at its first sample)
+    from xshells.analysis.static import critical_load_factor
+
+    L, held, f = snapping
+    ref = critical_load_factor(L, f, held)
+    assert ref.kind == "limit point" and 1.8 < ref.factor < 1.95
+    splits = ((1.5, 1.0), (3.0, 1.0), (1.0, 1.1 * ref.factor), (1.0, 0.5))
+    found = {split: critical_load_factor(L, split[0] * f, held, start=split[1]) for split in splits}
+    assert [cr.factor * scale for (scale, _), cr in found.items()] == pytest.approx([ref.factor] * 4, rel=2e-3)
+    for (scale, start), cr in found.items():
+        assert cr.bracket[1] - cr.bracket[0] <= 1e-3 * cr.bracket[1]
+        assert (cr.target_state is None) == (start * scale > ref.factor)  # past the snap: no state on the path there
+
+
+@pytest.mark.parametrize("fraction", [0.9, 1.1])
+def test_past_the_snap_the_shell_is_reported_buckled(run, tmp_path, capsys, fraction):
+    # At 1.1x the critical factor the shell has snapped through: buckled, and not "stable" (it said "stable,
+    # critical load factor 2.83" for the boat at 1.1x its snap load); at 0.9x it stands
+    _, _, r0 = run
+    crit = r0["critical_load_factor"]
+    out = tmp_path / "o"
+    code = main(["analyze", *BASE, "--density", "1.9e-9", "--supports", "lowest:4", "--load", "self-weight",
+                 "--load", "point:3:0,0,-1e-3", "--load-factor", str(fraction * crit), "--out", str(out)])
+    r = json.loads((out / "result.json").read_text())
+    line = capsys.readouterr().out.splitlines()[1]
+    assert code == 0 and r["critical_load_factor"] == pytest.approx(crit, rel=2e-3)
+    if fraction > 1:
+        assert r["buckled"] and "BUCKLED" in line and "snaps through" in line and "stable," not in line
+    else:
+        assert not r["buckled"] and "stable, critical load factor" in line and "BUCKLED" not in line
+    assert r["critical_load_ratio"] == pytest.approx(1 / fraction, rel=2e-3)

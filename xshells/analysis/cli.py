@@ -69,15 +69,28 @@ def _analyze(args) -> int:
           f"largest von Mises {r['max_von_mises']:.4g}" +
           (f", utilization {r['max_utilization']:.3g}" if r["max_utilization"] is not None else ""))
     print(f"  total load {np.round(r['total_load'], 6).tolist()}, reactions {np.round(r['reactions_total'], 6).tolist()}; "
-          f"{'stability unknown' if r['stable'] is None else 'stable' if r['stable'] else 'UNSTABLE'}" +
-          (f", critical load factor {r['critical_load_factor']:.4g}" +
-           (" (a limit point: it snaps through)" if r.get("critical_kind") == "limit point" else "")
-           if r["critical_load_factor"] is not None else
-           (f", no instability up to {r['critical_searched_to']:.3g}× the load" if r["critical_searched_to"] else "")) +
-          ("; BUCKLED" if r["buckled"] else ""))
+          + _stability_line(r))
     if r["status"] != "complete":  # as xshells deploy's "stopped at …° of …°: why"
         print(f"  {r['status']} at load factor {r['load_factor_reached']:.4g} of {r['load_factor']:.4g}: {r['message']}")
     if r.get("input"):  # how a .3dm was read (its units converted to mm): a note, with or without progress
         print(f"  note: {r['input']}")
     print(f"  outputs in {args.out}/")
     return 0 if r["status"] == "complete" else 1
+
+
+def _stability_line(r) -> str:
+    """How the shell stands: stable or not, the critical load factor and what happens there, buckled or not."""
+    crit, kind = r["critical_load_factor"], r.get("critical_kind")
+    what = {"limit point": "a limit point: it snaps through", "bifurcation": "a bifurcation: it buckles"}.get(kind, kind)
+    state = "stability unknown" if r["stable"] is None else "stable" if r["stable"] else "unstable"
+    if crit is not None:
+        ratio = f" = {r['critical_load_ratio']:.4g}x the load applied" if r["load_factor"] != 1 else ""
+        if r["buckled"]:
+            return (f"BUCKLED: the load passes the critical load factor {crit:.4g}{ratio} ({what}); the state it goes to "
+                    f"is {state}")
+        return f"{state}, critical load factor {crit:.4g}{ratio} ({what})"
+    if r["buckled"]:
+        return f"BUCKLED ({state})"
+    if r["critical_searched_to"] and r["status"] != "interrupted":
+        return f"{state}, no instability up to {r['critical_searched_to']:.3g}x the load"
+    return state

@@ -7,10 +7,11 @@ import io
 import json
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import STOP, InputError
 from ..io.export import atomic_write_text
 from .static import Load, StaticOptions, Support
 
@@ -69,7 +70,7 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     """Deploy (as ``xshells deploy``, outputs in ``out_dir/deploy``), then analyse under the loads."""
     from ..deploy.run import run_deployment
     from .static import (critical_load_factor, free_rigid_modes, held_variables, load_vector, lowest_supports,
-                         reactions, smallest_eigenvalue, solve_loaded)
+                         reactions, smallest_eigenvalue)
     from .stress import beam_report, check_strength, rod_stresses
 
     t0 = time.perf_counter()
@@ -131,34 +132,48 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=opts.load_steps, desc="loading", unit="step")
-    t1 = time.perf_counter()
-    try:
-        st = solve_loaded(L, f, held, load_factor, opts, base_force=base,
-                          callback=(lambda k, lam: bar.update(1) and False) if bar else None)
+        bar = tqdm(desc="loading" + (", then the critical load search" if critical else ""), unit="step")
+
+    def on_path(lam):
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(load_factor=f"{lam:.4g}")
+        return STOP.requested  # a SIGTERM's stop that a finalizer swallowed: the search ends as for Ctrl-C
+
+    t2 = time.perf_counter()
+    try:  # the path from zero load, through the requested load and (with critical) on until stability ends
+        crit = critical_load_factor(unloaded, f, held, opts, base_force=base, start=load_factor, search=critical,
+                                    callback=on_path)
     finally:
         if bar is not None:
             bar.close()
-    reached = st.load_factor  # short of load_factor where a step did not converge: the last equilibrium's
-    total_force = (base if base is not None else 0.0) + reached * f
-    reac, reac_total = reactions(L, supports, total_force, held)
-    try:
-        mu = smallest_eigenvalue(L, held)
-    except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as exc:  # ARPACK on a bad state
-        mu = float("nan")
-        st.message += f"; its stability could not be computed ({type(exc).__name__})"
-    stresses = rod_stresses(L, strength)
-    t_load = time.perf_counter() - t1
-    crit = None
-    t2 = time.perf_counter()
-    if critical:
-        crit = critical_load_factor(unloaded, f, held, opts, base_force=base, start=load_factor)
     t_crit = time.perf_counter() - t2
+    interrupted = crit.interrupted
+    shown = crit if critical or crit.factor is not None else None  # without --no-critical, the path's end is reported
+    t1 = time.perf_counter()
+    with STOP.deferred():  # what was finished is kept: the loaded state and its files (seconds)
+        st, buckled = _loaded_state(L, unloaded, f, held, base, opts, load_factor, crit)
+        if interrupted:
+            st.converged = False
+            st.message = ("interrupted during the critical load search (the loaded state was solved)"
+                          if crit.target_state is not None else
+                          f"interrupted before the requested load, at load factor {st.load_factor:.4g}")
+        reached = st.load_factor
+        total_force = (base if base is not None else 0.0) + reached * f
+        reac, reac_total = reactions(L, supports, total_force, held)
+        try:
+            mu = smallest_eigenvalue(L, held)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as exc:  # ARPACK on a bad state
+            mu = float("nan")
+            st.message += f"; its stability could not be computed ({type(exc).__name__})"
+        stresses = rod_stresses(L, strength)
+    t_load = time.perf_counter() - t1
     disp = np.linalg.norm(st.displacement, axis=1)
     beams = beam_report(L, stresses)
     result = {
         "input": design.note,  # how a .3dm was read (its layer, units and the conversion to mm), else None
-        "name": name, "status": "complete" if st.converged else "stopped", "message": st.message,
+        "name": name, "status": "interrupted" if interrupted else "complete" if st.converged else "stopped",
+        "message": st.message,
         "segments": int(L.num_segments), "joints": int(L.num_joints),
         "units": "those of the input: N, mm and MPa for the bundled data",
         "supports": [{"vertex": s.vertex, "kind": s.kind} for s in supports], "joint_mode": joints,
@@ -170,12 +185,16 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
         "equilibrium_error": (float(np.linalg.norm(reac_total + reached * resultant) / np.linalg.norm(reached * resultant))
                               if np.linalg.norm(reached * resultant) > 0 else None),
         "min_eigenvalue": None if np.isnan(mu) else mu, "stable": None if np.isnan(mu) else bool(mu >= 0),
-        "critical_load_factor": None if crit is None else crit.factor,
-        "critical_bracket": None if crit is None else list(crit.bracket),
-        "critical_method": None if crit is None else crit.method,
-        "critical_searched_to": None if crit is None else crit.searched_to,
-        "critical_kind": None if crit is None or crit.factor is None else crit.kind,
-        "buckled": bool(crit is not None and crit.factor is not None and load_factor > crit.factor) or bool(mu < 0),
+        # a multiple of the --load, as --load-factor is (the same whatever the split of a load between them);
+        # critical_load_ratio: the critical load over the load applied (below 1: it has buckled)
+        "critical_load_factor": None if shown is None else shown.factor,
+        "critical_load_ratio": None if shown is None or shown.factor is None else shown.factor / load_factor,
+        "critical_total_load": None if shown is None or shown.factor is None else (shown.factor * resultant).tolist(),
+        "critical_bracket": None if shown is None else list(shown.bracket),
+        "critical_method": None if shown is None else shown.method,
+        "critical_searched_to": None if shown is None else shown.searched_to,
+        "critical_kind": None if shown is None or shown.factor is None else shown.kind,
+        "buckled": bool(buckled) or bool(mu < 0),
         "deployment": {"reached": dep["reached"], "angle_deg": dep["deployed"]["average_angle_deg"],
                        "utilization_max": dep.get("utilization_max")},
         "timings_s": {"deploy": t_dep, "load": t_load, "critical": t_crit, "total": time.perf_counter() - t0},
@@ -183,12 +202,16 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     for b in beams:
         b["position"] = (np.asarray(b["position"]) + origin).tolist()
     result["origin_shift"] = origin.tolist()
-    _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, base, opts, result, origin)
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    with STOP.deferred():
+        _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, mode=not interrupted)
+        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    if interrupted or STOP.requested:
+        raise KeyboardInterrupt
     return result
 
 
-def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, base, opts, result, origin) -> None:
+def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, mode=True) -> None:
+    """beams.csv, loaded.ply, loaded.3dm, analysis.png and (``mode``) buckling_mode.png."""
     from ..io.sweep import write_ply
     from ..linkage.export import swept_mesh
     from .static import translate
@@ -217,31 +240,73 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, bas
     render_analysis(os.path.join(out_dir, "analysis.png"), unloaded.rods.points + origin, L.rods.points + origin, L.rods.edges, value,
                     scale, label="utilization" if stresses.utilization is not None else "von Mises stress",
                     title=f"max displacement {result['max_displacement']:.3g}, shown ×{scale:.3g}")
-    # the lowest mode at the critical factor where one was found, else at the load as analysed
-    found = crit is not None and crit.factor is not None
-    at = crit.bracket[0] if found else result["load_factor_reached"]
-    mode = _buckling_mode(unloaded, f, held, base, opts, at)
+    if not mode:
+        return
+    # the lowest mode at the last stable state before the critical factor where one was found, else at the
+    # state analysed
+    found = crit is not None and crit.factor is not None and crit.last_stable is not None
+    if found:
+        at_state = copy.deepcopy(unloaded)
+        from ..linkage.state import restore
+
+        restore(at_state, crit.last_stable)
+    else:
+        at_state = L
+    mode = _buckling_mode(at_state, held)
     if mode is not None:
         md = mode.reshape(-1, 3)
         md = md / max(float(np.linalg.norm(md, axis=1).max()), 1e-300)  # largest amplitude 1
         s2 = 0.1 * span
+        at = crit.bracket[0] if found else result["load_factor_reached"]
         title = (f"buckling mode at load factor {crit.factor:.4g}" if found else
                  f"lowest mode at load factor {at:.4g} (no instability up to {result['critical_searched_to'] or at:.3g}×)")
-        render_analysis(os.path.join(out_dir, "buckling_mode.png"), unloaded.rods.points + origin,
-                        unloaded.rods.points + origin + s2 * md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
+        render_analysis(os.path.join(out_dir, "buckling_mode.png"), at_state.rods.points + origin,
+                        at_state.rods.points + origin + s2 * md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
                         label="relative amplitude", title=title + f", shown at {s2:.3g}")
 
 
-def _buckling_mode(unloaded, f, held, base, opts, factor):
-    """The rod points' displacement (3V,) of the lowest mode of the loaded Hessian at ``factor``."""
-    import scipy.sparse.linalg as spla
+def _loaded_state(L, unloaded, f, held, base, opts, load_factor, crit):
+    """Put ``L`` in the equilibrium at ``load_factor`` found along the path ``crit``; (LoadedState, buckled).
 
+    Where the path reached the requested load, its state there, polished for the reactions' balance. Where
+    stability ended before it, the state Newton finds from the last stable one (where the shell snaps or
+    buckles to, or none: the result then stops at the last stable factor). An interrupted or unfinished path
+    leaves the last stable state.
+    """
+    from ..linkage.state import restore
     from .static import solve_loaded
 
-    work = copy.deepcopy(unloaded)
-    st = solve_loaded(work, f, held, factor, opts, base_force=base, escape=False)
-    if not st.converged:
-        return None
+    if crit.target_state is not None:
+        restore(L, crit.target_state)
+        st = solve_loaded(L, f, held, load_factor, replace(opts, load_steps=1), base_force=base,
+                          start_factor=load_factor)
+        buckled = False
+    elif crit.factor is not None and not crit.interrupted:
+        restore(L, crit.last_stable)
+        st = solve_loaded(L, f, held, load_factor, opts, base_force=base, start_factor=crit.bracket[0])
+        buckled = True
+        what = "it snaps through" if crit.kind == "limit point" else "it buckles"
+        if st.converged:
+            st.message = (f"the load passes the critical load factor {crit.factor:.4g} ({crit.kind}: {what}); the state "
+                          f"shown is the one it goes to")
+        else:
+            st.message = f"the load passes the critical load factor {crit.factor:.4g} ({crit.kind}: {what}); " + st.message
+    else:
+        restore(L, crit.last_stable)
+        lo = crit.bracket[0]
+        st = solve_loaded(L, f, held, lo, replace(opts, load_steps=1), base_force=base, start_factor=lo)
+        st.converged = False
+        st.message = f"the path from zero load stopped at load factor {lo:.4g} after {len(crit.samples) - 1} steps"
+        buckled = False
+    st.displacement = L.vertex_positions() - unloaded.vertex_positions()  # from the unloaded state, not the path's last
+    return st, buckled
+
+
+def _buckling_mode(state, held):
+    """The rod points' displacement (3V,) of the lowest mode of the Hessian of ``state`` (a linkage)."""
+    import scipy.sparse.linalg as spla
+
+    work = state
     free = np.setdiff1d(np.arange(work.num_vars), held)
     H = work.hessian()[free][:, free].tocsc()
     M = work.mass_matrix()[free][:, free].tocsc()
