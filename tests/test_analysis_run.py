@@ -185,3 +185,30 @@ def test_past_the_snap_the_shell_is_reported_buckled(run, tmp_path, capsys, frac
     else:
         assert not r["buckled"] and "stable, critical load factor" in line and "BUCKLED" not in line
     assert r["critical_load_ratio"] == pytest.approx(1 / fraction, rel=2e-3)
+
+
+def test_an_interrupted_critical_search_keeps_the_loaded_state(tmp_path, monkeypatch):
+    # Ctrl-C during the critical load search (past the requested load, 1x): result.json says so and the
+    # loaded state's files are written (an interrupt lost everything before)
+    import xshells.analysis.static as S
+
+    real = S.critical_load_factor
+
+    def interrupted_at_1_2(*a, callback=None, **k):
+        def on_step(lam):
+            if lam > 1.2:
+                raise KeyboardInterrupt
+            return callback(lam)
+
+        return real(*a, callback=on_step, **k)
+
+    monkeypatch.setattr(S, "critical_load_factor", interrupted_at_1_2)
+    out = tmp_path / "o"
+    code = main(["analyze", *BASE, "--density", "1.9e-9", "--supports", "lowest:4", "--load", "self-weight",
+                 "--load", "point:3:0,0,-1e-3", "--out", str(out)])
+    r = json.loads((out / "result.json").read_text())
+    assert code == 130 and r["status"] == "interrupted"
+    assert r["message"].startswith("interrupted during the critical load search")
+    assert r["load_factor_reached"] == 1.0 and r["equilibrium_error"] <= 1e-8 and r["critical_load_factor"] is None
+    for name in ("analysis.png", "beams.csv", "loaded.ply"):
+        assert (out / name).is_file(), name
