@@ -1,5 +1,6 @@
 """``xshells analyze`` end to end on a small design, and its one-line errors."""
 import json
+import os
 
 import pytest
 
@@ -212,3 +213,21 @@ def test_an_interrupted_critical_search_keeps_the_loaded_state(tmp_path, monkeyp
     assert r["load_factor_reached"] == 1.0 and r["equilibrium_error"] <= 1e-8 and r["critical_load_factor"] is None
     for name in ("analysis.png", "beams.csv", "loaded.ply"):
         assert (out / name).is_file(), name
+
+
+def test_the_buckling_mode_is_drawn_at_the_amplitude_its_title_states(tmp_path, monkeypatch):
+    # the mode was passed scaled by s2 and scaled by s2 again when drawn
+    import numpy as np
+
+    import xshells.viz.render as render
+
+    drawn = {}
+
+    def capture(path, points0, points, edges, values, scale, label="", title=""):
+        drawn[os.path.basename(path)] = (np.linalg.norm(scale * (points - points0), axis=1).max(), title)
+
+    monkeypatch.setattr(render, "render_analysis", capture)
+    assert main(["analyze", *BASE, "--supports", "lowest:4", "--load", "point:3:0,0,-1e-3", "--no-critical",
+                 "--out", str(tmp_path)]) == 0
+    amplitude, title = drawn["buckling_mode.png"]
+    assert title.endswith(f"shown at {amplitude:.3g}")

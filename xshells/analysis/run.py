@@ -260,8 +260,10 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
         at = crit.bracket[0] if found else result["load_factor_reached"]
         title = (f"buckling mode at load factor {crit.factor:.4g}" if found else
                  f"lowest mode at load factor {at:.4g} (no instability up to {result['critical_searched_to'] or at:.3g}×)")
+        # the mode at amplitude 1, drawn × s2 (render_analysis scales the difference: passing it scaled already
+        # drew it at s2², 10 times the span's tenth the title stated for the manta ray)
         render_analysis(os.path.join(out_dir, "buckling_mode.png"), at_state.rods.points + origin,
-                        at_state.rods.points + origin + s2 * md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
+                        at_state.rods.points + origin + md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
                         label="relative amplitude", title=title + f", shown at {s2:.3g}")
 
 
