@@ -231,3 +231,15 @@ def test_the_buckling_mode_is_drawn_at_the_amplitude_its_title_states(tmp_path, 
                  "--out", str(tmp_path)]) == 0
     amplitude, title = drawn["buckling_mode.png"]
     assert title.endswith(f"shown at {amplitude:.3g}")
+
+
+def test_a_load_too_small_to_balance_to_1e8_gets_a_warning(run, tmp_path, capsys):
+    # the equilibrium stops at the stiffness forces' round-off: a load near it balances to 3e-5 of itself, said
+    # in one line (it was reported silently beside the 1e-8 that the docs promise)
+    assert run[2]["warnings"] == []
+    code = main(["analyze", *BASE, "--supports", "lowest:4", "--load", "point:3:0,0,-1e-9", "--no-critical",
+                 "--out", str(tmp_path)])
+    r = json.loads((tmp_path / "result.json").read_text())
+    assert code == 0 and r["equilibrium_error"] > 1e-8
+    lines = [line for line in capsys.readouterr().out.splitlines() if "warning:" in line]
+    assert len(lines) == 1 and "round-off" in lines[0] and f"{r['equilibrium_error']:.1e}" in lines[0]

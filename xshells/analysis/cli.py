@@ -72,6 +72,8 @@ def _analyze(args) -> int:
           + _stability_line(r))
     if r["status"] != "complete":  # as xshells deploy's "stopped at …° of …°: why"
         print(f"  {r['status']} at load factor {r['load_factor_reached']:.4g} of {r['load_factor']:.4g}: {r['message']}")
+    for w in r.get("warnings", []):
+        print(f"  warning: {w}")
     if r.get("input"):  # how a .3dm was read (its units converted to mm): a note, with or without progress
         print(f"  note: {r['input']}")
     print(f"  outputs in {args.out}/")

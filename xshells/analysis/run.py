@@ -202,6 +202,7 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     for b in beams:
         b["position"] = (np.asarray(b["position"]) + origin).tolist()
     result["origin_shift"] = origin.tolist()
+    result["warnings"] = _warnings(result, L, held, total_force)
     with STOP.deferred():
         _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, mode=not interrupted)
         atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
@@ -265,6 +266,25 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
         render_analysis(os.path.join(out_dir, "buckling_mode.png"), at_state.rods.points + origin,
                         at_state.rods.points + origin + md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
                         label="relative amplitude", title=title + f", shown at {s2:.3g}")
+
+
+#: The reactions' balance promised (relative to the load): below it, a warning says why it is not met.
+BALANCE = 1e-8
+
+
+def _warnings(result, L, held, total_force) -> list:
+    """One line each: what in the set-up or the result a designer should not miss."""
+    out = []
+    err = result["equilibrium_error"]
+    if err is not None and err > BALANCE:
+        # the Newton solve stops at the stiffness forces' round-off, whatever the tolerance asked of it: a load of
+        # the order of that round-off cannot be balanced to 1e-8 of itself (0.01 N on the boat: 4e-7)
+        free = np.setdiff1d(np.arange(L.num_vars), held)
+        residual = float(np.linalg.norm((L.gradient() - total_force)[free]))
+        out.append(f"the reactions balance the load to {err:.1e} of it only: the equilibrium's residual force "
+                   f"({residual:.1e}, the stiffness forces' round-off) is not small against a load this small "
+                   f"({np.linalg.norm(result['total_load']):.3g})")
+    return out
 
 
 def _loaded_state(L, unloaded, f, held, base, opts, load_factor, crit):
