@@ -202,7 +202,7 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     for b in beams:
         b["position"] = (np.asarray(b["position"]) + origin).tolist()
     result["origin_shift"] = origin.tolist()
-    result["warnings"] = _warnings(result, L, held, total_force)
+    result["warnings"] = _support_warnings(unloaded, supports, reac, resultant) + _warnings(result, L, held, total_force)
     with STOP.deferred():
         _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, mode=not interrupted)
         atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
@@ -270,6 +270,43 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
 
 #: The reactions' balance promised (relative to the load): below it, a warning says why it is not met.
 BALANCE = 1e-8
+
+
+def _support_warnings(unloaded, supports, reac, resultant) -> list:
+    """Set-ups that mislead, one line each: supports bunched at one end, the weight outside their footprint, and
+    supports that pull (a support that can only push would let the shell lift off it).
+
+    Gravity is along −z of the deployed state as computed, which need not stand level (the boat's mirror
+    plane leans 10° from vertical): ``lowest:N`` may then pick one end only.
+    """
+    out = []
+    P = unloaded.rods.points
+    Q = unloaded.vertex_positions()[[s.vertex for s in supports]]
+    span = float(np.ptp(P[:, :2], axis=0).max())
+    spread = float(np.ptp(Q[:, :2], axis=0).max())
+    if spread < span / 3.0:
+        out.append(f"the {len(supports)} supports lie within {spread:.3g} of the shell's horizontal extent of {span:.3g}: "
+                   f"it stands on one end (gravity is -z of the deployed state, which may stand tilted)")
+    else:
+        from scipy.spatial import Delaunay, QhullError
+
+        centre = P[:, :2].mean(axis=0)
+        try:
+            outside = Delaunay(Q[:, :2]).find_simplex(centre) < 0
+        except (QhullError, ValueError):  # fewer than three supports, or all in a line: no footprint to test
+            outside = False
+        if outside:
+            out.append("the shell's centre lies outside its supports' footprint (seen from above): it cantilevers "
+                       "from them (gravity is -z of the deployed state, which may stand tilted)")
+    down = np.asarray(resultant, float)
+    up = -down / np.linalg.norm(down) if np.linalg.norm(down) > 0 else np.array([0.0, 0.0, 1.0])
+    pulling = [(r["vertex"], float(np.dot(r["force"], up))) for r in reac]
+    pulling = [(v, p) for v, p in pulling if p < -1e-6 * np.linalg.norm(down)]
+    if pulling:
+        listed = ", ".join(f"{v} ({p:.3g})" for v, p in pulling)
+        out.append(f"the support(s) at vertex {listed} pull the shell against the load: it would lift off a support "
+                   f"that can only push")
+    return out
 
 
 def _warnings(result, L, held, total_force) -> list:
