@@ -52,7 +52,9 @@ def test_deploy_reports_utilization_and_the_first_break(tmp_path):
 
 @pytest.mark.parametrize("args, words", [
     (["--strength", "-2"], "--strength must be a positive stress"),
-    (["--density=-1e-9"], "--density must be a non-negative"),
+    (["--density=-1e-9"], "--density must be a positive"),
+    (["--density", "-1e-9"], "--density must be a positive"),  # argparse took -1e-9 for an option
+    (["--density", "0"], "--density must be a positive"),  # "density must be positive and finite: edge 0 has 0.0"
     (["--grade", "oak"], "unknown material grade 'oak'"),
 ])
 def test_bad_material_options_are_one_line(tmp_path, capsys, args, words):
@@ -63,7 +65,8 @@ def test_bad_material_options_are_one_line(tmp_path, capsys, args, words):
 
 
 def test_case_files_check_strength_density_and_grade(tmp_path, capsys):
-    for material, words in (({"strength": -1}, "strength"), ({"density": -1.0}, "density"), ({"grade": "teak"}, "teak")):
+    for material, words in (({"strength": -1}, "strength"), ({"density": -1.0}, "density"),
+                            ({"density": 0}, "key 'material.density' = 0"), ({"grade": "teak"}, "teak")):
         case = tmp_path / "c.json"
         case.write_text(json.dumps({"file": str(EXAMPLES / "uniform_linkage.obj"), "material": material}))
         assert main(["deploy", str(case), "--out", str(tmp_path / "o"), "--no-progress"]) == 2

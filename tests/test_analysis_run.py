@@ -79,7 +79,7 @@ def test_the_snap_through_is_found(run):
     (["--supports", "lowest:4", "--load", "point:999:0,0,-1"], "point load at vertex 999"),
     (["--supports", "lowest:4", "--load", "self-weight"], "needs a density"),
     (["--supports", "lowest:4", "--load", "point:3:0,0,-1", "--strength=-5"], "--strength must be a positive"),
-    (["--supports", "lowest:4", "--load", "point:3:0,0,-1", "--density=-1"], "--density must be a non-negative"),
+    (["--supports", "lowest:4", "--load", "point:3:0,0,-1", "--density=-1"], "--density must be a positive"),
     (["--supports", "lowest:1", "--load", "point:3:0,0,-1"], "rigid motion(s) free"),
     (["--supports", "under:3", "--load", "point:3:0,0,-1"], "use lowest:N or joints:"),
     (["--supports", "lowest:4", "--load", "wind:3"], "use self-weight, point:"),

@@ -16,12 +16,13 @@ def register(subparsers) -> None:
                    help="locked: the joints keep their deployed angles (as built); free: they turn, the actuation torque held")
     p.add_argument("--load", action="append", default=[], metavar="LOAD",
                    help="self-weight | point:VERTEX:FX,FY,FZ | area:Q (vertical, per horizontal projected area); repeatable")
-    p.add_argument("--load-factor", type=float, default=1.0)
+    p.add_argument("--load-factor", type=float, default=1.0,
+                   help="multiplies every --load (default 1); the critical load factor is a multiple of the --load too")
     p.add_argument("--no-critical", action="store_true", help="skip the critical load factor")
     p.add_argument("--angle", type=float, help="deploy to this average angle, degrees (default: the case's)")
     p.add_argument("--material", help="TYPE:P1,P2,... or a cross-section JSON (for a bare design)")
-    p.add_argument("--young", type=float)
-    p.add_argument("--poisson", type=float)
+    p.add_argument("--young", type=float, help="for a design file: Young's modulus (default 20000, MPa)")
+    p.add_argument("--poisson", type=float, help="for a design file: Poisson's ratio (default 0.3)")
     p.add_argument("--grade", help="a named material (docs/analysis.md)")
     p.add_argument("--strength", type=float, help="allowable stress (MPa for a design in mm)")
     p.add_argument("--density", type=float, help="density (t/mm³ for a design in mm)")
