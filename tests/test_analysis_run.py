@@ -258,3 +258,20 @@ def test_supports_at_one_end_and_supports_that_pull_get_a_warning(tmp_path, caps
     assert code == 0 and len(lines) == 2
     assert all(any(w in line for line in lines) for w in words)
     assert "would lift off a support that can only push" in lines[1]
+
+
+@pytest.mark.parametrize("fraction", [0.9, 1.1])
+def test_an_arm_that_buckles_sideways_is_a_bifurcation_not_a_snap(tmp_path, capsys, fraction):
+    # The plus deployed to 150 deg, clamped at its joint, one arm pushed in its plane along x (30 deg off its
+    # axis): the arm bends in plane until it buckles out of it, at 34.1x the load, the in-plane path going on as
+    # a saddle. It was a "limit point: it snaps through" (Newton does not converge to the saddle), and at 1.1x
+    # "stable, critical load factor ...; BUCKLED"
+    (tmp_path / "plus.obj").write_text("v 0 0 0\nv 500 0 0\nv 0 500 0\nv -500 0 0\nv 0 -500 0\nl 1 2\nl 1 3\nl 1 4\nl 1 5\n")
+    code = main(["analyze", str(tmp_path / "plus.obj"), "--supports", "joints:0", "--support-type", "clamped",
+                 "--load", "point:1:-2,0,0", "--load-factor", str(fraction * 34.14), "--no-progress",
+                 "--out", str(tmp_path / "o")])
+    r = json.loads((tmp_path / "o" / "result.json").read_text())
+    line = capsys.readouterr().out.splitlines()[1]
+    assert code == 0 and r["critical_kind"] == "bifurcation" and r["critical_load_factor"] == pytest.approx(34.14, rel=2e-3)
+    assert "(a bifurcation: it buckles)" in line and r["buckled"] == (fraction > 1)
+    assert ("BUCKLED" in line and "stable," not in line) if fraction > 1 else line.endswith("x the load applied (a bifurcation: it buckles)")

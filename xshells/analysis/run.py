@@ -285,7 +285,8 @@ def _support_warnings(unloaded, supports, reac, resultant) -> list:
     span = float(np.ptp(P[:, :2], axis=0).max())
     spread = float(np.ptp(Q[:, :2], axis=0).max())
     if spread < span / 3.0:
-        out.append(f"the {len(supports)} supports lie within {spread:.3g} of the shell's horizontal extent of {span:.3g}: "
+        who = "the support lies" if len(supports) == 1 else f"the {len(supports)} supports lie"
+        out.append(f"{who} within {spread:.3g} of the shell's horizontal extent of {span:.3g}: "
                    f"it stands on one end (gravity is -z of the deployed state, which may stand tilted)")
     else:
         from scipy.spatial import Delaunay, QhullError

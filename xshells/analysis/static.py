@@ -384,6 +384,35 @@ PATH_STEP_SPAN = 0.02
 PATH_MAX_STEPS = 400
 
 
+def _plain_newton(linkage, free, force, tolerance, iterations: int = 12) -> bool:
+    """Newton's method without line search or shifts on ``∇E(x) = force`` (the free variables), from the current
+    state: it converges to a saddle as to a minimum, near one. True where ``|g| ≤ tolerance``."""
+    import scipy.sparse.linalg as spla
+
+    with np.errstate(all="ignore"):  # a diverging try passes through degenerate joints: it is refused, not reported
+        return _plain_newton_steps(linkage, free, force, tolerance, iterations, spla)
+
+
+def _plain_newton_steps(linkage, free, force, tolerance, iterations, spla) -> bool:
+    for _ in range(iterations):
+        g = (linkage.gradient() - force)[free]
+        if not np.all(np.isfinite(g)):
+            return False
+        if float(np.linalg.norm(g)) <= tolerance:
+            return True
+        try:
+            d = spla.splu(linkage.hessian()[free][:, free].tocsc()).solve(-g)
+        except RuntimeError:  # exactly singular
+            return False
+        x = linkage.get_vars()
+        x[free] += d
+        if not np.all(np.isfinite(x)):
+            return False
+        linkage.set_vars(x)
+        linkage.update_source_frame()
+    return float(np.linalg.norm((linkage.gradient() - force)[free])) <= tolerance
+
+
 def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOptions(), base_force=None,
                          start: float = 1.0, search: bool = True, callback=None) -> CriticalFactor:
     """Follow the equilibrium path ``∇E(x) = λ f`` from the unloaded state (``linkage`` is left unchanged).
@@ -448,13 +477,19 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
         P_pred = work.rods.points + dl * rate
         work.set_vars(work.get_vars() + dl * t)
         force = base + lam * f
+        x_pred = snapshot(work)
         rep = minimize(work, fixed=held, force=force, options=opts)
         # a saddle on a symmetric branch past its bifurcation stalls at the gradient's round-off, a little above
         # the tolerance set for minima: at 1e-8 of the load it is an equilibrium all the same
         stalled = ("round-off" in rep.message and rep.gradient_norm
                    and rep.gradient_norm[-1] <= 1e-8 * float(np.linalg.norm(force[free])))
         if not (rep.converged or stalled) or not np.all(np.isfinite(work.get_vars())):
-            return None
+            # the minimizer shifts an indefinite Hessian and does not converge to a saddle (the deployed plus's
+            # arm under an in-plane load past its lateral buckling load: |g| stuck at 1e-8 to 1e-6): plain Newton
+            # from the prediction converges to the branch's saddle where there is one nearby
+            restore(work, x_pred)
+            if not _plain_newton(work, free, force, max(opts.gradient_tolerance, 1e-9 * float(np.linalg.norm(force[free])))):
+                return None
         work.update_source_frame()
         off = float(np.abs(work.rods.points - P_pred).max())
         if off > PATH_DEVIATION * dl * float(np.abs(rate).max()) + floor:
