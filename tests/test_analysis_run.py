@@ -223,14 +223,14 @@ def test_the_buckling_mode_is_drawn_at_the_amplitude_its_title_states(tmp_path, 
 
     drawn = {}
 
-    def capture(path, points0, points, edges, values, scale, label="", title=""):
+    def capture(path, points0, points, edges, values, scale, label="", title="", **kw):
         drawn[os.path.basename(path)] = (np.linalg.norm(scale * (points - points0), axis=1).max(), title)
 
     monkeypatch.setattr(render, "render_analysis", capture)
     assert main(["analyze", *BASE, "--supports", "lowest:4", "--load", "point:3:0,0,-1e-3", "--no-critical",
                  "--out", str(tmp_path)]) == 0
     amplitude, title = drawn["buckling_mode.png"]
-    assert title.endswith(f"shown at {amplitude:.3g}")
+    assert f"largest amplitude shown {amplitude:.3g} (" in title
 
 
 def test_a_load_too_small_to_balance_to_1e8_gets_a_warning(run, tmp_path, capsys):
@@ -275,3 +275,35 @@ def test_an_arm_that_buckles_sideways_is_a_bifurcation_not_a_snap(tmp_path, caps
     assert code == 0 and r["critical_kind"] == "bifurcation" and r["critical_load_factor"] == pytest.approx(34.14, rel=2e-3)
     assert "(a bifurcation: it buckles)" in line and r["buckled"] == (fraction > 1)
     assert ("BUCKLED" in line and "stable," not in line) if fraction > 1 else line.endswith("x the load applied (a bifurcation: it buckles)")
+
+
+def test_analysis_png_states_units_marks_supports_and_loads_and_keeps_round_off_unscaled(tmp_path, monkeypatch):
+    # a vanishing load with free joints: 1e-8 of displacement was blown up x8e7 into a shape; the title had no
+    # unit, the supports and loads were not drawn
+    import numpy as np
+
+    import xshells.viz.render as render
+
+    drawn = {}
+    monkeypatch.setattr(render, "render_analysis", lambda path, *a, **kw: drawn.setdefault(os.path.basename(path), (a, kw)))
+    assert main(["analyze", *BASE, "--supports", "lowest:4", "--joints", "free", "--load", "point:3:0,0,-1e-12",
+                 "--strength", "200", "--no-critical", "--out", str(tmp_path)]) == 0
+    (points0, points, edges, values, scale), kw = drawn["analysis.png"]
+    assert scale == 1.0 and "drawn unscaled" in kw["title"] and "(the design's length unit)" in kw["title"]
+    assert kw["label"].startswith("utilization (") and len(kw["supports"]) == 4
+    at, F = kw["loads"]
+    assert at.shape == (1, 3) and np.allclose(F, [[0, 0, -1e-12]])
+
+
+def test_the_colour_bar_reaches_the_largest_vertex_value(tmp_path, monkeypatch):
+    # the edges are coloured by their vertices' means: the bar stopped short of the maximum reported
+    import numpy as np
+
+    import xshells.viz.render as render
+
+    figs = []
+    monkeypatch.setattr(render, "_save", lambda fig, path: figs.append(fig))
+    P = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]])
+    render.render_analysis(str(tmp_path / "a.png"), P, P, np.array([[0, 1], [1, 2]]), np.array([0.1, 0.2, 0.9]), 1.0,
+                           supports=P[:1], loads=(P[2:], np.array([[0, 0, -1.0]])))
+    assert figs[0].axes[1].get_ylim()[1] == pytest.approx(0.9)

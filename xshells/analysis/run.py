@@ -236,11 +236,26 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
     d = L.rods.points - unloaded.rods.points
     span = float(np.ptp(unloaded.rods.points, axis=0).max())
     dmax = float(np.linalg.norm(d, axis=1).max())
-    scale = 0.1 * span / dmax if dmax > 0 else 1.0
+    # a displacement at round-off (a vanishing load, free joints held by their torque) is drawn as it is: scaled
+    # to a tenth of the span it was noise blown up into a shape
+    tiny = dmax <= 1e-8 * span
+    scale = 1.0 if tiny else 0.1 * span / dmax
     value = stresses.utilization if stresses.utilization is not None else stresses.von_mises
+    P_loaded = L.vertex_positions() + origin
+    points = [ld for ld in result["loads"] if ld["kind"] == "point"]
+    loads = (P_loaded[[ld["vertex"] for ld in points]].reshape(-1, 3),
+             np.array([ld["vector"] for ld in points], float).reshape(-1, 3))
+    others = sorted({ld["kind"] for ld in result["loads"] if ld["kind"] != "point"})
+    unit = "the design's length unit"
     render_analysis(os.path.join(out_dir, "analysis.png"), unloaded.rods.points + origin, L.rods.points + origin, L.rods.edges, value,
-                    scale, label="utilization" if stresses.utilization is not None else "von Mises stress",
-                    title=f"max displacement {result['max_displacement']:.3g}, shown ×{scale:.3g}")
+                    scale, label=("utilization (von Mises stress / strength)" if stresses.utilization is not None else
+                                  "von Mises stress (MPa for a design in mm)"),
+                    title=(f"max displacement {result['max_displacement']:.3g} ({unit}), "
+                           + ("drawn unscaled (round-off size)" if tiny else f"shown ×{scale:.3g}")
+                           + (f"\nloads: {', '.join(others + (['point (arrows)'] if points else []))}; "
+                              f"supports: triangles")),
+                    supports=unloaded.vertex_positions()[[s["vertex"] for s in result["supports"]]] + origin,
+                    loads=loads)
     if not mode:
         return
     # the lowest mode at the last stable state before the critical factor where one was found, else at the
@@ -265,7 +280,7 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
         # drew it at s2², 10 times the span's tenth the title stated for the manta ray)
         render_analysis(os.path.join(out_dir, "buckling_mode.png"), at_state.rods.points + origin,
                         at_state.rods.points + origin + md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
-                        label="relative amplitude", title=title + f", shown at {s2:.3g}")
+                        label="relative amplitude", title=title + f", largest amplitude shown {s2:.3g} ({unit})")
 
 
 #: The reactions' balance promised (relative to the load): below it, a warning says why it is not met.
