@@ -307,3 +307,25 @@ def test_the_colour_bar_reaches_the_largest_vertex_value(tmp_path, monkeypatch):
     render.render_analysis(str(tmp_path / "a.png"), P, P, np.array([[0, 1], [1, 2]]), np.array([0.1, 0.2, 0.9]), 1.0,
                            supports=P[:1], loads=(P[2:], np.array([[0, 0, -1.0]])))
     assert figs[0].axes[1].get_ylim()[1] == pytest.approx(0.9)
+
+
+def test_the_snap_through_mode_is_the_direction_the_path_moves_in(snapping):
+    # near a limit point the shell moves along the critical mode: the picture shows the path's tangent there
+    # (the lowest eigenvector drawn before can be another, soft mode: on the boat, cosine 0.02 with the motion)
+    import copy
+
+    import numpy as np
+
+    from xshells.analysis.run import _buckling_mode
+    from xshells.analysis.static import StaticOptions, critical_load_factor, solve_loaded
+    from xshells.linkage.state import restore
+
+    L, held, f = snapping
+    cr = critical_load_factor(L, f, held)
+    near = copy.deepcopy(L)
+    restore(near, cr.last_stable)
+    before = copy.deepcopy(L)
+    assert solve_loaded(before, f, held, 0.98 * cr.bracket[0], StaticOptions(load_steps=10), escape=False).converged
+    motion = (near.rods.points - before.rods.points).ravel()  # the path's secant over the last 2 %
+    mode = _buckling_mode(near, held, f)
+    assert abs(mode @ motion) >= 0.9 * np.linalg.norm(mode) * np.linalg.norm(motion)

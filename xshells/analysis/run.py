@@ -204,14 +204,14 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     result["origin_shift"] = origin.tolist()
     result["warnings"] = _support_warnings(unloaded, supports, reac, resultant) + _warnings(result, L, held, total_force)
     with STOP.deferred():
-        _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, mode=not interrupted)
+        _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, f, mode=not interrupted)
         atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
     if interrupted or STOP.requested:
         raise KeyboardInterrupt
     return result
 
 
-def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, mode=True) -> None:
+def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, f, mode=True) -> None:
     """beams.csv, loaded.ply, loaded.3dm, analysis.png and (``mode``) buckling_mode.png."""
     from ..io.sweep import write_ply
     from ..linkage.export import swept_mesh
@@ -268,19 +268,24 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
         restore(at_state, crit.last_stable)
     else:
         at_state = L
-    mode = _buckling_mode(at_state, held)
+    # at a limit point, the direction it snaps in: the path's tangent H⁻¹f, which the critical mode dominates
+    # there; the lowest eigenvector can be another, soft mode (the boat's: μ 1.4e-8 beside the fold's 5.3e-8,
+    # cosine 0.02 with the tangent)
+    snap = found and crit.kind == "limit point"
+    mode = _buckling_mode(at_state, held, f if snap else None)
     if mode is not None:
         md = mode.reshape(-1, 3)
         md = md / max(float(np.linalg.norm(md, axis=1).max()), 1e-300)  # largest amplitude 1
         s2 = 0.1 * span
         at = crit.bracket[0] if found else result["load_factor_reached"]
-        title = (f"buckling mode at load factor {crit.factor:.4g}" if found else
+        title = (f"snap-through mode (the path's tangent) at load factor {crit.factor:.4g}" if snap else
+                 f"buckling mode at load factor {crit.factor:.4g}" if found else
                  f"lowest mode at load factor {at:.4g} (no instability up to {result['critical_searched_to'] or at:.3g}×)")
         # the mode at amplitude 1, drawn × s2 (render_analysis scales the difference: passing it scaled already
         # drew it at s2², 10 times the span's tenth the title stated for the manta ray)
         render_analysis(os.path.join(out_dir, "buckling_mode.png"), at_state.rods.points + origin,
                         at_state.rods.points + origin + md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
-                        label="relative amplitude", title=title + f", largest amplitude shown {s2:.3g} ({unit})")
+                        label="relative amplitude", title=title + f"\nlargest amplitude shown {s2:.3g} ({unit})")
 
 
 #: The reactions' balance promised (relative to the load): below it, a warning says why it is not met.
@@ -377,14 +382,20 @@ def _loaded_state(L, unloaded, f, held, base, opts, load_factor, crit):
     return st, buckled
 
 
-def _buckling_mode(state, held):
-    """The rod points' displacement (3V,) of the lowest mode of the Hessian of ``state`` (a linkage)."""
+def _buckling_mode(state, held, f=None):
+    """The rod points' displacement (3V,) of the lowest mode of the Hessian of ``state`` (a linkage), or with
+    ``f`` of the path's tangent H⁻¹f (None where it cannot be computed)."""
     import scipy.sparse.linalg as spla
 
     work = state
     free = np.setdiff1d(np.arange(work.num_vars), held)
     H = work.hessian()[free][:, free].tocsc()
     M = work.mass_matrix()[free][:, free].tocsc()
+    if f is not None:
+        x = np.zeros(work.num_vars)
+        with np.errstate(all="ignore"):
+            x[free] = spla.spsolve(H, np.asarray(f, float)[free])
+        return (work._jacobian() @ x)[: 3 * work.rods.num_vertices] if np.all(np.isfinite(x)) else None
     try:
         shift = 1e-8 * abs(spla.eigsh(H, k=1, M=M, which="LM", return_eigenvectors=False)[0])
         _, vec = spla.eigsh(H, k=1, M=M, sigma=-shift, which="LM")
