@@ -535,13 +535,11 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
                 continue
             if hi is not None and lam >= hi:  # the bound was a long step's failure only: follow on
                 hi, kind = None, None
-            growth = 2.0
-            prev_lo = lo
+            if hi is None:  # accepted: the next step twice as long (the span's share caps it)
+                dl = 2.0 * (lam - lo)
             lo, state_lo, t_lo, rate_lo = lam, new, t, rate
             if lo == target:
                 target_state = new
-            if hi is None:
-                dl = growth * (lo - prev_lo)
             if callback is not None and callback(lo):
                 interrupted = True
                 break
