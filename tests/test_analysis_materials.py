@@ -52,7 +52,9 @@ def test_deploy_reports_utilization_and_the_first_break(tmp_path):
 
 @pytest.mark.parametrize("args, words", [
     (["--strength", "-2"], "--strength must be a positive stress"),
-    (["--density=-1e-9"], "--density must be a non-negative"),
+    (["--density=-1e-9"], "--density must be a positive"),
+    (["--density", "-1e-9"], "--density must be a positive"),  # argparse took -1e-9 for an option
+    (["--density", "0"], "--density must be a positive"),  # "density must be positive and finite: edge 0 has 0.0"
     (["--grade", "oak"], "unknown material grade 'oak'"),
 ])
 def test_bad_material_options_are_one_line(tmp_path, capsys, args, words):
@@ -63,9 +65,32 @@ def test_bad_material_options_are_one_line(tmp_path, capsys, args, words):
 
 
 def test_case_files_check_strength_density_and_grade(tmp_path, capsys):
-    for material, words in (({"strength": -1}, "strength"), ({"density": -1.0}, "density"), ({"grade": "teak"}, "teak")):
+    for material, words in (({"strength": -1}, "strength"), ({"density": -1.0}, "density"),
+                            ({"density": 0}, "key 'material.density' = 0"), ({"grade": "teak"}, "teak")):
         case = tmp_path / "c.json"
         case.write_text(json.dumps({"file": str(EXAMPLES / "uniform_linkage.obj"), "material": material}))
         assert main(["deploy", str(case), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
         err = capsys.readouterr().err.strip()
         assert words in err and "\n" not in err
+
+
+def test_an_interrupt_inside_a_steps_stresses_keeps_the_steps_before(tmp_path, monkeypatch):
+    # Ctrl-C while a step's stresses are computed: that step is dropped whole, the ones before keep their
+    # utilization (the step was recorded before its stresses: KeyError 'utilization_max', rc 3, no result.json)
+    import xshells.deploy.run as R
+
+    real, calls = R._stress_row, []
+
+    def interrupted(*a, **k):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(R, "_stress_row", interrupted)
+    code = main(["deploy", str(EXAMPLES / "nonuniform_linkage.obj"), "--material", "rectangle:0.05,0.035", "--angle", "60",
+                 "--steps", "6", "--subdivision", "5", "--strength", "200", "--out", str(tmp_path), "--no-progress"])
+    assert code == 130
+    r = json.loads((tmp_path / "result.json").read_text())
+    assert r["status"] == "interrupted" and len(r["steps"]) == 2
+    assert all(s["utilization_max"] > 0 for s in r["steps"])

@@ -1,5 +1,6 @@
 """``xshells analyze`` end to end on a small design, and its one-line errors."""
 import json
+import os
 
 import pytest
 
@@ -78,7 +79,7 @@ def test_the_snap_through_is_found(run):
     (["--supports", "lowest:4", "--load", "point:999:0,0,-1"], "point load at vertex 999"),
     (["--supports", "lowest:4", "--load", "self-weight"], "needs a density"),
     (["--supports", "lowest:4", "--load", "point:3:0,0,-1", "--strength=-5"], "--strength must be a positive"),
-    (["--supports", "lowest:4", "--load", "point:3:0,0,-1", "--density=-1"], "--density must be a non-negative"),
+    (["--supports", "lowest:4", "--load", "point:3:0,0,-1", "--density=-1"], "--density must be a positive"),
     (["--supports", "lowest:1", "--load", "point:3:0,0,-1"], "rigid motion(s) free"),
     (["--supports", "under:3", "--load", "point:3:0,0,-1"], "use lowest:N or joints:"),
     (["--supports", "lowest:4", "--load", "wind:3"], "use self-weight, point:"),
@@ -128,3 +129,203 @@ def test_an_analysis_that_stops_says_so_and_why(quad_case, tmp_path, capsys):
     assert code == 1 and r["status"] == "stopped"
     line = f"  stopped at load factor {r['load_factor_reached']:.4g} of 1: {r['message']}"
     assert line in capsys.readouterr().out.splitlines()
+
+
+@pytest.fixture(scope="module")
+def snapping(tmp_path_factory):
+    """The shell of ``run`` on its supports, with its load: (deployed linkage, held variables, load vector)."""
+    import numpy as np
+
+    from xshells.analysis.run import parse_load
+    from xshells.analysis.static import Load, Support, held_variables, load_vector, lowest_supports, translate
+    from xshells.deploy.case import material_from_spec
+    from xshells.deploy.run import run_deployment
+
+    states = {}
+    spec = {"type": "rectangle", "E": 20000, "nu": 0.3, "params": [0.05, 0.035], "density": 1.9e-9}
+    run_deployment(DESIGN, material_from_spec(spec), out_dir=str(tmp_path_factory.mktemp("dep")), subdivision=5,
+                   target_angle=np.radians(60), steps=6, progress=False, states=states)
+    L = states["deployed"]
+    translate(L, -L.vertex_positions().mean(axis=0))
+    held = held_variables(L, [Support(v) for v in lowest_supports(L, 4)], "locked")
+    f, _ = load_vector(L, [Load("self-weight"), parse_load("point:3:0,0,-1e-3")])
+    return L, held, f
+
+
+def test_the_critical_load_does_not_depend_on_how_the_load_is_split(snapping):
+    # The same total load at the snap, whatever the reference load (1x, 1.5x, 3x) and the factor applied (1, or
+    # past the snap): the search once started from the requested factor and let the snap through a long step
+    # (the boat: 40.2 N found from 30 N, 2.83x30 N from 1.47x30 N, 0.5x100 N at its first sample)
+    from xshells.analysis.static import critical_load_factor
+
+    L, held, f = snapping
+    ref = critical_load_factor(L, f, held)
+    assert ref.kind == "limit point" and 1.8 < ref.factor < 1.95
+    splits = ((1.5, 1.0), (3.0, 1.0), (1.0, 1.1 * ref.factor), (1.0, 0.5))
+    found = {split: critical_load_factor(L, split[0] * f, held, start=split[1]) for split in splits}
+    assert [cr.factor * scale for (scale, _), cr in found.items()] == pytest.approx([ref.factor] * 4, rel=2e-3)
+    for (scale, start), cr in found.items():
+        assert cr.bracket[1] - cr.bracket[0] <= 1e-3 * cr.bracket[1]
+        assert (cr.target_state is None) == (start * scale > ref.factor)  # past the snap: no state on the path there
+
+
+@pytest.mark.parametrize("fraction", [0.9, 1.1])
+def test_past_the_snap_the_shell_is_reported_buckled(run, tmp_path, capsys, fraction):
+    # At 1.1x the critical factor the shell has snapped through: buckled, and not "stable" (it said "stable,
+    # critical load factor 2.83" for the boat at 1.1x its snap load); at 0.9x it stands
+    _, _, r0 = run
+    crit = r0["critical_load_factor"]
+    out = tmp_path / "o"
+    code = main(["analyze", *BASE, "--density", "1.9e-9", "--supports", "lowest:4", "--load", "self-weight",
+                 "--load", "point:3:0,0,-1e-3", "--load-factor", str(fraction * crit), "--out", str(out)])
+    r = json.loads((out / "result.json").read_text())
+    line = capsys.readouterr().out.splitlines()[1]
+    assert code == 0 and r["critical_load_factor"] == pytest.approx(crit, rel=2e-3)
+    if fraction > 1:
+        assert r["buckled"] and "BUCKLED" in line and "snaps through" in line and "stable," not in line
+    else:
+        assert not r["buckled"] and "stable, critical load factor" in line and "BUCKLED" not in line
+    assert r["critical_load_ratio"] == pytest.approx(1 / fraction, rel=2e-3)
+
+
+def test_an_interrupted_critical_search_keeps_the_loaded_state(tmp_path, monkeypatch):
+    # Ctrl-C during the critical load search (past the requested load, 1x): result.json says so and the
+    # loaded state's files are written (an interrupt lost everything before)
+    import xshells.analysis.static as S
+
+    real = S.critical_load_factor
+
+    def interrupted_at_1_2(*a, callback=None, **k):
+        def on_step(lam):
+            if lam > 1.2:
+                raise KeyboardInterrupt
+            return callback(lam)
+
+        return real(*a, callback=on_step, **k)
+
+    monkeypatch.setattr(S, "critical_load_factor", interrupted_at_1_2)
+    out = tmp_path / "o"
+    code = main(["analyze", *BASE, "--density", "1.9e-9", "--supports", "lowest:4", "--load", "self-weight",
+                 "--load", "point:3:0,0,-1e-3", "--out", str(out)])
+    r = json.loads((out / "result.json").read_text())
+    assert code == 130 and r["status"] == "interrupted"
+    assert r["message"].startswith("interrupted during the critical load search")
+    assert r["load_factor_reached"] == 1.0 and r["equilibrium_error"] <= 1e-8 and r["critical_load_factor"] is None
+    for name in ("analysis.png", "beams.csv", "loaded.ply"):
+        assert (out / name).is_file(), name
+
+
+def test_the_buckling_mode_is_drawn_at_the_amplitude_its_title_states(tmp_path, monkeypatch):
+    # the mode was passed scaled by s2 and scaled by s2 again when drawn
+    import numpy as np
+
+    import xshells.viz.render as render
+
+    drawn = {}
+
+    def capture(path, points0, points, edges, values, scale, label="", title="", **kw):
+        drawn[os.path.basename(path)] = (np.linalg.norm(scale * (points - points0), axis=1).max(), title)
+
+    monkeypatch.setattr(render, "render_analysis", capture)
+    assert main(["analyze", *BASE, "--supports", "lowest:4", "--load", "point:3:0,0,-1e-3", "--no-critical",
+                 "--out", str(tmp_path)]) == 0
+    amplitude, title = drawn["buckling_mode.png"]
+    assert f"largest amplitude shown {amplitude:.3g} (" in title
+
+
+def test_a_load_too_small_to_balance_to_1e8_gets_a_warning(run, tmp_path, capsys):
+    # the equilibrium stops at the stiffness forces' round-off: a load near it balances to 3e-5 of itself, said
+    # in one line (it was reported silently beside the 1e-8 that the docs promise)
+    assert not any("round-off" in w for w in run[2]["warnings"])
+    code = main(["analyze", *BASE, "--supports", "lowest:4", "--load", "point:3:0,0,-1e-9", "--no-critical",
+                 "--out", str(tmp_path)])
+    r = json.loads((tmp_path / "result.json").read_text())
+    assert code == 0 and r["equilibrium_error"] > 1e-8
+    lines = [line for line in capsys.readouterr().out.splitlines() if "warning:" in line and "balance" in line]
+    assert len(lines) == 1 and "round-off" in lines[0] and f"{r['equilibrium_error']:.1e}" in lines[0]
+
+
+@pytest.mark.parametrize("supports, words", [
+    ("joints:21,26,22", ["the 3 supports lie within", "it stands on one end", "vertex 21 ("]),
+    ("joints:11,36,20", ["outside its supports' footprint", "vertex 36 ("]),
+])
+def test_supports_at_one_end_and_supports_that_pull_get_a_warning(tmp_path, capsys, supports, words):
+    # three joints near one edge of the shell (or a footprint beside its centre): it cantilevers from them and
+    # one support pulls it down; lowest:N on a shell deployed tilted picked such supports without a word
+    code = main(["analyze", *BASE, "--supports", supports, "--load", "point:3:0,0,-1e-5", "--no-critical",
+                 "--out", str(tmp_path)])
+    lines = [line for line in capsys.readouterr().out.splitlines() if "warning:" in line]
+    assert code == 0 and len(lines) == 2
+    assert all(any(w in line for line in lines) for w in words)
+    assert "would lift off a support that can only push" in lines[1]
+
+
+@pytest.mark.parametrize("fraction", [0.9, 1.1])
+def test_an_arm_that_buckles_sideways_is_a_bifurcation_not_a_snap(tmp_path, capsys, fraction):
+    # The plus deployed to 150 deg, clamped at its joint, one arm pushed in its plane along x (30 deg off its
+    # axis): the arm bends in plane until it buckles out of it, at 34.1x the load, the in-plane path going on as
+    # a saddle. It was a "limit point: it snaps through" (Newton does not converge to the saddle), and at 1.1x
+    # "stable, critical load factor ...; BUCKLED"
+    (tmp_path / "plus.obj").write_text("v 0 0 0\nv 500 0 0\nv 0 500 0\nv -500 0 0\nv 0 -500 0\nl 1 2\nl 1 3\nl 1 4\nl 1 5\n")
+    code = main(["analyze", str(tmp_path / "plus.obj"), "--supports", "joints:0", "--support-type", "clamped",
+                 "--load", "point:1:-2,0,0", "--load-factor", str(fraction * 34.14), "--no-progress",
+                 "--out", str(tmp_path / "o")])
+    r = json.loads((tmp_path / "o" / "result.json").read_text())
+    line = capsys.readouterr().out.splitlines()[1]
+    assert code == 0 and r["critical_kind"] == "bifurcation" and r["critical_load_factor"] == pytest.approx(34.14, rel=2e-3)
+    assert "(a bifurcation: it buckles)" in line and r["buckled"] == (fraction > 1)
+    assert ("BUCKLED" in line and "stable," not in line) if fraction > 1 else line.endswith("x the load applied (a bifurcation: it buckles)")
+
+
+def test_analysis_png_states_units_marks_supports_and_loads_and_keeps_round_off_unscaled(tmp_path, monkeypatch):
+    # a vanishing load with free joints: 1e-8 of displacement was blown up x8e7 into a shape; the title had no
+    # unit, the supports and loads were not drawn
+    import numpy as np
+
+    import xshells.viz.render as render
+
+    drawn = {}
+    monkeypatch.setattr(render, "render_analysis", lambda path, *a, **kw: drawn.setdefault(os.path.basename(path), (a, kw)))
+    assert main(["analyze", *BASE, "--supports", "lowest:4", "--joints", "free", "--load", "point:3:0,0,-1e-12",
+                 "--strength", "200", "--no-critical", "--out", str(tmp_path)]) == 0
+    (points0, points, edges, values, scale), kw = drawn["analysis.png"]
+    assert scale == 1.0 and "drawn unscaled" in kw["title"] and "(the design's length unit)" in kw["title"]
+    assert kw["label"].startswith("utilization (") and len(kw["supports"]) == 4
+    at, F = kw["loads"]
+    assert at.shape == (1, 3) and np.allclose(F, [[0, 0, -1e-12]])
+
+
+def test_the_colour_bar_reaches_the_largest_vertex_value(tmp_path, monkeypatch):
+    # the edges are coloured by their vertices' means: the bar stopped short of the maximum reported
+    import numpy as np
+
+    import xshells.viz.render as render
+
+    figs = []
+    monkeypatch.setattr(render, "_save", lambda fig, path: figs.append(fig))
+    P = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]])
+    render.render_analysis(str(tmp_path / "a.png"), P, P, np.array([[0, 1], [1, 2]]), np.array([0.1, 0.2, 0.9]), 1.0,
+                           supports=P[:1], loads=(P[2:], np.array([[0, 0, -1.0]])))
+    assert figs[0].axes[1].get_ylim()[1] == pytest.approx(0.9)
+
+
+def test_the_snap_through_mode_is_the_direction_the_path_moves_in(snapping):
+    # near a limit point the shell moves along the critical mode: the picture shows the path's tangent there
+    # (the lowest eigenvector drawn before can be another, soft mode: on the boat, cosine 0.02 with the motion)
+    import copy
+
+    import numpy as np
+
+    from xshells.analysis.run import _buckling_mode
+    from xshells.analysis.static import StaticOptions, critical_load_factor, solve_loaded
+    from xshells.linkage.state import restore
+
+    L, held, f = snapping
+    cr = critical_load_factor(L, f, held)
+    near = copy.deepcopy(L)
+    restore(near, cr.last_stable)
+    before = copy.deepcopy(L)
+    assert solve_loaded(before, f, held, 0.98 * cr.bracket[0], StaticOptions(load_steps=10), escape=False).converged
+    motion = (near.rods.points - before.rods.points).ravel()  # the path's secant over the last 2 %
+    mode = _buckling_mode(near, held, f)
+    assert abs(mode @ motion) >= 0.9 * np.linalg.norm(mode) * np.linalg.norm(motion)

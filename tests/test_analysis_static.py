@@ -155,6 +155,7 @@ def test_the_critical_load_of_a_cantilever_column_is_eulers(column):
     euler = np.pi**2 * B2 / (4 * ARM**2)
     assert cr.factor * 10.0 == pytest.approx(euler, rel=0.01)
     assert cr.bracket[0] <= cr.factor <= cr.bracket[1]
+    assert cr.kind == "bifurcation"  # the straight column goes on straight past it, as a saddle: no snap
 
 
 def test_stable_below_the_critical_factor_and_not_above(column):

@@ -47,6 +47,14 @@ class _Parser(argparse.ArgumentParser):
     """argparse, with its errors in one line as every other input error (it printed the whole usage first);
     the subcommands' parsers are of this class too (argparse makes them of their parent's)."""
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        import re
+
+        # a negative number in any notation is a value, not an option: argparse's own pattern misses "-1e-9", and
+        # "--density -1e-9" was "expected one argument" instead of the option's own message
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 

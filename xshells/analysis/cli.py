@@ -16,12 +16,13 @@ def register(subparsers) -> None:
                    help="locked: the joints keep their deployed angles (as built); free: they turn, the actuation torque held")
     p.add_argument("--load", action="append", default=[], metavar="LOAD",
                    help="self-weight | point:VERTEX:FX,FY,FZ | area:Q (vertical, per horizontal projected area); repeatable")
-    p.add_argument("--load-factor", type=float, default=1.0)
+    p.add_argument("--load-factor", type=float, default=1.0,
+                   help="multiplies every --load (default 1); the critical load factor is a multiple of the --load too")
     p.add_argument("--no-critical", action="store_true", help="skip the critical load factor")
     p.add_argument("--angle", type=float, help="deploy to this average angle, degrees (default: the case's)")
     p.add_argument("--material", help="TYPE:P1,P2,... or a cross-section JSON (for a bare design)")
-    p.add_argument("--young", type=float)
-    p.add_argument("--poisson", type=float)
+    p.add_argument("--young", type=float, help="for a design file: Young's modulus (default 20000, MPa)")
+    p.add_argument("--poisson", type=float, help="for a design file: Poisson's ratio (default 0.3)")
     p.add_argument("--grade", help="a named material (docs/analysis.md)")
     p.add_argument("--strength", type=float, help="allowable stress (MPa for a design in mm)")
     p.add_argument("--density", type=float, help="density (t/mm³ for a design in mm)")
@@ -69,15 +70,30 @@ def _analyze(args) -> int:
           f"largest von Mises {r['max_von_mises']:.4g}" +
           (f", utilization {r['max_utilization']:.3g}" if r["max_utilization"] is not None else ""))
     print(f"  total load {np.round(r['total_load'], 6).tolist()}, reactions {np.round(r['reactions_total'], 6).tolist()}; "
-          f"{'stability unknown' if r['stable'] is None else 'stable' if r['stable'] else 'UNSTABLE'}" +
-          (f", critical load factor {r['critical_load_factor']:.4g}" +
-           (" (a limit point: it snaps through)" if r.get("critical_kind") == "limit point" else "")
-           if r["critical_load_factor"] is not None else
-           (f", no instability up to {r['critical_searched_to']:.3g}× the load" if r["critical_searched_to"] else "")) +
-          ("; BUCKLED" if r["buckled"] else ""))
+          + _stability_line(r))
     if r["status"] != "complete":  # as xshells deploy's "stopped at …° of …°: why"
         print(f"  {r['status']} at load factor {r['load_factor_reached']:.4g} of {r['load_factor']:.4g}: {r['message']}")
+    for w in r.get("warnings", []):
+        print(f"  warning: {w}")
     if r.get("input"):  # how a .3dm was read (its units converted to mm): a note, with or without progress
         print(f"  note: {r['input']}")
     print(f"  outputs in {args.out}/")
     return 0 if r["status"] == "complete" else 1
+
+
+def _stability_line(r) -> str:
+    """How the shell stands: stable or not, the critical load factor and what happens there, buckled or not."""
+    crit, kind = r["critical_load_factor"], r.get("critical_kind")
+    what = {"limit point": "a limit point: it snaps through", "bifurcation": "a bifurcation: it buckles"}.get(kind, kind)
+    state = "stability unknown" if r["stable"] is None else "stable" if r["stable"] else "unstable"
+    if crit is not None:
+        ratio = f" = {r['critical_load_ratio']:.4g}x the load applied" if r["load_factor"] != 1 else ""
+        if r["buckled"]:
+            return (f"BUCKLED: the load passes the critical load factor {crit:.4g}{ratio} ({what}); the state it goes to "
+                    f"is {state}")
+        return f"{state}, critical load factor {crit:.4g}{ratio} ({what})"
+    if r["buckled"]:
+        return f"BUCKLED ({state})"
+    if r["critical_searched_to"] and r["status"] != "interrupted":
+        return f"{state}, no instability up to {r['critical_searched_to']:.3g}x the load"
+    return state

@@ -7,10 +7,11 @@ import io
 import json
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import STOP, InputError
 from ..io.export import atomic_write_text
 from .static import Load, StaticOptions, Support
 
@@ -69,7 +70,7 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     """Deploy (as ``xshells deploy``, outputs in ``out_dir/deploy``), then analyse under the loads."""
     from ..deploy.run import run_deployment
     from .static import (critical_load_factor, free_rigid_modes, held_variables, load_vector, lowest_supports,
-                         reactions, smallest_eigenvalue, solve_loaded)
+                         reactions, smallest_eigenvalue)
     from .stress import beam_report, check_strength, rod_stresses
 
     t0 = time.perf_counter()
@@ -131,34 +132,48 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=opts.load_steps, desc="loading", unit="step")
-    t1 = time.perf_counter()
-    try:
-        st = solve_loaded(L, f, held, load_factor, opts, base_force=base,
-                          callback=(lambda k, lam: bar.update(1) and False) if bar else None)
+        bar = tqdm(desc="loading" + (", then the critical load search" if critical else ""), unit="step")
+
+    def on_path(lam):
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(load_factor=f"{lam:.4g}")
+        return STOP.requested  # a SIGTERM's stop that a finalizer swallowed: the search ends as for Ctrl-C
+
+    t2 = time.perf_counter()
+    try:  # the path from zero load, through the requested load and (with critical) on until stability ends
+        crit = critical_load_factor(unloaded, f, held, opts, base_force=base, start=load_factor, search=critical,
+                                    callback=on_path)
     finally:
         if bar is not None:
             bar.close()
-    reached = st.load_factor  # short of load_factor where a step did not converge: the last equilibrium's
-    total_force = (base if base is not None else 0.0) + reached * f
-    reac, reac_total = reactions(L, supports, total_force, held)
-    try:
-        mu = smallest_eigenvalue(L, held)
-    except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as exc:  # ARPACK on a bad state
-        mu = float("nan")
-        st.message += f"; its stability could not be computed ({type(exc).__name__})"
-    stresses = rod_stresses(L, strength)
-    t_load = time.perf_counter() - t1
-    crit = None
-    t2 = time.perf_counter()
-    if critical:
-        crit = critical_load_factor(unloaded, f, held, opts, base_force=base, start=load_factor)
     t_crit = time.perf_counter() - t2
+    interrupted = crit.interrupted
+    shown = crit if critical or crit.factor is not None else None  # without --no-critical, the path's end is reported
+    t1 = time.perf_counter()
+    with STOP.deferred():  # what was finished is kept: the loaded state and its files (seconds)
+        st, buckled = _loaded_state(L, unloaded, f, held, base, opts, load_factor, crit)
+        if interrupted:
+            st.converged = False
+            st.message = ("interrupted during the critical load search (the loaded state was solved)"
+                          if crit.target_state is not None else
+                          f"interrupted before the requested load, at load factor {st.load_factor:.4g}")
+        reached = st.load_factor
+        total_force = (base if base is not None else 0.0) + reached * f
+        reac, reac_total = reactions(L, supports, total_force, held)
+        try:
+            mu = smallest_eigenvalue(L, held)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError) as exc:  # ARPACK on a bad state
+            mu = float("nan")
+            st.message += f"; its stability could not be computed ({type(exc).__name__})"
+        stresses = rod_stresses(L, strength)
+    t_load = time.perf_counter() - t1
     disp = np.linalg.norm(st.displacement, axis=1)
     beams = beam_report(L, stresses)
     result = {
         "input": design.note,  # how a .3dm was read (its layer, units and the conversion to mm), else None
-        "name": name, "status": "complete" if st.converged else "stopped", "message": st.message,
+        "name": name, "status": "interrupted" if interrupted else "complete" if st.converged else "stopped",
+        "message": st.message,
         "segments": int(L.num_segments), "joints": int(L.num_joints),
         "units": "those of the input: N, mm and MPa for the bundled data",
         "supports": [{"vertex": s.vertex, "kind": s.kind} for s in supports], "joint_mode": joints,
@@ -170,12 +185,16 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
         "equilibrium_error": (float(np.linalg.norm(reac_total + reached * resultant) / np.linalg.norm(reached * resultant))
                               if np.linalg.norm(reached * resultant) > 0 else None),
         "min_eigenvalue": None if np.isnan(mu) else mu, "stable": None if np.isnan(mu) else bool(mu >= 0),
-        "critical_load_factor": None if crit is None else crit.factor,
-        "critical_bracket": None if crit is None else list(crit.bracket),
-        "critical_method": None if crit is None else crit.method,
-        "critical_searched_to": None if crit is None else crit.searched_to,
-        "critical_kind": None if crit is None or crit.factor is None else crit.kind,
-        "buckled": bool(crit is not None and crit.factor is not None and load_factor > crit.factor) or bool(mu < 0),
+        # a multiple of the --load, as --load-factor is (the same whatever the split of a load between them);
+        # critical_load_ratio: the critical load over the load applied (below 1: it has buckled)
+        "critical_load_factor": None if shown is None else shown.factor,
+        "critical_load_ratio": None if shown is None or shown.factor is None else shown.factor / load_factor,
+        "critical_total_load": None if shown is None or shown.factor is None else (shown.factor * resultant).tolist(),
+        "critical_bracket": None if shown is None else list(shown.bracket),
+        "critical_method": None if shown is None else shown.method,
+        "critical_searched_to": None if shown is None else shown.searched_to,
+        "critical_kind": None if shown is None or shown.factor is None else shown.kind,
+        "buckled": bool(buckled) or bool(mu < 0),
         "deployment": {"reached": dep["reached"], "angle_deg": dep["deployed"]["average_angle_deg"],
                        "utilization_max": dep.get("utilization_max")},
         "timings_s": {"deploy": t_dep, "load": t_load, "critical": t_crit, "total": time.perf_counter() - t0},
@@ -183,12 +202,17 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     for b in beams:
         b["position"] = (np.asarray(b["position"]) + origin).tolist()
     result["origin_shift"] = origin.tolist()
-    _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, base, opts, result, origin)
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    result["warnings"] = _support_warnings(unloaded, supports, reac, resultant) + _warnings(result, L, held, total_force)
+    with STOP.deferred():
+        _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, f, mode=not interrupted)
+        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    if interrupted or STOP.requested:
+        raise KeyboardInterrupt
     return result
 
 
-def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, base, opts, result, origin) -> None:
+def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, f, mode=True) -> None:
+    """beams.csv, loaded.ply, loaded.3dm, analysis.png and (``mode``) buckling_mode.png."""
     from ..io.sweep import write_ply
     from ..linkage.export import swept_mesh
     from .static import translate
@@ -212,39 +236,166 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, f, held, bas
     d = L.rods.points - unloaded.rods.points
     span = float(np.ptp(unloaded.rods.points, axis=0).max())
     dmax = float(np.linalg.norm(d, axis=1).max())
-    scale = 0.1 * span / dmax if dmax > 0 else 1.0
+    # a displacement at round-off (a vanishing load, free joints held by their torque) is drawn as it is: scaled
+    # to a tenth of the span it was noise blown up into a shape
+    tiny = dmax <= 1e-8 * span
+    scale = 1.0 if tiny else 0.1 * span / dmax
     value = stresses.utilization if stresses.utilization is not None else stresses.von_mises
+    P_loaded = L.vertex_positions() + origin
+    points = [ld for ld in result["loads"] if ld["kind"] == "point"]
+    loads = (P_loaded[[ld["vertex"] for ld in points]].reshape(-1, 3),
+             np.array([ld["vector"] for ld in points], float).reshape(-1, 3))
+    others = sorted({ld["kind"] for ld in result["loads"] if ld["kind"] != "point"})
+    unit = "the design's length unit"
     render_analysis(os.path.join(out_dir, "analysis.png"), unloaded.rods.points + origin, L.rods.points + origin, L.rods.edges, value,
-                    scale, label="utilization" if stresses.utilization is not None else "von Mises stress",
-                    title=f"max displacement {result['max_displacement']:.3g}, shown ×{scale:.3g}")
-    # the lowest mode at the critical factor where one was found, else at the load as analysed
-    found = crit is not None and crit.factor is not None
-    at = crit.bracket[0] if found else result["load_factor_reached"]
-    mode = _buckling_mode(unloaded, f, held, base, opts, at)
+                    scale, label=("utilization (von Mises stress / strength)" if stresses.utilization is not None else
+                                  "von Mises stress (MPa for a design in mm)"),
+                    title=(f"max displacement {result['max_displacement']:.3g} ({unit}), "
+                           + ("drawn unscaled (round-off size)" if tiny else f"shown ×{scale:.3g}")
+                           + (f"\nloads: {', '.join(others + (['point (arrows)'] if points else []))}; "
+                              f"supports: triangles")),
+                    supports=unloaded.vertex_positions()[[s["vertex"] for s in result["supports"]]] + origin,
+                    loads=loads)
+    if not mode:
+        return
+    # the lowest mode at the last stable state before the critical factor where one was found, else at the
+    # state analysed
+    found = crit is not None and crit.factor is not None and crit.last_stable is not None
+    if found:
+        at_state = copy.deepcopy(unloaded)
+        from ..linkage.state import restore
+
+        restore(at_state, crit.last_stable)
+    else:
+        at_state = L
+    # at a limit point, the direction it snaps in: the path's tangent H⁻¹f, which the critical mode dominates
+    # there; the lowest eigenvector can be another, soft mode (the boat's: μ 1.4e-8 beside the fold's 5.3e-8,
+    # cosine 0.02 with the tangent)
+    snap = found and crit.kind == "limit point"
+    mode = _buckling_mode(at_state, held, f if snap else None)
     if mode is not None:
         md = mode.reshape(-1, 3)
         md = md / max(float(np.linalg.norm(md, axis=1).max()), 1e-300)  # largest amplitude 1
         s2 = 0.1 * span
-        title = (f"buckling mode at load factor {crit.factor:.4g}" if found else
+        at = crit.bracket[0] if found else result["load_factor_reached"]
+        title = (f"snap-through mode (the path's tangent) at load factor {crit.factor:.4g}" if snap else
+                 f"buckling mode at load factor {crit.factor:.4g}" if found else
                  f"lowest mode at load factor {at:.4g} (no instability up to {result['critical_searched_to'] or at:.3g}×)")
-        render_analysis(os.path.join(out_dir, "buckling_mode.png"), unloaded.rods.points + origin,
-                        unloaded.rods.points + origin + s2 * md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
-                        label="relative amplitude", title=title + f", shown at {s2:.3g}")
+        # the mode at amplitude 1, drawn × s2 (render_analysis scales the difference: passing it scaled already
+        # drew it at s2², 10 times the span's tenth the title stated for the manta ray)
+        render_analysis(os.path.join(out_dir, "buckling_mode.png"), at_state.rods.points + origin,
+                        at_state.rods.points + origin + md, L.rods.edges, np.linalg.norm(md, axis=1), s2,
+                        label="relative amplitude", title=title + f"\nlargest amplitude shown {s2:.3g} ({unit})")
 
 
-def _buckling_mode(unloaded, f, held, base, opts, factor):
-    """The rod points' displacement (3V,) of the lowest mode of the loaded Hessian at ``factor``."""
-    import scipy.sparse.linalg as spla
+#: The reactions' balance promised (relative to the load): below it, a warning says why it is not met.
+BALANCE = 1e-8
 
+
+def _support_warnings(unloaded, supports, reac, resultant) -> list:
+    """Set-ups that mislead, one line each: supports bunched at one end, the weight outside their footprint, and
+    supports that pull (a support that can only push would let the shell lift off it).
+
+    Gravity is along −z of the deployed state as computed, which need not stand level (the boat's mirror
+    plane leans 10° from vertical): ``lowest:N`` may then pick one end only.
+    """
+    out = []
+    P = unloaded.rods.points
+    Q = unloaded.vertex_positions()[[s.vertex for s in supports]]
+    span = float(np.ptp(P[:, :2], axis=0).max())
+    spread = float(np.ptp(Q[:, :2], axis=0).max())
+    if spread < span / 3.0:
+        who = "the support lies" if len(supports) == 1 else f"the {len(supports)} supports lie"
+        out.append(f"{who} within {spread:.3g} of the shell's horizontal extent of {span:.3g}: "
+                   f"it stands on one end (gravity is -z of the deployed state, which may stand tilted)")
+    else:
+        from scipy.spatial import Delaunay, QhullError
+
+        centre = P[:, :2].mean(axis=0)
+        try:
+            outside = Delaunay(Q[:, :2]).find_simplex(centre) < 0
+        except (QhullError, ValueError):  # fewer than three supports, or all in a line: no footprint to test
+            outside = False
+        if outside:
+            out.append("the shell's centre lies outside its supports' footprint (seen from above): it cantilevers "
+                       "from them (gravity is -z of the deployed state, which may stand tilted)")
+    down = np.asarray(resultant, float)
+    up = -down / np.linalg.norm(down) if np.linalg.norm(down) > 0 else np.array([0.0, 0.0, 1.0])
+    pulling = [(r["vertex"], float(np.dot(r["force"], up))) for r in reac]
+    pulling = [(v, p) for v, p in pulling if p < -1e-6 * np.linalg.norm(down)]
+    if pulling:
+        listed = ", ".join(f"{v} ({p:.3g})" for v, p in pulling)
+        out.append(f"the support(s) at vertex {listed} pull the shell against the load: it would lift off a support "
+                   f"that can only push")
+    return out
+
+
+def _warnings(result, L, held, total_force) -> list:
+    """One line each: what in the set-up or the result a designer should not miss."""
+    out = []
+    err = result["equilibrium_error"]
+    if err is not None and err > BALANCE:
+        # the Newton solve stops at the stiffness forces' round-off, whatever the tolerance asked of it: a load of
+        # the order of that round-off cannot be balanced to 1e-8 of itself (0.01 N on the boat: 4e-7)
+        free = np.setdiff1d(np.arange(L.num_vars), held)
+        residual = float(np.linalg.norm((L.gradient() - total_force)[free]))
+        out.append(f"the reactions balance the load to {err:.1e} of it only: the equilibrium's residual force "
+                   f"({residual:.1e}, the stiffness forces' round-off) is not small against a load this small "
+                   f"({np.linalg.norm(result['total_load']):.3g})")
+    return out
+
+
+def _loaded_state(L, unloaded, f, held, base, opts, load_factor, crit):
+    """Put ``L`` in the equilibrium at ``load_factor`` found along the path ``crit``; (LoadedState, buckled).
+
+    Where the path reached the requested load, its state there, polished for the reactions' balance. Where
+    stability ended before it, the state Newton finds from the last stable one (where the shell snaps or
+    buckles to, or none: the result then stops at the last stable factor). An interrupted or unfinished path
+    leaves the last stable state.
+    """
+    from ..linkage.state import restore
     from .static import solve_loaded
 
-    work = copy.deepcopy(unloaded)
-    st = solve_loaded(work, f, held, factor, opts, base_force=base, escape=False)
-    if not st.converged:
-        return None
+    if crit.target_state is not None:
+        restore(L, crit.target_state)
+        st = solve_loaded(L, f, held, load_factor, replace(opts, load_steps=1), base_force=base,
+                          start_factor=load_factor)
+        buckled = False
+    elif crit.factor is not None and not crit.interrupted:
+        restore(L, crit.last_stable)
+        st = solve_loaded(L, f, held, load_factor, opts, base_force=base, start_factor=crit.bracket[0])
+        buckled = True
+        what = "it snaps through" if crit.kind == "limit point" else "it buckles"
+        if st.converged:
+            st.message = (f"the load passes the critical load factor {crit.factor:.4g} ({crit.kind}: {what}); the state "
+                          f"shown is the one it goes to")
+        else:
+            st.message = f"the load passes the critical load factor {crit.factor:.4g} ({crit.kind}: {what}); " + st.message
+    else:
+        restore(L, crit.last_stable)
+        lo = crit.bracket[0]
+        st = solve_loaded(L, f, held, lo, replace(opts, load_steps=1), base_force=base, start_factor=lo)
+        st.converged = False
+        st.message = f"the path from zero load stopped at load factor {lo:.4g} after {len(crit.samples) - 1} steps"
+        buckled = False
+    st.displacement = L.vertex_positions() - unloaded.vertex_positions()  # from the unloaded state, not the path's last
+    return st, buckled
+
+
+def _buckling_mode(state, held, f=None):
+    """The rod points' displacement (3V,) of the lowest mode of the Hessian of ``state`` (a linkage), or with
+    ``f`` of the path's tangent H⁻¹f (None where it cannot be computed)."""
+    import scipy.sparse.linalg as spla
+
+    work = state
     free = np.setdiff1d(np.arange(work.num_vars), held)
     H = work.hessian()[free][:, free].tocsc()
     M = work.mass_matrix()[free][:, free].tocsc()
+    if f is not None:
+        x = np.zeros(work.num_vars)
+        with np.errstate(all="ignore"):
+            x[free] = spla.spsolve(H, np.asarray(f, float)[free])
+        return (work._jacobian() @ x)[: 3 * work.rods.num_vertices] if np.all(np.isfinite(x)) else None
     try:
         shift = 1e-8 * abs(spla.eigsh(H, k=1, M=M, which="LM", return_eigenvectors=False)[0])
         _, vec = spla.eigsh(H, k=1, M=M, sigma=-shift, which="LM")

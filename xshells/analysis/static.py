@@ -333,20 +333,30 @@ def reactions(linkage, supports, f_total, held) -> tuple[list, np.ndarray]:
 
 @dataclass
 class CriticalFactor:
-    """The load factor at which the loaded equilibrium loses stability.
+    """The load factor at which the loaded equilibrium loses stability, and the path followed to it.
 
     Attributes
     ----------
     factor : float or None
         None when the structure is stable up to ``searched_to``.
     bracket : (float, float)
-        Stable below, unstable (or no equilibrium) above.
+        Stable below, unstable (or no equilibrium on the path) above.
     method : str
     searched_to : float
-    samples : list of (factor, smallest eigenvalue or nan)
+        How far the path was followed: ``options.max_factor`` × the target, or less where it stopped.
+    samples : list of (factor, 0 where the state is stable, -1 where not)
+        The equilibria accepted along the path.
     kind : {"bifurcation", "limit point"} or None
-        How stability ends: an eigenvalue through zero on the branch (it buckles), or a load beyond which
-        the branch has no equilibrium (a limit point: it snaps through).
+        How stability ends: the path goes on through the critical factor, an eigenvalue of its Hessian
+        turning negative (a bifurcation: the shell buckles sideways off it), or the path ends at a load
+        maximum, past which the nearest equilibrium is far away (a limit point: it snaps through).
+    target_state : dict or None
+        The equilibrium on the path at the target factor (a :func:`~xshells.linkage.state.snapshot`), where
+        the path reached it before losing stability.
+    last_stable : dict or None
+        The equilibrium at ``bracket[0]``.
+    interrupted : bool
+        The search was stopped (Ctrl-C, or the callback): what was found so far.
     """
 
     factor: float | None
@@ -355,146 +365,191 @@ class CriticalFactor:
     searched_to: float
     samples: list = field(default_factory=list)
     kind: str | None = None
+    target_state: dict | None = field(default=None, repr=False)
+    last_stable: dict | None = field(default=None, repr=False)
+    interrupted: bool = False
 
 
-#: Newton iterations per load step in the critical-load search: from a nearby equilibrium a step converges in
-#: far fewer; past a limit point Newton walks to the far branch (a jump, or no equilibrium: either way the
-#: bracket's upper end) and the walk's hundreds of iterations were most of the search's time.
+#: Newton iterations per path step: from the predictor a step converges in a few; past a limit point Newton
+#: walks to the far branch (or nowhere) and the walk's hundreds of iterations were most of the search's time.
 SEARCH_NEWTON_ITERATIONS = 40
+#: A step is accepted when its equilibrium lies within this fraction of the predicted motion from the
+#: prediction along the path's tangent. A smooth path misses it by O(dλ²), a fold approached by
+#: √(λc − λ) only for steps within ~10 % of the fold, a snap by its whole jump however small the step.
+PATH_DEVIATION = 0.5
+#: The predicted motion of one step, at most, as a fraction of the shell's span: a snap that moves the shell
+#: by more than half of it (1 % of the span) cannot hide inside a long step.
+PATH_STEP_SPAN = 0.02
+#: Steps of the path at most (the search stops there, saying how far it got).
+PATH_MAX_STEPS = 400
+
+
+def _plain_newton(linkage, free, force, tolerance, iterations: int = 12) -> bool:
+    """Newton's method without line search or shifts on ``∇E(x) = force`` (the free variables), from the current
+    state: it converges to a saddle as to a minimum, near one. True where ``|g| ≤ tolerance``."""
+    import scipy.sparse.linalg as spla
+
+    with np.errstate(all="ignore"):  # a diverging try passes through degenerate joints: it is refused, not reported
+        return _plain_newton_steps(linkage, free, force, tolerance, iterations, spla)
+
+
+def _plain_newton_steps(linkage, free, force, tolerance, iterations, spla) -> bool:
+    for _ in range(iterations):
+        g = (linkage.gradient() - force)[free]
+        if not np.all(np.isfinite(g)):
+            return False
+        if float(np.linalg.norm(g)) <= tolerance:
+            return True
+        try:
+            d = spla.splu(linkage.hessian()[free][:, free].tocsc()).solve(-g)
+        except RuntimeError:  # exactly singular
+            return False
+        x = linkage.get_vars()
+        x[free] += d
+        if not np.all(np.isfinite(x)):
+            return False
+        linkage.set_vars(x)
+        linkage.update_source_frame()
+    return float(np.linalg.norm((linkage.gradient() - force)[free])) <= tolerance
 
 
 def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOptions(), base_force=None,
-                         start: float = 1.0) -> CriticalFactor:
-    """Continuation in the load factor from the unloaded state (``linkage`` is left unchanged).
+                         start: float = 1.0, search: bool = True, callback=None) -> CriticalFactor:
+    """Follow the equilibrium path ``∇E(x) = λ f`` from the unloaded state (``linkage`` is left unchanged).
 
-    The smallest eigenvalue μ(λ) of the loaded Hessian is followed along the
-    loaded branch (Newton without saddle escapes, so a symmetric state that
-    passes its critical load stays on its branch, as a saddle), from
-    ``start``/2 (a snap below the requested load is looked for too) up to
-    ``options.max_factor`` × ``start``, that factor itself sampled last. Steps
-    grow by secant extrapolation of μ toward 0 (at most ×2, a little past the
-    predicted zero). The first sign change, the first load without an
-    equilibrium, or the first step whose equilibrium *jumped* (the joints
-    moved more than three times as far as the tangent dx/dλ = H⁻¹f predicts:
-    Newton converged past a limit point, onto the branch after a
-    snap-through, where μ > 0 again) is bracketed to ``factor_tolerance``
-    (:func:`_bracketed`). A jump where μ had not fallen toward 0 is tried
-    again from just below it: one that then steps smoothly was a strongly
-    nonlinear path, not a limit point, and the continuation goes on.
+    The path always starts at λ = 0 (whatever the split of a load between
+    ``f`` and ``start``, the same path is followed) and goes, in steps
+    controlled along it, through ``start`` (the target, where its state is
+    kept) and on to ``options.max_factor`` × ``start`` (only to ``start``
+    without ``search``). Each step predicts the state along the path's
+    tangent dx/dλ = H⁻¹f (held variables fixed), corrects by Newton without
+    saddle escapes (so a symmetric state past its critical load stays on
+    its branch, as a saddle), and is accepted when the equilibrium lies
+    within :data:`PATH_DEVIATION` of the predicted motion from the
+    prediction, the motion itself at most :data:`PATH_STEP_SPAN` of the
+    span. Stability ends
+
+    * where the Hessian on the free variables stops being positive definite
+      on a path that goes on smoothly: a bifurcation, bracketed by halving;
+    * where the path ends: steps down to ``factor_tolerance`` that still
+      jump (the state moves far from the prediction: a snap to another
+      branch), or find no equilibrium: a limit point.
+
+    The bracket is narrowed to ``factor_tolerance`` (relative); a bound set by
+    a long step that failed is confirmed by a short one. ``callback(factor)``
+    after each accepted step: True stops the search (``interrupted``), as
+    does KeyboardInterrupt; what is found so far is returned.
     """
     import copy
 
     from ..linkage.state import restore, snapshot
+    from ..solve import minimize
+    from ..solve.cholesky import NotPositiveDefinite, SparseCholesky
 
     work = copy.deepcopy(linkage)
-    base_state = snapshot(work)
-    samples = []
+    f = np.asarray(f, float)
+    base = np.zeros(work.num_vars) if base_force is None else np.asarray(base_force, float)
     free = np.setdiff1d(np.arange(work.num_vars), held)
-    joints = 9 * np.arange(work.num_joints)[:, None] + np.arange(3)[None, :]
-    on_free = np.isin(free, joints.ravel())  # the joints' positions among the free variables: lengths
+    V = work.rods.num_vertices
+    span = float(np.ptp(work.rods.points, axis=0).max())
+    floor = 1e-9 * (span + float(np.abs(work.rods.points).max()))  # motions at round-off
+    opts = replace(_newton_options(work), saddle_gradient_factor=0.0, max_iterations=SEARCH_NEWTON_ITERATIONS)
+    tol = options.factor_tolerance
+    target = float(start)
+    limit = options.max_factor * target if search else target
+    chol = SparseCholesky()
 
-    def positions():
-        return np.asarray(work.get_vars(), float)[joints.ravel()]
-
-    def tangent_step():
-        """max |dx/dλ| of the joints' positions at the current (stable) state: H⁻¹f on the free variables."""
-        from ..solve.cholesky import NotPositiveDefinite, SparseCholesky
-
-        chol = SparseCholesky()
+    def analyse():
+        """(stable, tangent (num_vars,) or None, rod points' motion per unit λ (V, 3) or None) at the state."""
         try:
             chol.factorize(work.hessian()[free][:, free].tocsr())
         except NotPositiveDefinite:
-            return np.inf
-        u = chol.solve(np.asarray(f, float)[free])
-        return float(np.abs(u[on_free]).max()) if on_free.any() else 0.0
+            return False, None, None
+        t = np.zeros(work.num_vars)
+        t[free] = chol.solve(f[free])
+        return True, t, (work._jacobian() @ t)[: 3 * V].reshape(-1, 3)
 
-    def mu_at(lam, from_state, from_lam, rate):
-        """(μ, state, rate, jumped) at ``lam`` solved from ``from_state`` at ``from_lam``; μ None where there is
-        no equilibrium on the branch (no convergence, a failed eigen-solve, or a jump)."""
-        restore(work, from_state)
-        x0 = positions()
-        # from the stable state at from_lam in two load steps (it is near: the steps at most double the
-        # factor), without the final polish that only the reactions need
-        st = solve_loaded(work, f, held, lam, StaticOptions(joints=options.joints, load_steps=max(1, options.load_steps // 5),
-                                                            gravity=options.gravity), base_force=base_force, escape=False,
-                          start_factor=from_lam, polish=False, max_iterations=SEARCH_NEWTON_ITERATIONS)
-        if not st.converged:
-            samples.append((lam, float("nan")))
-            return None, None, None, False
-        moved = float(np.abs(positions() - x0).max())
-        if rate is not None and moved > 3.0 * rate * (lam - from_lam) + 1e-9 * (1.0 + float(np.abs(x0).max())):
-            samples.append((lam, float("nan")))  # past a limit point (a snap-through), or a step too long
-            return None, None, None, True
-        try:
-            mu = smallest_eigenvalue(work, held)
-        except (ArithmeticError, ValueError, np.linalg.LinAlgError, RuntimeError):  # ARPACK on a state gone bad
-            samples.append((lam, float("nan")))
-            return None, None, None, False
-        samples.append((lam, mu))
-        return mu, snapshot(work), (tangent_step() if mu >= 0 else None), False
+    def step(lam_from, state, t, rate, lam):
+        """Predict from ``state`` (at ``lam_from``) to ``lam`` and correct: the new state, or None where the
+        equilibrium is not the path's (no convergence, or far from the prediction)."""
+        restore(work, state)
+        dl = lam - lam_from
+        P_pred = work.rods.points + dl * rate
+        work.set_vars(work.get_vars() + dl * t)
+        force = base + lam * f
+        x_pred = snapshot(work)
+        rep = minimize(work, fixed=held, force=force, options=opts)
+        # a saddle on a symmetric branch past its bifurcation stalls at the gradient's round-off, a little above
+        # the tolerance set for minima: at 1e-8 of the load it is an equilibrium all the same
+        stalled = ("round-off" in rep.message and rep.gradient_norm
+                   and rep.gradient_norm[-1] <= 1e-8 * float(np.linalg.norm(force[free])))
+        if not (rep.converged or stalled) or not np.all(np.isfinite(work.get_vars())):
+            # the minimizer shifts an indefinite Hessian and does not converge to a saddle (the deployed plus's
+            # arm under an in-plane load past its lateral buckling load: |g| stuck at 1e-8 to 1e-6): plain Newton
+            # from the prediction converges to the branch's saddle where there is one nearby
+            restore(work, x_pred)
+            if not _plain_newton(work, free, force, max(opts.gradient_tolerance, 1e-9 * float(np.linalg.norm(force[free])))):
+                return None
+        work.update_source_frame()
+        off = float(np.abs(work.rods.points - P_pred).max())
+        if off > PATH_DEVIATION * dl * float(np.abs(rate).max()) + floor:
+            return None
+        return snapshot(work)
 
-    mu0 = smallest_eigenvalue(work, held)
-    samples.append((0.0, mu0))
-    lo, mu_lo, state_lo = 0.0, mu0, base_state
-    rate_lo = tangent_step() if mu0 >= 0 else None
-    prev = (None, None)  # the sample before lo: (factor, μ), for the secant
-    limit = options.max_factor * max(start, 1e-300)
-    tol = options.factor_tolerance
-    lam = min(start / 2.0, limit)
-    while True:
-        mu, st, rate, jumped = mu_at(lam, state_lo, lo, rate_lo)
-        if mu is None or mu < 0:
-            kind = "bifurcation" if mu is not None else "limit point"
-            lo2, mu_lo2, state2, rate2, prev2, hi, kind = _bracketed(mu_at, lo, mu_lo, state_lo, rate_lo, prev, lam, mu, kind, tol)
-            if jumped and kind == "limit point" and mu_lo2 > 0.1 * mu0:
-                # μ has not fallen toward 0 on the way: no fold in sight. Stepped from just below, is the jump
-                # still there? Where it is not, the path was only strongly nonlinear: go on from there.
-                mu3, st3, rate3, jumped3 = mu_at(hi, state2, lo2, rate2)
-                if mu3 is not None and mu3 >= 0:
-                    prev, lo, mu_lo, state_lo, rate_lo = (lo2, mu_lo2), hi, mu3, st3, rate3
-                    if lo >= limit:
-                        break
-                    lam = min(2.0 * lo, limit)
-                    continue
-            return CriticalFactor(0.5 * (lo2 + hi), (lo2, hi), "continuation in the load factor, bracketed", limit,
-                                  samples, kind)
-        # the secant toward μ = 0 (a bifurcation, or a limit point ahead), at most doubling: stepping a little
-        # past the predicted zero brackets it closely
-        slope = (mu - mu_lo) / (lam - lo) if lam > lo else 0.0
-        nxt = lam - mu / slope if slope < 0 else 2.0 * lam
-        prev, lo, mu_lo, state_lo, rate_lo = (lo, mu_lo), lam, mu, st, rate
-        if lam >= limit:
-            break
-        lam = min(float(np.clip(nxt * 1.02, lam * (1.0 + 2.0 * tol), 2.0 * lam)), limit)
-    return CriticalFactor(None, (lo, float("inf")), "continuation in the load factor", limit, samples)
-
-
-def _bracketed(mu_at, lo, mu_lo, state_lo, rate_lo, prev, hi, mu_hi, kind, tol):
-    """Narrow the bracket (lo stable, hi not) to ``tol`` (relative): regula falsi on μ where both ends have one
-    (a bifurcation), else the secant through the last two stable samples (a limit point, where μ → 0), each
-    kept inside the bracket and alternated with halving once an end stops moving (Illinois' safeguard).
-    Returns (lo, μ(lo), its state, its rate, the sample before lo, hi, the kind of what ends stability at hi)."""
-    same_end = 0
-    last_end = None
-    while hi - lo > tol * hi:
-        w = hi - lo
-        guess = None
-        if mu_hi is not None and mu_hi < 0 < mu_lo:
-            guess = lo + w * mu_lo / (mu_lo - mu_hi)
-        elif prev[0] is not None and prev[1] > mu_lo > 0:
-            guess = lo + mu_lo * (lo - prev[0]) / (prev[1] - mu_lo)
-        if guess is None or not np.isfinite(guess) or same_end >= 1 or not lo + 0.1 * w < guess < hi - 0.1 * w:
-            x = lo + 0.5 * w  # halving: no prediction inside the bracket, or one end has just moved twice
-        else:
-            x = guess
-        mu, st, rate, _ = mu_at(x, state_lo, lo, rate_lo)
-        if mu is None or mu < 0:
-            hi, mu_hi, kind, end = x, mu, ("bifurcation" if mu is not None else "limit point"), "hi"
-        else:
-            prev, lo, mu_lo, state_lo, rate_lo, end = (lo, mu_lo), x, mu, st, rate, "lo"
-        same_end = same_end + 1 if end == last_end else 0
-        last_end = end
-    return lo, mu_lo, state_lo, rate_lo, prev, hi, kind
+    lo, state_lo = 0.0, snapshot(work)
+    stable, t_lo, rate_lo = analyse()
+    samples = [(0.0, 0.0 if stable else -1.0)]
+    target_state = state_lo if target == 0 else None
+    if not stable:  # unstable unloaded: nothing to follow
+        return CriticalFactor(0.0, (0.0, 0.0), "continuation in the load factor from zero", 0.0, samples, "bifurcation",
+                              None, state_lo)
+    hi, kind, hi_confirmed = None, None, False
+    u = float(np.abs(rate_lo).max())
+    dl = min(limit, PATH_STEP_SPAN * span / u) if u > 0 else limit
+    interrupted = False
+    try:
+        for _ in range(PATH_MAX_STEPS):
+            if hi is not None and hi - lo <= tol * hi:
+                if hi_confirmed:
+                    break
+                lam = hi  # a long step's failure set this bound: is it one at a short step too?
+            elif hi is not None:
+                lam = 0.5 * (lo + hi)
+            else:
+                if lo >= limit:
+                    break
+                lam = lo + min(dl, PATH_STEP_SPAN * span / max(float(np.abs(rate_lo).max()), 1e-300))
+                if lo < target:
+                    lam = min(lam, target)  # the path passes through the target itself
+                lam = min(lam, limit)
+            new = step(lo, state_lo, t_lo, rate_lo, lam)
+            short = lam - lo <= 2.0 * tol * lam
+            if new is None:  # off the path: a limit point beyond lo (or the step was too long)
+                hi, kind, hi_confirmed = lam, "limit point", short
+                dl = 0.5 * (lam - lo)
+                continue
+            ok, t, rate = analyse()
+            samples.append((lam, 0.0 if ok else -1.0))
+            if not ok:  # the path goes on, through the loss of stability: a bifurcation
+                hi, kind, hi_confirmed = lam, "bifurcation", True
+                continue
+            if hi is not None and lam >= hi:  # the bound was a long step's failure only: follow on
+                hi, kind = None, None
+            if hi is None:  # accepted: the next step twice as long (the span's share caps it)
+                dl = 2.0 * (lam - lo)
+            lo, state_lo, t_lo, rate_lo = lam, new, t, rate
+            if lo == target:
+                target_state = new
+            if callback is not None and callback(lo):
+                interrupted = True
+                break
+    except KeyboardInterrupt:
+        interrupted = True
+    if hi is not None and hi - lo <= tol * hi and hi_confirmed:
+        return CriticalFactor(0.5 * (lo + hi), (lo, hi), "continuation in the load factor from zero, bracketed",
+                              limit, samples, kind, target_state, state_lo, interrupted)
+    return CriticalFactor(None, (lo, float("inf")), "continuation in the load factor from zero", lo, samples, None,
+                          target_state, state_lo, interrupted)
 
 
 def translate(linkage, shift) -> None:

@@ -86,8 +86,8 @@ def material_spec_from_option(option: str | None, young: float | None = None, po
         from ..analysis.stress import check_strength
 
         check_strength(strength, "--strength")
-        if density is not None and not (np.isfinite(density) and density >= 0):
-            raise InputError(f"--density must be a non-negative mass per volume (t/mm³ for a design in mm), got {density:g}")
+        if density is not None and not (np.isfinite(density) and density > 0):  # the rods' masses must be positive
+            raise InputError(f"--density must be a positive mass per volume (t/mm³ for a design in mm), got {density:g}")
         if grade is not None:
             named_material(grade)
         spec = material_spec_from_option(option, young, poisson)

@@ -238,15 +238,17 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     from ..analysis.stress import check_strength
 
     strength = check_strength(strength)
-    stress_rows = []
-
-    done_steps = []  # the steps finished so far: what an interrupted run keeps
+    # the steps finished so far, each with its stresses (None without a strength): what an interrupted run keeps.
+    # One list of pairs, appended once per step when everything is computed: an interrupt inside the stresses
+    # drops that step whole (two lists appended one after the other left a step without its utilization_max,
+    # and the interrupted run ended in a KeyError instead of its result.json)
+    done = []
 
     def on_step(rec):
-        done_steps.append(rec)
+        # the utilization along the way; without a strength, the final state's stresses only
+        row = _stress_row(linkage, strength) if strength is not None else None
+        done.append((rec, row))
         STOP.check()
-        if strength is not None:  # the utilization along the way; without a strength, the final state's stresses only
-            stress_rows.append(_stress_row(linkage, strength))
         if bar is not None:
             bar.set_postfix(angle=f"{rec.average_angle_deg:.1f}°", z=f"{rec.max_abs_z:.3g}")
             bar.update(1)
@@ -280,9 +282,12 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         t_deploy = time.perf_counter() - t2
         if states is not None:
             states["deployed"] = linkage
+        finished = list(done)
+        stress_rows = [row for _, row in finished if row is not None]
         result = _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, {
             "name": name, "flat": flat, "target_angle_deg": float(np.degrees(target_angle)), "warnings": warnings,
-            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}, "steps": done_steps, "flat_xy": flat_xy},
+            "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}, "steps": [rec for rec, _ in finished],
+            "flat_xy": flat_xy},
             t0, writer)
         writer = None
     finally:

@@ -55,7 +55,7 @@ class MaterialSpec(_Strict):
     grade: Optional[str] = Field(None, min_length=1, description="a named material (E, ν, density, strength; "
                                  "docs/analysis.md): gfrp-e23, softwood-c24, aluminium-6063-t6, birch-plywood; "
                                  "keys given here override its values")
-    density: Optional[float] = Field(None, ge=0, allow_inf_nan=False,
+    density: Optional[float] = Field(None, gt=0, allow_inf_nan=False,
                                      description="mass per volume, in the design's units (t/mm³ for millimetres: 1.9e-9 is 1900 kg/m³)")
     strength: Optional[float] = Field(None, gt=0, allow_inf_nan=False,
                                       description="allowable stress for the utilization, in the stress unit (MPa for millimetres)")

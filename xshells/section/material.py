@@ -104,8 +104,8 @@ class Material:
         where = self.profile.name
         E, nu = check_elastic_constants(self.E, self.nu, where)
         density = float(self.density)
-        if not np.isfinite(density) or density < 0:
-            raise InputError(f"{where}: density must be non-negative, got {self.density!r}")
+        if not np.isfinite(density) or density <= 0:  # the rods' masses must be positive (their mass matrix)
+            raise InputError(f"{where}: density must be positive, got {self.density!r}")
         axis = _check_stiff_axis(self.stiff_axis, where)
         section = analyse(self.profile, rtol=self.rtol)
         for name, value in (("E", E), ("nu", nu), ("density", density), ("stiff_axis", axis),

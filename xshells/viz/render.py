@@ -285,10 +285,16 @@ def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.n
 
 
 def render_analysis(path, points0: np.ndarray, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray,
-                    scale: float, label: str = "utilization", title: str = "") -> None:
+                    scale: float, label: str = "utilization", title: str = "", supports=None, loads=None) -> None:
     """The loaded shell: the unloaded centerlines in grey and the displaced ones (displacement × ``scale``),
-    coloured per edge by ``vertex_values`` (e.g. the utilization)."""
+    coloured per edge by ``vertex_values`` (e.g. the utilization).
+
+    The colour scale runs from 0 to the largest vertex value (the edges' colours are their vertices' means,
+    which stop short of the maximum reported). ``supports``: (k, 3) points drawn as triangles; ``loads``:
+    (points (m, 3), forces (m, 3)) drawn as arrows (their length a tenth of the span for the largest).
+    """
     plt = _pyplot()
+    from matplotlib.colors import Normalize
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
     shown = points0 + scale * (points - points0)
@@ -296,10 +302,23 @@ def render_analysis(path, points0: np.ndarray, points: np.ndarray, edges: np.nda
     ax = fig.add_subplot(projection="3d")
     ax.add_collection3d(Line3DCollection(points0[edges], colors="0.75", linewidths=0.8))
     vals = 0.5 * (vertex_values[edges[:, 0]] + vertex_values[edges[:, 1]])
-    lc = Line3DCollection(shown[edges], array=vals, cmap="inferno_r", linewidths=1.8)
+    top = float(np.max(vertex_values)) if len(vertex_values) else 1.0
+    lc = Line3DCollection(shown[edges], array=vals, cmap="inferno_r", linewidths=1.8,
+                          norm=Normalize(vmin=min(0.0, float(np.min(vertex_values))), vmax=top if top > 0 else 1.0))
     ax.add_collection3d(lc)
+    span = float(np.ptp(points0, axis=0).max()) or 1.0
+    if supports is not None and len(supports):
+        S = np.asarray(supports, float)
+        ax.scatter(S[:, 0], S[:, 1], S[:, 2], marker="^", s=60, c="tab:blue", depthshade=False, label="supports")
+    if loads is not None and len(loads[0]):
+        at, F = (np.asarray(a, float) for a in loads)
+        F = F / max(float(np.linalg.norm(F, axis=1).max()), 1e-300) * 0.1 * span
+        ax.quiver(at[:, 0] - F[:, 0], at[:, 1] - F[:, 1], at[:, 2] - F[:, 2], F[:, 0], F[:, 1], F[:, 2],
+                  color="tab:green", linewidth=1.5, arrow_length_ratio=0.3, label="point loads")
+    if (supports is not None and len(supports)) or (loads is not None and len(loads[0])):
+        ax.legend(loc="upper left", fontsize=8)
     _equal_axes(ax, np.vstack([points0, shown]))
     fig.colorbar(lc, ax=ax, shrink=0.6, label=label)
-    ax.set_title(title)
+    ax.set_title(title, fontsize=10)
     _save(fig, path)
     plt.close(fig)
