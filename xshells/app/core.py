@@ -333,14 +333,15 @@ def beam_pairing(layout: Layout, graph) -> dict:
     valence-3 joint one pair continues through and the third neighbour ends there, at a valence-2 joint
     both beams end. Neighbours are vertex indices, so the pairing survives renumbered segments.
     """
-    E = layout.edges
-    other = lambda s, v: int(E[s, 1] if E[s, 0] == v else E[s, 0])  # noqa: E731
+    E = layout.edges.tolist()
+    neighbours: list[set] = [set() for _ in range(layout.num_vertices)]
+    for a, b in E:
+        neighbours[a].add(b)
+        neighbours[b].add(a)
     out = {}
-    for j, v in enumerate(np.asarray(graph.joint_vertex).tolist()):
-        slots = np.asarray(graph.joint_segments[j])
-        pairs = frozenset(frozenset(other(int(sg), v) for sg in row if sg >= 0) for row in slots)
-        neighbours = frozenset(int(n) for n in np.concatenate([E[E[:, 0] == v, 1], E[E[:, 1] == v, 0]]).tolist())
-        out[v] = (neighbours, pairs)
+    for v, slots in zip(np.asarray(graph.joint_vertex).tolist(), np.asarray(graph.joint_segments).tolist()):
+        pairs = frozenset(frozenset(E[sg][1] if E[sg][0] == v else E[sg][0] for sg in row if sg >= 0) for row in slots)
+        out[v] = (frozenset(neighbours[v]), pairs)
     return out
 
 
