@@ -535,7 +535,10 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
                     lam = min(lam, target)  # the path passes through the target itself
                 lam = min(lam, limit)
             new = step(lo, state_lo, t_lo, rate_lo, lam, newton_first=kind == "bifurcation")
-            short = lam - lo <= 2.0 * tol * lam
+            # a failure confirms a bound only from a step as short as the bracket asked for: the hourglass's step
+            # of 0.14 % failed the deviation test (the path turning ever faster toward its fold) and was kept
+            # as the bound, 0.17 % below the fold
+            short = lam - lo <= tol * lam
             if new is None:  # off the path: a limit point beyond lo (or the step was too long)
                 hi, kind, hi_confirmed = lam, "limit point", short
                 dl = 0.5 * (lam - lo)
@@ -550,6 +553,8 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
             if hi is None:  # accepted: the next step twice as long (the span's share caps it)
                 dl = 2.0 * (lam - lo)
             lo, state_lo, t_lo, rate_lo = lam, new, t, rate
+            if kind == "limit point":  # a failure from an earlier, farther state: confirmed again from this one
+                hi_confirmed = False
             if lo == target:
                 target_state = new
             if callback is not None and callback(lo):
