@@ -34,6 +34,9 @@ def test_the_analysis_reports_and_writes_what_it_should(run):
     # the search sampled 1x, 2x, 4x ... from the requested load, landed past the fold, and said "no
     # instability up to 50x"
     assert r["critical_kind"] == "limit point" and 1.8 < r["critical_load_factor"] < 1.95
+    # informative for a squeeze too, where critical_total_load is 0: the factor times the loads' magnitude
+    assert r["critical_load_magnitude"] == pytest.approx(r["critical_load_factor"] * abs(r["total_load"][2]), rel=1e-12)
+    assert r["state"] == "loaded" and r["load_factor_reached"] == 1.0
     for name in ("analysis.png", "beams.csv", "loaded.ply", "loaded.3dm", "deploy/result.json", "deploy/deployed.3dm"):
         assert (out / name).is_file(), name
     assert "utilization" in (out / "loaded.ply").read_bytes()[:2000].decode("latin-1")
