@@ -2,6 +2,7 @@
 import json
 import os
 
+import numpy as np
 import pytest
 
 from data_paths import EXAMPLES
@@ -33,6 +34,9 @@ def test_the_analysis_reports_and_writes_what_it_should(run):
     # the search sampled 1x, 2x, 4x ... from the requested load, landed past the fold, and said "no
     # instability up to 50x"
     assert r["critical_kind"] == "limit point" and 1.8 < r["critical_load_factor"] < 1.95
+    # informative for a squeeze too, where critical_total_load is 0: the factor times the loads' magnitude
+    assert r["critical_load_magnitude"] == pytest.approx(r["critical_load_factor"] * abs(r["total_load"][2]), rel=1e-12)
+    assert r["state"] == "loaded" and r["load_factor_reached"] == 1.0
     for name in ("analysis.png", "beams.csv", "loaded.ply", "loaded.3dm", "deploy/result.json", "deploy/deployed.3dm"):
         assert (out / name).is_file(), name
     assert "utilization" in (out / "loaded.ply").read_bytes()[:2000].decode("latin-1")
@@ -188,6 +192,24 @@ def test_past_the_snap_the_shell_is_reported_buckled(run, tmp_path, capsys, frac
     assert r["critical_load_ratio"] == pytest.approx(1 / fraction, rel=2e-3)
 
 
+def strict(text):
+    """``json.loads`` that refuses Infinity and NaN, as JavaScript's JSON.parse does."""
+    def refuse(name):
+        raise ValueError(f"not JSON: {name}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_result_json_is_strict_json():
+    # the open bracket [lo, inf] of a search without a critical factor was written [50.0, Infinity]
+    from xshells.io.export import finite_json
+
+    value = {"a": [1.0, float("inf")], "b": (float("nan"), -float("inf")), "c": {"d": 2}}
+    with pytest.raises(ValueError):
+        strict(json.dumps(value))
+    assert strict(finite_json(value)) == {"a": [1.0, None], "b": [None, None], "c": {"d": 2}}
+
+
 def test_an_interrupted_critical_search_keeps_the_loaded_state(tmp_path, monkeypatch):
     # Ctrl-C during the critical load search (past the requested load, 1x): result.json says so and the
     # loaded state's files are written (an interrupt lost everything before)
@@ -207,8 +229,8 @@ def test_an_interrupted_critical_search_keeps_the_loaded_state(tmp_path, monkeyp
     out = tmp_path / "o"
     code = main(["analyze", *BASE, "--density", "1.9e-9", "--supports", "lowest:4", "--load", "self-weight",
                  "--load", "point:3:0,0,-1e-3", "--out", str(out)])
-    r = json.loads((out / "result.json").read_text())
-    assert code == 130 and r["status"] == "interrupted"
+    r = strict((out / "result.json").read_text())  # its open bracket was written [1.2, Infinity]
+    assert code == 130 and r["status"] == "interrupted" and r["critical_bracket"][1] is None
     assert r["message"].startswith("interrupted during the critical load search")
     assert r["load_factor_reached"] == 1.0 and r["equilibrium_error"] <= 1e-8 and r["critical_load_factor"] is None
     for name in ("analysis.png", "beams.csv", "loaded.ply"):
@@ -225,12 +247,15 @@ def test_the_buckling_mode_is_drawn_at_the_amplitude_its_title_states(tmp_path, 
 
     def capture(path, points0, points, edges, values, scale, label="", title="", **kw):
         drawn[os.path.basename(path)] = (np.linalg.norm(scale * (points - points0), axis=1).max(), title)
+        drawn[path] = kw
 
     monkeypatch.setattr(render, "render_analysis", capture)
-    assert main(["analyze", *BASE, "--supports", "lowest:4", "--load", "point:3:0,0,-1e-3", "--no-critical",
-                 "--out", str(tmp_path)]) == 0
+    assert main(["analyze", *BASE, "--supports", "lowest:4", "--support-type", "clamped", "--load",
+                 "point:3:0,0,-1e-3", "--no-critical", "--out", str(tmp_path)]) == 0
     amplitude, title = drawn["buckling_mode.png"]
     assert f"largest amplitude shown {amplitude:.3g} (" in title
+    # the supports' kind goes with them (clamped: squares)
+    assert drawn[str(tmp_path / "analysis.png")]["support_kinds"] == ["clamped"] * 4
 
 
 def test_a_load_too_small_to_balance_to_1e8_gets_a_warning(run, tmp_path, capsys):
@@ -329,3 +354,86 @@ def test_the_snap_through_mode_is_the_direction_the_path_moves_in(snapping):
     motion = (near.rods.points - before.rods.points).ravel()  # the path's secant over the last 2 %
     mode = _buckling_mode(near, held, f)
     assert abs(mode @ motion) >= 0.9 * np.linalg.norm(mode) * np.linalg.norm(motion)
+
+
+class _Flat:
+    """A stand-in for a linkage in _support_warnings: a 200 x 100 shell, its vertices at (x, y, 0)."""
+
+    def __init__(self, xy):
+        self.xy = np.c_[np.asarray(xy, float), np.zeros(len(xy))]
+        self.rods = type("R", (), {"points": self.xy})
+
+    def vertex_positions(self):
+        return self.xy
+
+
+GRID = [(x, y) for x in np.linspace(-100, 100, 9) for y in np.linspace(-50, 50, 5)]
+
+
+@pytest.mark.parametrize("supports, outside", [
+    ([0, 4], True),  # both at x = -100, the centre at 0: held at one side (no warning with two supports)
+    ([0, 44], False),  # the diagonal passes through the centre
+    ([0, 2, 4], True),  # three in a line at one side
+    ([2, 42], False),  # a line through the centre
+    ([0, 4, 40, 44], False),
+    ([0, 4, 9, 13], True),  # a footprint beside the centre
+])
+def test_the_centre_outside_the_supports_footprint_is_said_for_any_number_of_supports(supports, outside):
+    from xshells.analysis.run import _support_warnings
+    from xshells.analysis.static import Support
+
+    reac = [{"vertex": v, "force": [0.0, 0.0, 1.0]} for v in supports]
+    out = _support_warnings(_Flat(GRID), [Support(v) for v in supports], reac, [0, 0, -len(supports)], len(supports))
+    assert any("outside its supports' footprint" in w for w in out) == outside, out
+
+
+@pytest.mark.parametrize("pulls, resultant, magnitude, said, words", [
+    ([-6.5e-6, -3e-7], [0, 0, -1e-3], 1e-3, False, ""),  # round-off leftovers on a 1 mN load
+    ([-0.036], [0, 0, -5.47], 5.47, False, ""),  # 0.65 % of the load: negligible
+    ([-0.2], [0, 0, -5.47], 5.47, True, "against the load, more than 2% of the load"),
+    ([-3.76], [0, 0, 0], 10.0, True, "down (-z; the loads cancel)"),  # a squeeze: no "against the load"
+])
+def test_a_pulling_support_is_said_relative_to_the_load_applied(pulls, resultant, magnitude, said, words):
+    from xshells.analysis.run import _support_warnings
+    from xshells.analysis.static import Support
+
+    supports = [0, 4, 40, 44]
+    reac = [{"vertex": v, "force": [0.0, 0.0, 1.0 if i >= len(pulls) else pulls[i]]} for i, v in enumerate(supports)]
+    out = [w for w in _support_warnings(_Flat(GRID), [Support(v) for v in supports], reac, resultant, magnitude)
+           if "pull" in w]
+    assert bool(out) == said and (not said or words in out[0]), out
+
+
+def test_the_search_is_reported_in_multiples_of_the_load_applied():
+    # with --load-factor 2 the path went to 100x the --load: "no instability up to 100x the load" was 50x the
+    # load applied
+    from xshells.analysis.cli import _stability_line
+
+    r = {"critical_load_factor": None, "stable": True, "buckled": False, "critical_searched_to": 100.0,
+         "load_factor": 2.0, "status": "complete"}
+    assert _stability_line(r) == "stable, no instability up to 50x the load applied (100x --load)"
+    assert _stability_line({**r, "load_factor": 1.0, "critical_searched_to": 50.0}).endswith("up to 50x the load applied")
+
+
+def test_past_the_snap_a_state_not_found_is_not_called_the_state_it_goes_to(run, tmp_path, capsys, monkeypatch):
+    # Newton past the snap failing (max_iterations 2): the last equilibrium before the snap was shown, the line
+    # saying "the state it goes to is stable"
+    import xshells.analysis.static as S
+
+    real = S.solve_loaded
+
+    def failing_past_the_snap(linkage, f, held, load_factor=1.0, *a, start_factor=0.0, **k):
+        if start_factor not in (0.0, load_factor):  # the buckled branch: Newton from the last stable state
+            k["max_iterations"] = 2
+        return real(linkage, f, held, load_factor, *a, start_factor=start_factor, **k)
+
+    monkeypatch.setattr(S, "solve_loaded", failing_past_the_snap)
+    crit = run[2]["critical_load_factor"]
+    out = tmp_path / "o"
+    main(["analyze", *BASE, "--density", "1.9e-9", "--supports", "lowest:4", "--load", "self-weight",
+          "--load", "point:3:0,0,-1e-3", "--load-factor", str(1.1 * crit), "--out", str(out)])
+    r = strict((out / "result.json").read_text())
+    line = capsys.readouterr().out.splitlines()[1]
+    assert r["buckled"] and r["state"] == "pre-snap" and "the state it goes to" not in line
+    assert "the state past it was not found; shown: the last equilibrium before it, at load factor " in line
+    assert r["load_factor_reached"] == pytest.approx(r["critical_bracket"][0])

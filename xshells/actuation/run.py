@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import os
 import time
 from dataclasses import dataclass, field, replace
@@ -20,7 +19,7 @@ from ..deploy.case import load_case, material_from_spec, target_angle
 from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
 from ..errors import InputError
 from ..io.design import read_design, read_rest_lengths
-from ..io.export import atomic_write_text
+from ..io.export import atomic_write_text, finite_json
 from ..linkage.linkage import Linkage
 from ..linkage.state import restore, snapshot
 from ..solve import NewtonOptions, minimize
@@ -133,7 +132,7 @@ def _result_dict(dense: DenseDeployment, res, method: dict) -> dict:
 def _write_outputs(out_dir, dense: DenseDeployment, res, result: dict, title: str) -> None:
     """``result.json``, ``torques.txt`` and ``actuators.png`` (over the dense deployment's joints)."""
     L = dense.linkage
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
     atomic_write_text(os.path.join(out_dir, "torques.txt"), "".join(f"{v:.10g}\n" for v in res.torques))
     from ..viz.render import render_actuators
 

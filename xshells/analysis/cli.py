@@ -88,6 +88,9 @@ def _stability_line(r) -> str:
     state = "stability unknown" if r["stable"] is None else "stable" if r["stable"] else "unstable"
     if crit is not None:
         ratio = f" = {r['critical_load_ratio']:.4g}x the load applied" if r["load_factor"] != 1 else ""
+        if r["buckled"] and r.get("state") == "pre-snap":  # Newton past the critical factor did not converge
+            return (f"BUCKLED: the load passes the critical load factor {crit:.4g}{ratio} ({what}); the state past it "
+                    f"was not found; shown: the last equilibrium before it, at load factor {r['load_factor_reached']:.4g}")
         if r["buckled"]:
             return (f"BUCKLED: the load passes the critical load factor {crit:.4g}{ratio} ({what}); the state it goes to "
                     f"is {state}")
@@ -95,5 +98,11 @@ def _stability_line(r) -> str:
     if r["buckled"]:
         return f"BUCKLED ({state})"
     if r["critical_searched_to"] and r["status"] != "interrupted":
-        return f"{state}, no instability up to {r['critical_searched_to']:.3g}x the load"
+        return f"{state}, no instability up to {_searched(r)}"
     return state
+
+
+def _searched(r) -> str:
+    """How far the critical search went, in multiples of the load applied (and of --load where they differ)."""
+    to, lf = r["critical_searched_to"], r["load_factor"]
+    return f"{to / lf:.3g}x the load applied" + (f" ({to:.3g}x --load)" if lf != 1 else "")

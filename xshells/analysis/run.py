@@ -4,7 +4,6 @@ from __future__ import annotations
 import copy
 import csv
 import io
-import json
 import os
 import time
 from dataclasses import replace
@@ -12,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import STOP, InputError
-from ..io.export import atomic_write_text
+from ..io.export import atomic_write_text, finite_json
 from .static import Load, StaticOptions, Support
 
 
@@ -153,12 +152,18 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     t1 = time.perf_counter()
     with STOP.deferred():  # what was finished is kept: the loaded state and its files (seconds)
         st, buckled = _loaded_state(L, unloaded, f, held, base, opts, load_factor, crit)
+        # which equilibrium is shown: "post-snap" where the load passes the critical factor and the state the shell
+        # goes to was found, "pre-snap" where it was not (the last equilibrium before the critical factor),
+        # "loaded" on the path from zero load (stable or not, as "stable" says)
+        state_kind = ("post-snap" if st.converged else "pre-snap") if buckled else "loaded"
         if interrupted:
             st.converged = False
             st.message = ("interrupted during the critical load search (the loaded state was solved)"
                           if crit.target_state is not None else
                           f"interrupted before the requested load, at load factor {st.load_factor:.4g}")
         reached = st.load_factor
+        if abs(reached - load_factor) <= 1e-12 * load_factor:  # the path's steps add up to it within round-off
+            reached = st.load_factor = load_factor
         total_force = (base if base is not None else 0.0) + reached * f
         reac, reac_total = reactions(L, supports, total_force, held)
         try:
@@ -190,11 +195,15 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
         "critical_load_factor": None if shown is None else shown.factor,
         "critical_load_ratio": None if shown is None or shown.factor is None else shown.factor / load_factor,
         "critical_total_load": None if shown is None or shown.factor is None else (shown.factor * resultant).tolist(),
+        # informative where the loads cancel (a squeeze: the resultant is 0): the critical factor times the
+        # applied loads' magnitude (docs/analysis.md)
+        "critical_load_magnitude": (None if shown is None or shown.factor is None
+                                    else shown.factor * _load_magnitude(unloaded, loads, opts.gravity)),
         "critical_bracket": None if shown is None else list(shown.bracket),
         "critical_method": None if shown is None else shown.method,
         "critical_searched_to": None if shown is None else shown.searched_to,
         "critical_kind": None if shown is None or shown.factor is None else shown.kind,
-        "buckled": bool(buckled) or bool(mu < 0),
+        "buckled": bool(buckled) or bool(mu < 0), "state": state_kind,
         "deployment": {"reached": dep["reached"], "angle_deg": dep["deployed"]["average_angle_deg"],
                        "utilization_max": dep.get("utilization_max")},
         "timings_s": {"deploy": t_dep, "load": t_load, "critical": t_crit, "total": time.perf_counter() - t0},
@@ -202,10 +211,12 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     for b in beams:
         b["position"] = (np.asarray(b["position"]) + origin).tolist()
     result["origin_shift"] = origin.tolist()
-    result["warnings"] = _support_warnings(unloaded, supports, reac, resultant) + _warnings(result, L, held, total_force)
+    result["warnings"] = (_support_warnings(unloaded, supports, reac, reached * resultant,
+                                            reached * _load_magnitude(unloaded, loads, opts.gravity))
+                          + _warnings(result, L, held, total_force))
     with STOP.deferred():
         _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result, origin, f, mode=not interrupted)
-        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+        atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
     if interrupted or STOP.requested:
         raise KeyboardInterrupt
     return result
@@ -241,21 +252,22 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
     tiny = dmax <= 1e-8 * span
     scale = 1.0 if tiny else 0.1 * span / dmax
     value = stresses.utilization if stresses.utilization is not None else stresses.von_mises
-    P_loaded = L.vertex_positions() + origin
+    P0 = unloaded.vertex_positions()
+    P_drawn = P0 + scale * (L.vertex_positions() - P0) + origin  # where render_analysis draws the loaded vertices
     points = [ld for ld in result["loads"] if ld["kind"] == "point"]
-    loads = (P_loaded[[ld["vertex"] for ld in points]].reshape(-1, 3),
+    loads = (P_drawn[[ld["vertex"] for ld in points]].reshape(-1, 3),
              np.array([ld["vector"] for ld in points], float).reshape(-1, 3))
     others = sorted({ld["kind"] for ld in result["loads"] if ld["kind"] != "point"})
     unit = "the design's length unit"
     render_analysis(os.path.join(out_dir, "analysis.png"), unloaded.rods.points + origin, L.rods.points + origin, L.rods.edges, value,
                     scale, label=("utilization (von Mises stress / strength)" if stresses.utilization is not None else
                                   "von Mises stress (MPa for a design in mm)"),
-                    title=(f"max displacement {result['max_displacement']:.3g} ({unit}), "
+                    title=(("BUCKLED: " if result["buckled"] else "") + f"max displacement {result['max_displacement']:.3g} ({unit}), "
                            + ("drawn unscaled (round-off size)" if tiny else f"shown ×{scale:.3g}")
                            + (f"\nloads: {', '.join(others + (['point (arrows)'] if points else []))}; "
-                              f"supports: triangles")),
+                              f"supports: triangles pinned, squares clamped")),
                     supports=unloaded.vertex_positions()[[s["vertex"] for s in result["supports"]]] + origin,
-                    loads=loads)
+                    support_kinds=[s["kind"] for s in result["supports"]], loads=loads)
     if not mode:
         return
     # the lowest mode at the last stable state before the critical factor where one was found, else at the
@@ -280,7 +292,8 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
         at = crit.bracket[0] if found else result["load_factor_reached"]
         title = (f"snap-through mode (the path's tangent) at load factor {crit.factor:.4g}" if snap else
                  f"buckling mode at load factor {crit.factor:.4g}" if found else
-                 f"lowest mode at load factor {at:.4g} (no instability up to {result['critical_searched_to'] or at:.3g}×)")
+                 f"lowest mode at load factor {at:.4g} (no instability up to "
+                 f"{(result['critical_searched_to'] or at) / result['load_factor']:.3g}× the load applied)")
         # the mode at amplitude 1, drawn × s2 (render_analysis scales the difference: passing it scaled already
         # drew it at s2², 10 times the span's tenth the title stated for the manta ray)
         render_analysis(os.path.join(out_dir, "buckling_mode.png"), at_state.rods.points + origin,
@@ -292,12 +305,49 @@ def _write_outputs(out_dir, L, unloaded, st, stresses, beams, crit, held, result
 BALANCE = 1e-8
 
 
-def _support_warnings(unloaded, supports, reac, resultant) -> list:
+#: A support is said to pull when it pulls with more than this fraction of the applied load's magnitude
+#: (:func:`_load_magnitude`): a few per cent, far above the equilibrium's round-off (1e-6 N on a 1 mN load), and a
+#: pull that a designer would not neglect (0.65 % of the legged pavilion's weight was flagged).
+PULL = 0.02
+
+
+def _load_magnitude(linkage, loads, gravity) -> float:
+    """The magnitude of ``loads`` (at factor 1): the norm of their resultant, or of the largest of them where they
+    cancel more than that (a squeeze: two opposite point loads, resultant 0)."""
+    from .static import load_vector
+
+    each = [float(np.linalg.norm(load_vector(linkage, [ld], gravity)[1])) for ld in loads]
+    return max([float(np.linalg.norm(load_vector(linkage, loads, gravity)[1]))] + each)
+
+
+def _outside_footprint(Q, c, tol) -> bool:
+    """Whether the point ``c`` (2,) lies farther than ``tol`` outside the convex hull of the points ``Q`` (n, 2):
+    a polygon, or for one or two supports (or supports in a line) a point or a segment."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = ConvexHull(Q)
+        return bool(np.max(hull.equations[:, :2] @ c + hull.equations[:, 2]) > tol)  # outward unit normals
+    except (QhullError, ValueError):  # fewer than three points, or all in a line: a point or a segment
+        pass
+    a = Q.mean(axis=0)
+    d = Q - a
+    if float(np.abs(d).max()) <= tol:
+        nearest = a
+    else:
+        u = np.linalg.svd(d)[2][0]  # the segment's direction
+        s = d @ u
+        nearest = a + np.clip(float((c - a) @ u), s.min(), s.max()) * u
+    return bool(np.linalg.norm(c - nearest) > tol)
+
+
+def _support_warnings(unloaded, supports, reac, resultant, magnitude) -> list:
     """Set-ups that mislead, one line each: supports bunched at one end, the weight outside their footprint, and
     supports that pull (a support that can only push would let the shell lift off it).
 
-    Gravity is along −z of the deployed state as computed, which need not stand level (the boat's mirror
-    plane leans 10° from vertical): ``lowest:N`` may then pick one end only.
+    ``resultant`` (3,) and ``magnitude`` are those of the load applied (:func:`_load_magnitude`). Gravity is
+    along −z of the deployed state as computed, which need not stand level (the boat's mirror plane leans 10°
+    from vertical): ``lowest:N`` may then pick one end only.
     """
     out = []
     P = unloaded.rods.points
@@ -308,25 +358,21 @@ def _support_warnings(unloaded, supports, reac, resultant) -> list:
         who = "the support lies" if len(supports) == 1 else f"the {len(supports)} supports lie"
         out.append(f"{who} within {spread:.3g} of the shell's horizontal extent of {span:.3g}: "
                    f"it stands on one end (gravity is -z of the deployed state, which may stand tilted)")
-    else:
-        from scipy.spatial import Delaunay, QhullError
-
-        centre = P[:, :2].mean(axis=0)
-        try:
-            outside = Delaunay(Q[:, :2]).find_simplex(centre) < 0
-        except (QhullError, ValueError):  # fewer than three supports, or all in a line: no footprint to test
-            outside = False
-        if outside:
-            out.append("the shell's centre lies outside its supports' footprint (seen from above): it cantilevers "
-                       "from them (gravity is -z of the deployed state, which may stand tilted)")
+    elif _outside_footprint(Q[:, :2], P[:, :2].mean(axis=0), 1e-3 * span):
+        # with two supports the footprint is their segment: a shell held at one side only (the Delaunay test
+        # raised for fewer than three points and said nothing)
+        out.append("the shell's centre lies outside its supports' footprint (seen from above): it cantilevers "
+                   "from them (gravity is -z of the deployed state, which may stand tilted)")
     down = np.asarray(resultant, float)
-    up = -down / np.linalg.norm(down) if np.linalg.norm(down) > 0 else np.array([0.0, 0.0, 1.0])
+    balanced = float(np.linalg.norm(down)) <= 1e-3 * magnitude  # self-balanced: no direction "against the load"
+    up = np.array([0.0, 0.0, 1.0]) if balanced else -down / np.linalg.norm(down)
     pulling = [(r["vertex"], float(np.dot(r["force"], up))) for r in reac]
-    pulling = [(v, p) for v, p in pulling if p < -1e-6 * np.linalg.norm(down)]
-    if pulling:
+    pulling = [(v, p) for v, p in pulling if p < -PULL * magnitude]
+    if pulling and magnitude > 0:
         listed = ", ".join(f"{v} ({p:.3g})" for v, p in pulling)
-        out.append(f"the support(s) at vertex {listed} pull the shell against the load: it would lift off a support "
-                   f"that can only push")
+        how = "down (-z; the loads cancel)" if balanced else "against the load"
+        out.append(f"the support(s) at vertex {listed} pull the shell {how}, more than {PULL:.0%} of the load "
+                   f"({magnitude:.3g}): it would lift off a support that can only push")
     return out
 
 
@@ -369,8 +415,12 @@ def _loaded_state(L, unloaded, f, held, base, opts, load_factor, crit):
         if st.converged:
             st.message = (f"the load passes the critical load factor {crit.factor:.4g} ({crit.kind}: {what}); the state "
                           f"shown is the one it goes to")
-        else:
-            st.message = f"the load passes the critical load factor {crit.factor:.4g} ({crit.kind}: {what}); " + st.message
+        else:  # Newton from the last stable state did not converge: it is left there (or where Newton stopped)
+            restore(L, crit.last_stable)
+            st.load_factor = crit.bracket[0]
+            st.message = (f"the load passes the critical load factor {crit.factor:.4g} ({crit.kind}: {what}); the state "
+                          f"past it was not found ({st.message}); shown: the last equilibrium before it, at load "
+                          f"factor {st.load_factor:.4g}")
     else:
         restore(L, crit.last_stable)
         lo = crit.bracket[0]

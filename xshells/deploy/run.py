@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import os
 import sys
 import time
@@ -13,7 +12,7 @@ import numpy as np
 
 from ..errors import STOP
 from ..io import read_design, read_rest_lengths
-from ..io.export import atomic_write_text
+from ..io.export import atomic_write_text, finite_json
 from ..linkage.export import scalar_fields, swept_mesh, write_centerlines
 from ..linkage.linkage import Linkage
 from .case import opened_angle
@@ -363,7 +362,7 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
     if writer is not None:  # every file is in place before result.json, which describes them
         writer.join()
     result["timings_s"]["total"] = time.perf_counter() - t0
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
     if interrupted:
         raise KeyboardInterrupt
     return result

@@ -14,7 +14,7 @@ from ..deploy.run import _write_outputs, bending_field
 from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
 from ..errors import InputError
 from ..io import read_design, read_rest_lengths
-from ..io.export import atomic_write_text
+from ..io.export import atomic_write_text, finite_json
 from ..linkage.linkage import Linkage
 from .objective import DesignProblem, DesignWeights, ks_min
 from .optimize import OptimizeOptions, optimize
@@ -380,7 +380,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
         "bfgs_history": bfgs,
         "rest_lengths": p.tolist(),
     }
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
     if interrupted:
         raise KeyboardInterrupt
     return result

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import InputError
-from ..io.export import atomic_write_bytes
+from ..io.export import atomic_write_bytes, finite_json
 from .beams import beam_sections, joint_table, rest_length_mismatch, trace_beams, units_to_mm
 from .nesting import Nesting, nest_bars, nest_sheets, no_nesting
 
@@ -464,7 +464,7 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
         bom = plan.bill_of_materials()
         result = _fabricate_result(design_path, design, linkage, rest_lengths_path, name, bom, t_rest, t_fab, t0)
         # result.json in the same set: an interrupted run left the new files beside the previous run's result
-        write_file_set(out_dir, {**files, "result.json": json.dumps(result, indent=1).encode("utf-8")})
+        write_file_set(out_dir, {**files, "result.json": finite_json(result, indent=1).encode("utf-8")})
         if bar is not None:
             bar.update(1)
     finally:

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from ..errors import InputError
-from ..io.export import atomic_write_text
+from ..io.export import atomic_write_text, finite_json
 from .guide import GuideOptions
 
 MAX_SEGMENTS = 5000
@@ -355,7 +355,7 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         r = _run_net(surface_path, out_dir, material_spec, fan_options, None, progress, beams_reason=fan_why,
                      workers=_workers(options))
         r["fan_screen"] = screened
-        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
+        atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
         return r
     worth, why = geodesic_closure(surface, options, spacing, progress)
     plan = {"geodesic": replace(options, beams="geodesic")} if worth else {}
@@ -483,7 +483,7 @@ def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float, screened=N
     if screened is not None:
         r["fan_screen"] = screened
     r["time_s"] = time.perf_counter() - t0
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
+    atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
     return r
 
 
@@ -596,7 +596,7 @@ class _Tries:
                 _remove_outputs(self.out_dir, set(os.listdir(self.where(self.best[0]))) - set(os.listdir(self.where(k))))
             self.best = (k, r)
             _copy_outputs(self.where(k), self.out_dir)
-        atomic_write_text(os.path.join(self.out_dir, "result.json"), json.dumps(self.result(), indent=1))
+        atomic_write_text(os.path.join(self.out_dir, "result.json"), finite_json(self.result(), indent=1))
 
     def settle_from_disk(self) -> None:
         """After Ctrl-C: the tries not settled yet, from the designs so far that they wrote."""
@@ -653,7 +653,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         r = dict(first)
         r["buckling_retry"] = {"why": why, "kept": "the design without the penalty", "other": {"status": "failed",
                                                                                             "message": str(exc)}}
-        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
+        atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
         return r
     if _rank(second) < _rank(first):
         _copy_outputs(os.path.join(out_dir, "buckling"), out_dir)
@@ -663,7 +663,7 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     r = dict(kept)
     r["buckling_retry"] = {"why": why, "kept": note, "other": {k: other.get(k) for k in _SUMMARY_KEYS}}
     r["time_s"] = (first.get("time_s") or 0.0) + (second.get("time_s") or 0.0)  # both designs
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(r, indent=1))
+    atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
     return r
 
 
@@ -931,7 +931,7 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
                       else f"the holding load could not be let go ({stages[-1].message if stages else 'no stage ran'})")
         times["total_s"] = time.perf_counter() - t_start
         result["time_s"], result["stage_times_s"] = times["total_s"], times
-        atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+        atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
         if interrupted:
             raise KeyboardInterrupt
         return result
@@ -949,7 +949,7 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
         result["message"] += "; " + developable
     times["total_s"] = time.perf_counter() - t_start
     result["time_s"], result["stage_times_s"] = times["total_s"], times
-    atomic_write_text(os.path.join(out_dir, "result.json"), json.dumps(result, indent=1))
+    atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
     return result
 
 

@@ -6,6 +6,7 @@ file and an interrupted write leaves the old file intact.
 """
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from collections.abc import Iterable, Sequence
@@ -123,6 +124,28 @@ def prepare_output_dir(path: str | os.PathLike) -> str:
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _finite_or_none(value):
+    """``value`` with every infinite or NaN float (nested in dicts, lists and tuples) replaced by None."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(v) for v in value]
+    return value
+
+
+def finite_json(value, **kwargs) -> str:
+    """``json.dumps`` of ``value`` as strict JSON: an infinite or NaN number is written null.
+
+    Python's ``json`` writes them ``Infinity`` and ``NaN``, which strict parsers (JavaScript's
+    ``JSON.parse``, jq) refuse: a result.json with an open bracket ``[50, Infinity]`` could not be read.
+    """
+    import json
+
+    return json.dumps(_finite_or_none(value), allow_nan=False, **kwargs)
 
 
 def _vertex_records(points: np.ndarray) -> Iterable[str]:

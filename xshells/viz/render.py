@@ -285,13 +285,17 @@ def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.n
 
 
 def render_analysis(path, points0: np.ndarray, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray,
-                    scale: float, label: str = "utilization", title: str = "", supports=None, loads=None) -> None:
+                    scale: float, label: str = "utilization", title: str = "", supports=None, loads=None,
+                    support_kinds=None) -> None:
     """The loaded shell: the unloaded centerlines in grey and the displaced ones (displacement × ``scale``),
     coloured per edge by ``vertex_values`` (e.g. the utilization).
 
     The colour scale runs from 0 to the largest vertex value (the edges' colours are their vertices' means,
-    which stop short of the maximum reported). ``supports``: (k, 3) points drawn as triangles; ``loads``:
-    (points (m, 3), forces (m, 3)) drawn as arrows (their length a tenth of the span for the largest).
+    which stop short of the maximum reported). ``supports``: (k, 3) points drawn as triangles, or where
+    ``support_kinds`` (k,) says "clamped" as squares; ``loads``: (points (m, 3), forces (m, 3)) drawn as arrows
+    pointing at the points, each a tenth of the drawing's span long (a small load's arrow, scaled with the
+    largest, was a dot). The load points are where the loaded vertices are drawn: the unloaded ones plus
+    ``scale`` × the displacement (at the true loaded position the arrows hung beside the exaggerated shape).
     """
     plt = _pyplot()
     from matplotlib.colors import Normalize
@@ -300,21 +304,27 @@ def render_analysis(path, points0: np.ndarray, points: np.ndarray, edges: np.nda
     shown = points0 + scale * (points - points0)
     fig = plt.figure(figsize=(7.5, 5.8))
     ax = fig.add_subplot(projection="3d")
+    ax.computed_zorder = False  # the markers and arrows over the shell (sorted by depth, the beams hid them)
     ax.add_collection3d(Line3DCollection(points0[edges], colors="0.75", linewidths=0.8))
     vals = 0.5 * (vertex_values[edges[:, 0]] + vertex_values[edges[:, 1]])
     top = float(np.max(vertex_values)) if len(vertex_values) else 1.0
     lc = Line3DCollection(shown[edges], array=vals, cmap="inferno_r", linewidths=1.8,
                           norm=Normalize(vmin=min(0.0, float(np.min(vertex_values))), vmax=top if top > 0 else 1.0))
     ax.add_collection3d(lc)
-    span = float(np.ptp(points0, axis=0).max()) or 1.0
+    span = float(np.ptp(np.vstack([points0, shown]), axis=0).max()) or 1.0
     if supports is not None and len(supports):
         S = np.asarray(supports, float)
-        ax.scatter(S[:, 0], S[:, 1], S[:, 2], marker="^", s=60, c="tab:blue", depthshade=False, label="supports")
+        kinds = np.asarray(["pinned"] * len(S) if support_kinds is None else list(support_kinds))
+        for kind, marker in (("pinned", "^"), ("clamped", "s")):
+            if np.any(kinds == kind):
+                K = S[kinds == kind]
+                ax.scatter(K[:, 0], K[:, 1], K[:, 2], marker=marker, s=60, c="tab:blue", depthshade=False,
+                           label=f"{kind} supports", zorder=9)
     if loads is not None and len(loads[0]):
         at, F = (np.asarray(a, float) for a in loads)
-        F = F / max(float(np.linalg.norm(F, axis=1).max()), 1e-300) * 0.1 * span
+        F = F / np.maximum(np.linalg.norm(F, axis=1), 1e-300)[:, None] * 0.1 * span
         ax.quiver(at[:, 0] - F[:, 0], at[:, 1] - F[:, 1], at[:, 2] - F[:, 2], F[:, 0], F[:, 1], F[:, 2],
-                  color="tab:green", linewidth=1.5, arrow_length_ratio=0.3, label="point loads")
+                  color="tab:green", linewidth=2.5, arrow_length_ratio=0.3, label="point loads", zorder=10)
     if (supports is not None and len(supports)) or (loads is not None and len(loads[0])):
         ax.legend(loc="upper left", fontsize=8)
     _equal_axes(ax, np.vstack([points0, shown]))
