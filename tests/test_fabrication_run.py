@@ -275,3 +275,17 @@ def test_upper_case_case_files_units_in_words_and_deploy_help(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["deploy", "--help"])
     assert "fabrication files" in capsys.readouterr().out
+
+
+def test_the_plan_itself_takes_rest_lengths_off_the_drawing(tmp_path):
+    """The commands say it (a warning); the plan, which the app's export builds too, does not refuse: an optimized
+    design opened in the app has rest lengths up to 30 % off its drawing, and its cut list was refused."""
+    from xshells.deploy.case import material_from_spec
+    from xshells.fabrication.run import fabrication_plan
+    from xshells.linkage.graph import analyze
+
+    design = read_design(EXAMPLES / "nonuniform_linkage.obj")
+    p = _drawn_lengths(EXAMPLES / "nonuniform_linkage.obj")
+    p[2] *= 1.3
+    plan = fabrication_plan(analyze(design), p, material_from_spec({"type": "rectangle", "params": [0.05, 0.035]}))
+    assert len(plan.beams) > 0

@@ -137,7 +137,7 @@ def joints_csv(plan: FabricationPlan) -> str:
 
 
 def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions = FabricationOptions(), *,
-                     flat_angles=None, deployed_angles=None, xy=None, source: str | None = None) -> FabricationPlan:
+                     flat_angles=None, deployed_angles=None, xy=None) -> FabricationPlan:
     """The strips, their holes, the joint table and the nesting of a design.
 
     Parameters
@@ -151,15 +151,12 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
         Joint opening angles (radians) of the flat assembly state and of the
         deployed state (default flat: the design's own angles).
     xy : (n, 2) array, optional
-        The flat layout's in-plane coordinates. By default the drawn
-        design's, whose segment lengths the rest lengths must fit within 5 %
-        (:data:`~.beams.REST_LENGTH_TOLERANCE`), else one line says which. A
-        caller that passes the flat state the rest lengths relax to
-        (:func:`flat_state_xy`) has them from a solve, not a file of another
-        design: not checked (an optimized design's strips bend in its flat
-        state, their chords up to 11 % short of their rest lengths).
-    source : str, optional
-        Where the rest lengths come from (a file), for that line.
+        The flat layout's in-plane coordinates (default the drawn design's;
+        :func:`flat_state_xy` where the rest lengths are not the drawn ones).
+        Rest lengths far from the drawing are said by the commands
+        (:func:`rest_lengths_note`), not refused here: xshells optimize moves
+        them away from the drawn design by design, and the app exports such
+        a design's strips too.
     """
     from ..io.fabrication import flat_coordinates
 
@@ -183,11 +180,6 @@ def fabrication_plan(graph, rest_lengths, materials, options: FabricationOptions
                              "the outermost holes would break out of the strip ends")
     XY = flat_coordinates(graph.design.vertices, graph.layout_normal) if xy is None else np.asarray(xy, float)
     beams = trace_beams(graph, rest_lengths, sections, xy=XY, end_margin=options.end_margin, to_mm=to_mm)
-    bad = rest_length_mismatch(rest_lengths, XY, graph.design.edges) if xy is None else None
-    if bad:
-        hint = ("a file of another design? (Rest lengths that xshells optimize moved away from the drawn layout: its "
-                "own fabrication files draw the flat state they relax to.)" if source else "rest lengths of another design?")
-        raise InputError(f"{source + ': ' if source else ''}the rest lengths do not fit the flat layout: {bad}: {hint}")
     _check_hole_spacing(beams, hole, options.units)
     flat = graph.joint_opening_angles if flat_angles is None else flat_angles
     joints = joint_table(graph, beams, flat, deployed_angles, top=top)
@@ -453,7 +445,7 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
         t1 = time.perf_counter()
         mats = linkage.materials if len(linkage.materials) > 1 else linkage.materials[0]
         plan = fabrication_plan(linkage.graph, linkage.rest_lengths, mats, options, flat_angles=linkage.joint_angles(),
-                                xy=xy, source=rest_lengths_path and str(rest_lengths_path))
+                                xy=xy)
         if warnings:
             plan = replace(plan, warnings=tuple(warnings) + tuple(plan.warnings))
         if bar is not None:
