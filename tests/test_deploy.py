@@ -495,3 +495,22 @@ def test_cli_material_errors_name_the_option(tmp_path, capsys, option, words):
     assert main(["deploy", str(EXAMPLES / "quad.obj"), *option, "--out", str(tmp_path / "o"), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and "\n" not in err
+
+
+def test_deploy_of_a_design_that_is_not_flat_removes_an_earlier_flat_layout_drawing(tmp_path):
+    # a curved input has no flat layout drawing: an earlier, flat design's flat_layout.svg/.dxf stayed beside it
+    small = rhombic_grid(3, 3, spacing=1.0, angle=np.radians(30))
+    write_design_obj(tmp_path / "flat.obj", small)
+    out = tmp_path / "o"
+    args = ["--material", "rectangle:0.01,0.005", "--subdivision", "4", "--steps", "2", "--out", str(out), "--no-progress"]
+    assert main(["deploy", str(tmp_path / "flat.obj")] + args) in (0, 1)
+    assert (out / "flat_layout.svg").exists() and (out / "flat_layout.dxf").exists()
+    from xshells.io.design import Design
+
+    V = np.array(small.vertices, float)
+    V[:, 2] = 0.01 * V[:, 0] ** 2
+    write_design_obj(tmp_path / "curved.obj", Design(V, np.array(small.edges)))
+    main(["deploy", str(tmp_path / "curved.obj")] + args)
+    assert not (out / "flat_layout.svg").exists() and not (out / "flat_layout.dxf").exists()
+    warnings = json.loads((out / "result.json").read_text())["warnings"]
+    assert any("flat_layout.svg" in w and w.startswith("removed an earlier run's") for w in warnings), warnings

@@ -100,7 +100,8 @@ def _write_deployed_outputs(out_dir: str, linkage: Linkage, design, flat_angles,
     if plan is not None and warnings is not None:  # parts that make no sense, written all the same
         warnings.extend(plan.warnings)
     if plan is None:  # none written: an earlier run's cut list would sit beside this design's result
-        removed = remove_fabrication_files(out_dir)
+        # a design that is not flat has no flat layout drawing either (that of an earlier, flat one)
+        removed = remove_fabrication_files(out_dir, flat_layout=not linkage.graph.is_planar)
         if removed and warnings is not None:
             warnings.append(stale_note(removed))
     if writer is not None and writer.forked:  # the flat layout, the deployed state and the strips (docs/rhino.md)

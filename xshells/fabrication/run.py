@@ -358,11 +358,15 @@ def plan_of(linkage, flat_angles, deployed_angles=None, rest_lengths=None, skipp
         return None
 
 
-def remove_fabrication_files(out_dir: str) -> list[str]:
+FLAT_LAYOUT_FILES = ("flat_layout.svg", "flat_layout.dxf")
+
+
+def remove_fabrication_files(out_dir: str, flat_layout: bool = False) -> list[str]:
     """Remove the files of :data:`FABRICATION_FILES` from ``out_dir``, where a command writes none this time; the names
-    removed. Only these names: left there, an earlier run's cut list sat beside another design's result."""
+    removed. Only these names: left there, an earlier run's cut list sat beside another design's result. With
+    ``flat_layout``, also :data:`FLAT_LAYOUT_FILES` (a design that is not flat has no flat layout drawing)."""
     removed = []
-    for name in FABRICATION_FILES:
+    for name in FABRICATION_FILES + (FLAT_LAYOUT_FILES if flat_layout else ()):
         try:
             os.remove(os.path.join(out_dir, name))
         except FileNotFoundError:
