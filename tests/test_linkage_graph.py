@@ -255,6 +255,19 @@ def test_a_segment_ending_on_another_without_a_node_is_named():
     assert analyze(design_from_arrays(V, E + [(1, 25)], "t.obj")).crossings == ""
 
 
+def test_a_joint_beside_a_segment_is_not_a_free_end_on_it():
+    """A 0.1-long rung between two columns of 100-long segments puts the rung's far joint 0.1 from the
+    near column's horizontal segment, within the tolerance: it was warned "that end is free", but the
+    node is a valence-4 joint. Only a free end (valence 1) can be a T's loose leg."""
+    xs, ys = [0.0, 100.0, 100.1, 200.0, 300.0], [0.0, 100.0, 200.0, 300.0, 400.0]
+    V = np.array([(x, y, 0.0) for x in xs for y in ys])
+    idx = np.arange(25).reshape(5, 5)
+    E = [(idx[i, j], idx[i + 1, j]) for i in range(4) for j in range(5)] + \
+        [(idx[i, j], idx[i, j + 1]) for i in range(5) for j in range(4)]
+    g = analyze(design_from_arrays(V, E, "shortseg.obj"))
+    assert g.valence[idx[2, 1]] == 4 and g.crossings == ""
+
+
 @needs_data
 def test_no_paper_design_has_an_end_on_another_segment():
     for case in json.loads((DATA / "cases.json").read_text())["cases"]:

@@ -362,18 +362,22 @@ def _crossings(design: Design, normal: np.ndarray) -> str:
 
 
 TOUCH_TOLERANCE = 1e-3
-"""An end of a segment within this fraction of the shorter segment's length of another segment that
+"""A free end (valence 1) within this fraction of the shorter segment's length of another segment that
 shares no node with it touches that segment in the drawing (a T drawn with an end snapped onto a beam)."""
 
 
 def _touching(design: Design, P: np.ndarray, s: np.ndarray, t: np.ndarray, length: np.ndarray) -> str:
-    """A one-line warning naming a segment end that touches another segment without a node there ('' if none).
+    """A one-line warning naming a free end that touches another segment without a node there ('' if none).
 
     ``P``: the layout's points in its plane, (n, 2); ``s``, ``t``: candidate pairs of segments sharing no
     node; ``length``: every segment's length. The drawing shows a connection that the model does not make:
     the end stays free (a T-junction drawn without splitting the other beam at a node).
     """
     E = design.edges
+    # Only a free end can be the loose leg of a T. A joint's vertex near another segment is connected to the
+    # network already: a short segment beside a long one (a 0.1-long rung between two 100-long segments)
+    # put the rung's far joint within the tolerance of the long one, and "that end is free" was false.
+    free = np.bincount(E.ravel(), minlength=len(P)) == 1
     for one, other in ((s, t), (t, s)):
         a, b = P[E[one, 0]], P[E[one, 1]]
         for end in (0, 1):
@@ -382,7 +386,7 @@ def _touching(design: Design, P: np.ndarray, s: np.ndarray, t: np.ndarray, lengt
             u = np.einsum("ij,ij->i", q - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
             foot = a + np.clip(u, 0.0, 1.0)[:, None] * d
             gap = np.linalg.norm(q - foot, axis=1)
-            hit = gap <= TOUCH_TOLERANCE * np.minimum(length[one], length[other])
+            hit = (gap <= TOUCH_TOLERANCE * np.minimum(length[one], length[other])) & free[E[other, end]]
             if hit.any():
                 k = int(np.flatnonzero(hit)[0])
                 i, j, v = int(one[k]), int(other[k]), int(E[other[k], end])
