@@ -259,3 +259,28 @@ def test_input_warnings_name_a_units_mismatch_and_a_design_that_is_not_flat():
     V[:, 2] = 0.1 * V[:, 0] ** 2
     curved = Linkage(Design(V, np.array(grid.edges)), thin, subdivision=3).input_warnings()
     assert len(curved) == 1 and "not flat" in curved[0]
+
+
+@pytest.mark.parametrize("text", [
+    "v 0 0 0\nv 1 0 0\nv 2 0 0\nl 1 2 3\n",  # a straight polyline: node 1 a corner of two beams, at 0°
+    "v 0 0 0\nv 1 0 0\nv -0.5 0.866 0\nv -0.5 -0.866 0\nv 2 0 0\nv 2 1 0\nv 2 -1 0\n"
+    "l 1 2\nl 1 3\nl 1 4\nl 2 5\nl 6 5\nl 5 7\n",  # the same corner, its beams the other way round: 180°
+])
+def test_a_joint_with_parallel_beams_is_named_once_with_its_file_and_line(tmp_path, text):
+    """It read "joint at vertex 1node 1 (line 2): its two beams are parallel (opening angle 0°)", and 180° for
+    the same straight corner drawn the other way round: the file, the node once, one angle."""
+    path = tmp_path / "p.obj"
+    path.write_text(text)
+    thin = Material.uniform("rectangle", [0.01, 0.005], E=20000, nu=0.3)
+    with pytest.raises(Exception, match=r"^\S*p\.obj: node 1 \(line 2\): the joint's two beams are parallel "
+                                        r"\(they cross at 0°\); a node of valence 2 is a hinge") as err:
+        Linkage(read_design(path), thin, subdivision=3)
+    assert "vertex" not in str(err.value) and "\n" not in str(err.value)
+
+
+def test_rest_length_messages_name_the_segment_by_its_file_line(tmp_path):
+    path = tmp_path / "g.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2\nl 1 3\n")
+    thin = Material.uniform("rectangle", [0.01, 0.005], E=20000, nu=0.3)
+    with pytest.raises(Exception, match=r"^\S*g\.obj: line 5: rest length -1\.0 is not positive"):
+        Linkage(read_design(path), thin, subdivision=3, rest_lengths=[1.0, -1.0])

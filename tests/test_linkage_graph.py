@@ -203,12 +203,32 @@ def test_valence_above_four_names_the_node(tmp_path):
 def test_overlapping_segments_at_a_joint_are_named(tmp_path):
     # Found by the deploy fuzz test: nodes 1 and 3 coincide, so two segments of the X lie on top of
     # each other and the beam through them folds back (it was an internal error in the joint frames).
+    # Coincident nodes are now named as such first (below); here node 3 lies halfway along node 1's segment.
     path = tmp_path / "x.obj"
-    path.write_text("v 0 0 0\nv 0 100 0\nv 100 100 0\nv 0 100 0\nv 50 50 0\nl 1 5\nl 5 3\nl 2 5\nl 5 4\n")
+    path.write_text("v 0 0 0\nv 0 100 0\nv 100 100 0\nv 25 75 0\nv 50 50 0\nl 1 5\nl 5 3\nl 2 5\nl 5 4\n")
     with pytest.raises(InputError, match=r"x\.obj: node 4 \(line 5\): its segments to node 1 \(line 2\) and "
                                          r"node 3 \(line 4\) overlap") as err:
         analyze(read_design(path))
     assert "\n" not in str(err.value)
+
+
+def test_two_nodes_at_the_same_position_are_named(tmp_path):
+    """Two joints drawn on top of each other look like one, but the beams there are not joined: the
+    linkage failed with "joint at vertex 24node 24 (line 25): its two beams are parallel" (dupjoint.obj),
+    or with two overlapping segments at a neighbour. The real cause is named: merge the two nodes."""
+    path = tmp_path / "x.obj"
+    path.write_text("v 0 0 0\nv 0 100 0\nv 100 100 0\nv 0 100 0\nv 50 50 0\nl 1 5\nl 5 3\nl 2 5\nl 5 4\n")
+    with pytest.raises(InputError, match=r"^\S*x\.obj: node 1 \(line 2\) and node 3 \(line 4\) are at the same "
+                                         r"position \(0\.0, 100\.0, 0\.0\): merge them") as err:
+        analyze(read_design(path))
+    assert "\n" not in str(err.value)
+    # within round-off of the design's size, in any units; an unused duplicate is harmless
+    path.write_text("v 0 0 0\nv 0 1e5 0\nv 1e5 1e5 0\nv 1e-9 100000.0000000001 0\nv 5e4 5e4 0\nv 0 0 0\n"
+                    "l 1 5\nl 5 3\nl 2 5\nl 5 4\n")
+    with pytest.raises(InputError, match=r"node 1 \(line 2\) and node 3 \(line 4\) are at the same position"):
+        analyze(read_design(path))
+    path.write_text("v 0 0 0\nv 0 100 0\nv 100 100 0\nv 100 0 0\nv 50 50 0\nv 0 0 0\nl 1 5\nl 5 3\nl 2 5\nl 5 4\n")
+    assert analyze(read_design(path)).num_joints == 1
 
 
 def test_disconnected_design_names_components(tmp_path):

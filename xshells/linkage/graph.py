@@ -224,13 +224,14 @@ def analyze(design: Design) -> LinkageGraph:
     ------
     InputError
         A node of valence above 4, a disconnected design (its components are
-        named), no joint at all, or a valence-3 joint that cannot be paired
-        without closing a triangle.
+        named), two used nodes at the same position, no joint at all, or a
+        valence-3 joint that cannot be paired without closing a triangle.
     """
     V, E = design.vertices, design.edges
     valence = np.bincount(E.ravel(), minlength=len(V)).astype(np.int64)
     _check_valence(design, valence)
     _check_connected(design, valence)
+    _check_same_position(design)
     joint_vertex = np.flatnonzero(valence >= 2)
     if joint_vertex.size == 0:
         raise InputError(f"{design.label()}: the design has no joint (no node of valence 2, 3 or 4)")
@@ -293,6 +294,34 @@ def _check_valence(design: Design, valence: np.ndarray) -> None:
         more = f" (and {high.size - 1} more such nodes)" if high.size > 1 else ""
         raise InputError(f"{design.label()}: {design.where_vertex(v)} has valence {int(valence[v])}; "
                          f"a joint couples two beams, so valence must be 1 to 4{more}")
+
+
+# Two used nodes closer than this fraction of the layout's diagonal are at the same position (round-off),
+# as a segment that short is zero-length to the design reader.
+_SAME_POSITION_RELATIVE = 1e-12
+
+
+def _check_same_position(design: Design) -> None:
+    """Name two used nodes at the same position: two joints that look like one.
+
+    Each holds its own segments, so the beams there are not joined: the linkage failed later with "its two
+    beams are parallel" at one of them, or with two segments that overlap. Checked after connectivity, so a
+    soup of separate segments (a section's contour) is still called disconnected; unused duplicates are harmless.
+    """
+    from scipy.spatial import cKDTree
+
+    used = np.unique(design.edges)
+    W = design.vertices[used]
+    W = (W - W.mean(axis=0)) / (float(np.max(np.abs(W - W.mean(axis=0)))) or 1.0)  # no overflow, any units
+    diag = float(np.linalg.norm(np.ptp(W, axis=0)))
+    pairs = cKDTree(W).query_pairs(_SAME_POSITION_RELATIVE * diag, output_type="ndarray")
+    if not len(pairs):
+        return
+    pairs = np.sort(used[pairs], axis=1)
+    a, b = (int(x) for x in pairs[np.lexsort((pairs[:, 0], pairs[:, 1]))[0]])  # the pair completed first in the file
+    raise InputError(f"{design.label()}: {design.where_vertex(a)} and {design.where_vertex(b)} are at the same "
+                     f"position {tuple(design.vertices[a].tolist())}: merge them (as two nodes, the beams there are "
+                     "not joined)")
 
 
 def _check_connected(design: Design, valence: np.ndarray) -> None:

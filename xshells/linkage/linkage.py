@@ -81,7 +81,8 @@ class Linkage:
             raise InputError(f"rest lengths: expected {S} values (one per segment), got {p.size}")
         bad = np.flatnonzero(~(np.isfinite(p) & (p > 0)))
         if len(bad):
-            raise InputError(f"rest lengths: segment {bad[0]} has non-positive or non-finite rest length {p[bad[0]]}")
+            raise InputError(f"{design.label()}: {design.where_edge(int(bad[0]))}: rest length {p[bad[0]]} is not positive "
+                             "and finite")
 
         # ---- per segment end: joint, beam, slot, orientation, partner segment
         ends = []  # (segment, end 0/1, joint, beam, sigma, partner)
@@ -130,15 +131,23 @@ class Linkage:
         edge_rest = self.rest_length_map @ p
         if (edge_rest <= 0).any():
             bad = int(np.flatnonzero(edge_rest <= 0)[0]) // k
-            raise InputError(f"segment {bad}: rest length too short for its joint edges at subdivision {k}")
+            raise InputError(f"{design.label()}: {design.where_edge(bad)}: rest length {p[bad]:.6g} too short for its "
+                             f"joint edges at subdivision {k}")
 
         # ---- joints: initial variables and source frames
         t = g.joint_tangents
         alpha = np.arccos(np.clip(np.sum(t[:, 0] * t[:, 1], axis=1), -1.0, 1.0))
         bad = np.flatnonzero((alpha < 1e-6) | (alpha > np.pi - 1e-6))
         if len(bad):
-            jv = int(g.joint_vertex[bad[0]])
-            raise InputError(f"joint at vertex {jv}{design.where_vertex(jv) if hasattr(design, 'where_vertex') else ''}: its two beams are parallel (opening angle {np.degrees(alpha[bad[0]]):.3g}°)")
+            # alpha is 0° or 180° by how the beams happen to be oriented: name the angle they cross at instead,
+            # the same for both (the message said "0°" for one straight polyline and "180°" for another)
+            j = int(bad[0])
+            jv = int(g.joint_vertex[j])
+            cross = np.degrees(min(alpha[j], np.pi - alpha[j]))
+            hint = ("; a node of valence 2 is a hinge between two beams that end there, not a point along one "
+                    "beam: draw a straight beam through it as one segment") if g.valence[jv] == 2 else ""
+            raise InputError(f"{design.label()}: {design.where_vertex(jv)}: the joint's two beams are parallel "
+                             f"(they cross at {cross:.2g}°){hint}")
         b0 = t[:, 0] + t[:, 1]
         b0 /= np.linalg.norm(b0, axis=1)[:, None]
         n0 = np.asarray(g.joint_normals, float).copy()
