@@ -101,8 +101,11 @@ BAD_OBJ = [
     (TRIANGLE + "l 1\n", 4, "at least 2"),
     (TRIANGLE + "l 1 x\n", 4, "malformed vertex index"),
     (TRIANGLE + "l 1 0\n", 4, "index 0"),
-    (TRIANGLE + "l 1 2\nl 1 7\n", 5, "out of range"),
-    (TRIANGLE + "l -4 1\n", 4, "out of range"),
+    # the index as written, not the 0-based pair "(0, 6) ... (0-based)"
+    (TRIANGLE + "l 1 2\nl 1 7\n", 5, "vertex index 7 is out of range: the file defines 3 vertices"),
+    (TRIANGLE + "l 1 2\nl 2 3 7/1\n", 5, "vertex index 7 is out of range: the file defines 3 vertices"),
+    (TRIANGLE + "l -4 1\n", 4, "vertex index -4 is out of range: it counts back from the last vertex defined so "
+                                "far, and only 3 are"),
     (TRIANGLE + "l 1 2\nl 2 1\n", 5, "duplicate edge"),
     (TRIANGLE + "l 2 3\nl 2 2\n", 5, "self-loop"),
     ("v 0 0 0\nv 1 0 0\nv 1 0 0\nl 1 2\nl 2 3\n", 5, "zero-length"),

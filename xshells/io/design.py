@@ -318,6 +318,7 @@ def read_obj_design(path: str | os.PathLike) -> Design:
     vertex_lines: list[int] = []
     edges: list[tuple[int, int]] = []
     edge_lines: list[int] = []
+    written: list[tuple[int, list[str], list[int]]] = []  # each 'l' record's line, its indices as written, 0-based
     for lineno, raw in enumerate(text.splitlines(), start=1):
         content = raw.split("#", 1)[0].strip()
         if not content:
@@ -332,6 +333,11 @@ def read_obj_design(path: str | os.PathLike) -> Design:
             if len(args) < 2:
                 raise InputError(f"{where}: line record needs at least 2 vertex indices, got {len(args)}")
             idx = [_parse_obj_index(t, len(coords), where) for t in args]
+            for i, t in zip(idx, args):
+                if i < 0:  # a negative index reaching back past the first vertex: say it as written
+                    raise InputError(f"{where}: vertex index {t.split('/', 1)[0]} is out of range: it counts back "
+                                     f"from the last vertex defined so far, and only {len(coords)} are")
+            written.append((lineno, args, idx))
             for a, b in zip(idx[:-1], idx[1:]):
                 edges.append((a, b))
                 edge_lines.append(lineno)
@@ -343,6 +349,13 @@ def read_obj_design(path: str | os.PathLike) -> Design:
             raise InputError(f"{where}: unknown OBJ record {keyword!r}")
     if not edges:
         raise InputError(f"{label}: the design has no line elements ('l' records)")
+    # A positive index may name a vertex defined further down, so the range is checked once all are read,
+    # and named as the file writes it (the array check said "(0, 98) ... (0-based)" for "l 1 99").
+    for lineno, args, idx in written:
+        for i, t in zip(idx, args):
+            if i >= len(coords):
+                raise InputError(f"{label}: line {lineno}: vertex index {t.split('/', 1)[0]} is out of range: the "
+                                 f"file defines {len(coords)} vertices")
     return design_from_arrays(
         np.array(coords, dtype=np.float64).reshape(-1, 3),
         np.array(edges, dtype=np.int64),
