@@ -68,6 +68,12 @@ def test_the_published_schema_validates_the_docs_examples(name, data):
     ({"file": "a.obj", "material": {"nu": 0.7}}, "less than 0.5"),
     ({"file": "a.obj", "material": {"type": "ellipse"}}, "type 'ellipse' needs its dimensions in 'params'"),
     ({"file": "a.obj", "material": {"type": "CONTOUR"}}, "needs contour_file"),
+    # the count of dimensions, named with the file and the key (it was "rectangle: rectangle takes 2 ...",
+    # from the section when the material was built, naming neither)
+    ({"file": "a.obj", "material": {"params": [5]}},
+     "case.json: key 'material': rectangle takes 2 parameters (width, height), got 1"),
+    ({"file": "a.obj", "material": {"type": "plus", "params": [1, 2]}},
+     "case.json: key 'material': + takes 4 parameters (a, b, t1, t2), got 2"),
     ({"angle_deg": 60}, "missing key 'file'"),
     ([1, 2], "a case is a JSON object"),
 ])
@@ -222,6 +228,8 @@ def test_the_published_schema_accepts_exactly_what_the_validator_accepts(data):
     {"file": "a.obj", "material": {"type": "hexagon", "params": [1, 2]}},
     {"file": "a.obj", "material": {"params": [10, -7]}},
     {"file": "a.obj", "material": {"grade": "oak"}},
+    {"file": "a.obj", "material": {"params": [5]}},
+    {"file": "a.obj", "material": {"type": "Ellipse", "params": [1, 2, 3]}},
 ])
 def test_the_published_schema_refuses_the_cross_key_mistakes(data):
     assert _accepted(data) == (False, False)

@@ -81,6 +81,15 @@ class MaterialSpec(_Strict):
             raise ValueError(f"type {self.type!r} needs its dimensions in 'params' (only a rectangle defaults to 10 × 7)")
         if any(not (math.isfinite(v) and v > 0) for v in self.params):
             raise ValueError(f"params must be positive finite lengths, got {self.params}")
+        if kind != "contour" and self.params:
+            # checked here, so that the line names the case file and its key: the section's own check, when
+            # the material was built, said only "rectangle: rectangle takes 2 parameters (width, height), got 1"
+            from ..section.profiles import PARAM_NAMES
+
+            names = PARAM_NAMES[TYPE_ALIASES[kind]]
+            if len(self.params) != len(names.split(", ")):
+                raise ValueError(f"{TYPE_ALIASES[kind]} takes {len(names.split(', '))} parameters ({names}), got "
+                                 f"{len(self.params)}")
         return self
 
 
@@ -202,11 +211,11 @@ def _cross_key_rules(schema: dict) -> None:
     """The validators' rules across keys, in JSON Schema, so that the published schema refuses what
     :func:`validate_case` refuses (tested against each other): one angle key at most; a known
     cross-section type and grade; contour_file exactly with type contour; dimensions for every type
-    but the rectangle; positive lengths."""
+    but the rectangle, as many as the type takes; positive lengths."""
     from itertools import combinations
 
     from ..analysis.materials import LIBRARY
-    from ..section.profiles import TYPE_ALIASES
+    from ..section.profiles import PARAM_NAMES, TYPE_ALIASES
 
     schema["not"] = {"anyOf": [{"allOf": [_given(a), _given(b)]} for a, b in combinations(ANGLE_KEYS, 2)]}
     mat = schema["$defs"]["MaterialSpec"]
@@ -223,6 +232,14 @@ def _cross_key_rules(schema: dict) -> None:
         {"if": {"required": ["type"], **is_type(sized)},
          "then": {"required": ["params"], "properties": {"params": {"minItems": 1}}}},
     ]
+    # each type's count of dimensions, where any are given (an absent type is a rectangle: the pattern of an
+    # absent key holds, so only the other types' rules need "required")
+    for kind, names in PARAM_NAMES.items():
+        n = len(names.split(", "))
+        given = {} if kind == "rectangle" else {"required": ["type"]}
+        mat["allOf"].append({"if": {**given, **is_type([k for k, v in TYPE_ALIASES.items() if v == kind])},
+                             "then": {"properties": {"params": {"anyOf": [{"maxItems": 0},
+                                                                          {"minItems": n, "maxItems": n}]}}}})
 
 
 def json_schema() -> dict:
