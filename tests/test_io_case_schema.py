@@ -424,3 +424,16 @@ def test_a_deploy_that_fails_with_an_error_leaves_stops_undeferred(tmp_path, mon
     assert STOP.deferring == 0
     with pytest.raises(KeyboardInterrupt):
         STOP.request()
+
+
+def test_a_case_file_with_a_byte_order_mark_loads_and_a_folder_as_its_design_is_named(tmp_path):
+    """Windows editors write a byte-order mark: it was "not valid JSON (Unexpected UTF-8 BOM)". And
+    "file": "." (the case's own folder) was "unknown design file type ''"."""
+    from xshells.deploy.case import load_case
+
+    case = tmp_path / "bom.json"
+    case.write_bytes(b"\xef\xbb\xbf" + json.dumps({"file": "d.obj", "angle_deg": 60}).encode())
+    assert load_case(case).design_path == str(tmp_path / "d.obj")
+    case.write_text(json.dumps({"file": ".", "angle_deg": 60}))
+    with pytest.raises(InputError, match=r"bom\.json: key 'file' = \"\.\": a folder, not a design file"):
+        load_case(case)

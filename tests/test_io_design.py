@@ -166,6 +166,17 @@ def test_unreadable_files(tmp_path):
         read_design(corrupt)
     with pytest.raises(InputError, match="unknown design file type"):
         read_design(tmp_path / "design.stl")
+    # a folder has no suffix: it said "unknown design file type ''"
+    with pytest.raises(InputError, match=r"^\S+: a folder, not a design file \(\.obj, \.msh or \.3dm\)$"):
+        read_design(tmp_path)
+
+
+def test_a_byte_order_mark_is_read_past(tmp_path):
+    """Windows editors begin a UTF-8 file with a byte-order mark: it was "line 1: unknown OBJ record '\\ufeffv'"."""
+    path = tmp_path / "bom.obj"
+    path.write_bytes(b"\xef\xbb\xbf" + TRIANGLE.encode() + b"l 1 2 3\n")
+    d = read_design(path)
+    assert d.vertices.tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 0]] and d.edges.tolist() == [[0, 1], [1, 2]]
 
 
 def _write_msh(path, points, cells, binary=False):

@@ -39,7 +39,7 @@ def load_case(path) -> Case:
 
     check_input_file(path, "case file")
     try:
-        with open(path) as fh:
+        with open(path, encoding="utf-8-sig") as fh:  # JSON is UTF-8; -sig drops a byte-order mark (Windows editors)
             spec = loads(fh.read(), str(path))
     except OSError as exc:
         raise InputError(f"{path}: cannot read case file ({exc.strerror})") from None
@@ -50,6 +50,10 @@ def load_case(path) -> Case:
     case = validate_case(spec, path)
     base = os.path.dirname(os.path.abspath(path))
     rel = lambda p: p if os.path.isabs(p) else os.path.join(base, p)  # noqa: E731
+    key = "flat_file" if case.flat_file else "file"
+    if os.path.isdir(rel(case.flat_file or case.file)):  # "file": "." is the case's own folder
+        raise InputError(f"{path}: key '{key}' = {json.dumps(case.flat_file or case.file)}: a folder, not a design file "
+                         "(.obj, .msh or .3dm)")
     angle = None
     if case.angle_deg is not None:
         angle = float(np.radians(case.angle_deg))

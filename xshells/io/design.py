@@ -266,6 +266,9 @@ def read_design(path: str | os.PathLike) -> Design:
     -------
     Design
     """
+    if Path(path).is_dir():  # its suffix is '' (a case's "file": "."), which read as "unknown design file type ''"
+        raise InputError(f"{path}: a folder, not a design file ({', '.join(DESIGN_SUFFIXES[:-1])} or "
+                         f"{DESIGN_SUFFIXES[-1]})")
     suffix = Path(path).suffix.lower()
     if suffix == ".obj":
         return read_obj_design(path)
@@ -282,7 +285,7 @@ def read_design(path: str | os.PathLike) -> Design:
 def _read_text(path: str | os.PathLike) -> str:
     check_input_file(path)
     try:
-        with open(path, encoding="utf-8") as f:
+        with open(path, encoding="utf-8-sig") as f:  # -sig: a byte-order mark (Windows editors write one) is dropped
             return f.read()
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
