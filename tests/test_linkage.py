@@ -284,3 +284,12 @@ def test_rest_length_messages_name_the_segment_by_its_file_line(tmp_path):
     thin = Material.uniform("rectangle", [0.01, 0.005], E=20000, nu=0.3)
     with pytest.raises(Exception, match=r"^\S*g\.obj: line 5: rest length -1\.0 is not positive"):
         Linkage(read_design(path), thin, subdivision=3, rest_lengths=[1.0, -1.0])
+
+
+def test_the_units_warning_names_the_segment_by_its_file_line(tmp_path):
+    """It said "as wide as segment 1", a 0-based index the file never shows."""
+    path = tmp_path / "g.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 0.5 0\nl 1 2\nl 1 3\n")
+    wide = Material.uniform("rectangle", [10, 7], E=20000, nu=0.3)
+    (warning,) = Linkage(read_design(path), wide, subdivision=3).input_warnings()
+    assert f"x as wide as the segment on line 5 of {path} (0.5 long)" in warning, warning

@@ -326,7 +326,7 @@ class Linkage:
         edge = self.rest_length_map @ p
         if not (np.isfinite(edge).all() and (edge > 0).all()):
             s = int(np.flatnonzero(~(edge > 0))[0]) // self.subdivision
-            raise InvalidState(f"rest lengths: segment {s} would get a non-positive edge rest length")
+            raise InvalidState(f"rest lengths: {_segment_at(self.design, s)} would get a non-positive edge rest length")
         self.rods.set_rest_lengths(edge)
         self._p = p.copy()
 
@@ -757,11 +757,19 @@ class Linkage:
         s = int(np.argmax(ratio))
         if ratio[s] <= 1.0:
             return ""
-        return (f"the cross-section ({size[s]:.4g} across) is {ratio[s]:.3g}x as wide as segment {s} ({self._p[s]:.4g} long): "
+        return (f"the cross-section ({size[s]:.4g} across) is {ratio[s]:.3g}x as wide as {_segment_at(self.design, s)} "
+                f"({self._p[s]:.4g} long): "
                 f"beams must be slender; are the design and the section in the same units (the bundled data: mm)?")
 
     def summary(self) -> dict:
         return {"segments": self.num_segments, "joints": self.num_joints, "dof": self.num_vars, "subdivision": self.subdivision}
+
+
+def _segment_at(design: Design, s: int) -> str:
+    """Segment ``s`` as the design file shows it ("the segment on line 29 of d.obj"), not its 0-based index."""
+    where = design.where_edge(s)
+    of = f" of {design.label()}" if design.source is not None else ""
+    return f"the segment on {where}{of}" if where.startswith("line ") else f"{where}{of}"
 
 
 def _rotate(w: np.ndarray, v: np.ndarray) -> np.ndarray:
