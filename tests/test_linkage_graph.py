@@ -288,6 +288,54 @@ def test_a_joint_beside_a_segment_is_not_a_free_end_on_it():
     assert g.valence[idx[2, 1]] == 4 and g.crossings == ""
 
 
+def _polyline_grid(bends: int, sag: float):
+    """A 3 x 3 grid of joints whose segments are each drawn as a polyline of ``bends`` nodes on a shallow arc."""
+    V, E, index = [], [], {}
+
+    def node(p):
+        key = tuple(np.round(p, 9))
+        if key not in index:
+            index[key] = len(V)
+            V.append([*p, 0.0])
+        return index[key]
+
+    for i in range(3):
+        for j in range(3):
+            for di, dj in ((1, 0), (0, 1)):
+                if i + di > 2 or j + dj > 2:
+                    continue
+                a, b = np.array([i, j], float), np.array([i + di, j + dj], float)
+                normal = np.array([-(b - a)[1], (b - a)[0]])
+                ts = np.linspace(0.0, 1.0, bends + 2)
+                points = [a + t * (b - a) + sag * 4 * t * (1 - t) * normal for t in ts]
+                ids = [node(p) for p in points]
+                E += list(zip(ids[:-1], ids[1:]))
+    return np.array(V), E
+
+
+def test_a_beam_drawn_as_a_polyline_is_said_to_hinge_at_its_bends():
+    """A node of valence 2 is a hinge where two beams end: a curved beam drawn as a polyline (rad7_poly.obj)
+    became hinges at every bend, and the user heard only of an inversion when the deployment started."""
+    V, E = _polyline_grid(2, 0.05)
+    g = analyze(design_from_arrays(V, E, "poly.obj"))
+    assert g.bends.startswith("poly.obj: node 1 and 23 more nodes of valence 2 join two segments nearly in line (")
+    assert "such a node is a hinge where two beams end, not a bend along one beam" in g.bends
+    # one bend per segment: no run of bends, but more of them than joints of valence 3 and 4 (4 + 1 here)
+    V, E = _polyline_grid(1, 0.02)
+    assert "and 11 more nodes of valence 2" in analyze(design_from_arrays(V, E, "poly.obj")).bends
+    # the corners of a plain grid (valence 2, at right angles) and the quad of four corners are hinges by intent
+    V, E = _polyline_grid(0, 0.0)
+    assert analyze(design_from_arrays(V, E)).bends == ""
+    assert analyze(read_design(EXAMPLES / "quad.obj")).bends == ""
+
+
+@needs_data
+def test_no_paper_design_is_said_to_bend_at_a_hinge():
+    for case in json.loads((DATA / "cases.json").read_text())["cases"]:
+        g = analyze(read_design(DATA / (case.get("flat_file") or case["file"])))
+        assert g.bends == "", (case["name"], g.bends)
+
+
 @needs_data
 def test_no_paper_design_has_an_end_on_another_segment():
     for case in json.loads((DATA / "cases.json").read_text())["cases"]:

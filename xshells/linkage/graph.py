@@ -106,6 +106,9 @@ class LinkageGraph:
         none): no contact is modelled, so they pass through each other (a layered design).
     labels_consistent : bool
         Whether every joint-to-joint segment has the same label at both ends.
+    bends : str
+        A one-line warning naming nodes of valence 2 that look like the bends of a beam drawn as a polyline
+        ('' if none): each is a hinge where two beams end (see :func:`_bends`).
     """
 
     design: Design = field(repr=False)
@@ -128,6 +131,7 @@ class LinkageGraph:
     is_planar: bool = False
     crossings: str = ""  # a warning naming segments that cross without a joint ('' if none)
     labels_consistent: bool = True
+    bends: str = ""  # a warning naming nodes of valence 2 that look like bends of a polyline beam ('' if none)
 
     @property
     def num_segments(self) -> int:
@@ -284,6 +288,7 @@ def analyze(design: Design) -> LinkageGraph:
         is_planar=bool(is_planar),
         labels_consistent=bool(consistent),
         crossings=crossings,
+        bends=_bends(design, valence, incident),
     )
 
 
@@ -424,6 +429,42 @@ def _touching(design: Design, P: np.ndarray, s: np.ndarray, t: np.ndarray, lengt
                         f"without sharing a node: the two are not connected, that end is free; to join them, "
                         f"split the other beam at a node there")
     return ""
+
+
+BEND_DEGREES = 10.0
+"""A node of valence 2 whose two segments are within this angle of straight looks like a bend of one beam."""
+
+
+def _bends(design: Design, valence: np.ndarray, incident: list[list[int]]) -> str:
+    """A one-line warning when the nodes of valence 2 look like the bends of beams drawn as polylines ('' if not).
+
+    A node of valence 2 is a joint where two beams end: a hinge, free to turn (the paper's corners and boundary
+    nodes). A curved beam drawn as a polyline (rad7_poly.obj: each segment split in three on an arc) thus
+    became 172 hinges, its beams one or two segments long; the only word was an inversion at the start of the
+    deployment. Said, not refused, when a segment joins two such nearly straight nodes (a run of bends: none
+    in the 80 bundled designs, 90 in rad7_poly.obj) or when nearly straight ones outnumber the joints of
+    valence 3 and 4 (at most 0.18 of them in the bundled designs, 3.7 in rad7_poly.obj).
+    """
+    V, E = design.vertices, design.edges
+    two = np.flatnonzero(valence == 2)
+    if not len(two):
+        return ""
+    ends = np.array([[_far_vertex(E, s, int(v)) for s in incident[v]] for v in two.tolist()])
+    a, b = V[ends[:, 0]] - V[two], V[ends[:, 1]] - V[two]
+    cos = np.einsum("ij,ij->i", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+    off = 180.0 - np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))  # 0: straight through
+    straight = np.zeros(len(V), dtype=bool)
+    straight[two[off < BEND_DEGREES]] = True
+    run = straight[E[:, 0]] & straight[E[:, 1]]
+    if not run.any() and np.count_nonzero(straight) <= np.count_nonzero(valence >= 3):
+        return ""
+    v = int(np.flatnonzero(straight)[0])
+    n = int(np.count_nonzero(straight))
+    more = f" and {n - 1} more node{'s' * (n > 2)} of valence 2" if n > 1 else ", a node of valence 2,"
+    return (f"{design.label()}: {design.where_vertex(v)}{more} join{'s' * (n == 1)} two segments nearly in line "
+            f"({float(off[np.searchsorted(two, v)]):.2g}° off straight): such a node is a hinge where two beams end, "
+            f"not a bend along one beam, so a beam drawn as a polyline folds there; draw each beam straight from "
+            f"joint to joint")
 
 
 def _incident_segments(E: np.ndarray, n: int) -> list[list[int]]:

@@ -728,9 +728,10 @@ class Linkage:
 
     def input_warnings(self) -> list:
         """One-line warnings about the input that explain a bad result: :meth:`slenderness_warning`,
-        segments that cross without a joint, and a design that is not flat (then simulated from the
+        segments that cross without a joint, nodes of valence 2 that look like a polyline's bends (hinges
+        there), and a design that is not flat (then simulated from the
         state as drawn)."""
-        out = [w for w in [self.slenderness_warning(), self.graph.crossings] if w]
+        out = [w for w in [self.slenderness_warning(), self.graph.crossings, self.graph.bends] if w]
         if not self.graph.is_planar:
             P = np.asarray(self.graph.design.vertices, float)
             off = float(np.abs((P - P.mean(axis=0)) @ self.graph.layout_normal).max())
