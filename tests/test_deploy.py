@@ -222,6 +222,37 @@ def test_optimized_designs_redeploy_onto_the_reference_states(banana_energies):
         assert deviation < 0.01, name  # within 1% of the bounding-box diagonal
 
 
+@pytest.mark.parametrize("folder, material, angle_deg, direction, bound", [
+    # the paper's wings at their case angle (2 rad): 1.5e-5 of the diagonal measured (2026-12-05)
+    ("asymm_wings_pointy", ("rectangle", [12.0, 8.0], 20000), float(np.degrees(2.0)), "down", 1e-4),
+    # the wooden prototype's files are at about 97° (its notebook deploys them to 76°, the angle of cases.json,
+    # and a 3D file's joints read as 83°, the supplement): 0.39% max there, 7-10% at 76° or 83°; the last 0.4%
+    # is not ours to explain (no angle brings it below 0.39%: another section or iterate wrote the file)
+    ("simple_two_bumps_3", ("rectangle", [15.3, 8.1], 2000), 97.5, "up", 0.01),
+])
+def test_more_optimized_designs_redeploy_onto_their_files_at_the_files_angle(folder, material, angle_deg, direction, bound):
+    from xshells.io import read_rest_lengths
+    from xshells.solve import NewtonOptions, minimize
+
+    from data_paths import DATA, EXAMPLES
+
+    base = EXAMPLES / folder
+    if not base.is_dir():
+        base = DATA / "python" / "examples" / "optimized" / "data" / folder
+        if not base.is_dir():
+            pytest.skip(f"shared ElasticRods data not found at {base}")
+    flat, reference = read_design(base / "flat_opt.msh"), read_design(base / "deployed_opt.msh")
+    kind, params, E = material
+    L = Linkage(flat, Material.uniform(kind, params, E=E, nu=0.3, stiff_axis="D1"), subdivision=10,
+                rest_lengths=read_rest_lengths(base / "design_parameters.txt", flat.num_segments))
+    minimize(L, fixed=L.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-6, saddle_gradient_factor=float("inf")))
+    res = deploy(L, np.radians(angle_deg), DeployOptions(steps=20, direction=direction))
+    assert res.converged, res.message
+    ref = reference.vertices[L.graph.joint_vertex]
+    dev = _kabsch_deviation(L.joint_positions(), ref) / np.linalg.norm(np.ptp(ref, axis=0))
+    assert dev.max() < bound, dev.max()
+
+
 def test_optimization_lowers_the_deployed_energy_five_fold(banana_energies):
     assert banana_energies["wiggly_banana_preopt"][0] > 5 * banana_energies["wiggly_banana_5"][0]
 
