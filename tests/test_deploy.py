@@ -115,6 +115,63 @@ def test_an_interrupted_deploy_keeps_the_steps_it_finished(tmp_path, monkeypatch
     assert rows[0].startswith("step,") and len(rows) == 3
 
 
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_an_interrupt_inside_a_step_keeps_the_last_finished_equilibrium(tmp_path, monkeypatch, capsys, how):
+    """A stop landing inside step 3's solve: result.json's deployed state and the deployed files are step 2's
+    equilibrium (they once described the half-solved step 3: scary_face 44.93° and energy 204,902 against
+    the last finished step's 43.13°). SIGTERM says "terminated" and exits 143; Ctrl-C "interrupted", 130."""
+    import signal
+
+    import xshells.deploy.run as run
+    import xshells.deploy.simulate as simulate
+    from xshells.errors import STOP
+
+    real_deploy, real_minimize = run.deploy, simulate.minimize
+    finished = {}
+    monkeypatch.setattr(STOP, "requested", False)  # put back after the test: the stop below must not outlive it
+    monkeypatch.setattr(STOP, "signum", None, raising=False)
+
+    def deploy_recording(L, angle, options, callback=None, **kw):
+        def on_step(rec):
+            finished[rec.step] = (L.joint_positions().copy(), rec)
+            return callback(rec)
+        return real_deploy(L, angle, options, callback=on_step, **kw)
+
+    def minimize_stopped_in_step_3(problem, **kw):
+        if 2 in finished and 3 not in finished:  # step 3: one Newton iteration, then the stop
+            opts = kw.pop("options")
+            real_minimize(problem, options=type(opts)(**{**opts.__dict__, "max_iterations": 1}), **kw)
+            if how == "sigterm":
+                STOP.request(None, signal.SIGTERM)  # what the command line's handler does
+            raise KeyboardInterrupt
+        return real_minimize(problem, **kw)
+
+    monkeypatch.setattr(run, "deploy", deploy_recording)
+    monkeypatch.setattr(simulate, "minimize", minimize_stopped_in_step_3)
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, warped_grid(4))
+    out = tmp_path / "out"
+    code = main(["deploy", str(design), "--angle", "70", "--steps", "6", "--subdivision", "4", "--out", str(out),
+                 "--no-progress"])
+    err = capsys.readouterr().err
+    result = json.loads((out / "result.json").read_text())
+    assert result["status"] == "interrupted" and [s["step"] for s in result["steps"]] == [1, 2]
+    P2, rec2 = finished[2]
+    d = result["deployed"]
+    assert d["average_angle_deg"] == pytest.approx(rec2.average_angle_deg, abs=1e-9)
+    assert d["energy"] == pytest.approx(rec2.energy, rel=1e-12)
+    assert np.allclose(d["joint_positions"], P2, rtol=0, atol=1e-12 * span_of(P2))
+    assert d["max_abs_z"] == pytest.approx(result["steps"][-1]["max_abs_z"], rel=1e-12)  # one definition
+    assert "energy" in (out / "deployment.csv").read_text() and (out / "deployed.obj").exists()
+    assert result["message"].startswith("terminated (SIGTERM)" if how == "sigterm" else "interrupted by the user")
+    assert code == (143 if how == "sigterm" else 130)
+    assert ("terminated" if how == "sigterm" else "interrupted") in err and "2 finished steps" in err, err
+
+
+def span_of(P):
+    return float(np.ptp(np.asarray(P), axis=0).max())
+
+
 def test_an_opening_past_180_names_the_case_key_not_only_the_sum(tmp_path, capsys):
     design = tmp_path / "grid.obj"
     write_design_obj(design, rhombic_grid(3, 3, spacing=100.0))  # drawn at 90°
@@ -514,3 +571,66 @@ def test_deploy_of_a_design_that_is_not_flat_removes_an_earlier_flat_layout_draw
     assert not (out / "flat_layout.svg").exists() and not (out / "flat_layout.dxf").exists()
     warnings = json.loads((out / "result.json").read_text())["warnings"]
     assert any("flat_layout.svg" in w and w.startswith("removed an earlier run's") for w in warnings), warnings
+
+
+# ---------------------------------------------------------------- recheck31: heights, stale plot, rest lengths, density
+def test_max_abs_z_is_one_definition_independent_of_the_shells_orientation(tmp_path):
+    """result.json's deployed max_abs_z and its last step's were two measures of one state (30.86 and 52.33
+    on a 7-ring radial design); and a shell tilted by its pinned joint measured taller than the same shell level."""
+    from xshells.deploy.run import run_deployment
+
+    r = run_deployment(_grid_file(tmp_path), FLAT_BEAM, out_dir=str(tmp_path / "out"), subdivision=4,
+                       target_angle=np.radians(70), steps=6, progress=False)
+    P = np.array(r["deployed"]["joint_positions"])
+    assert r["deployed"]["max_abs_z"] == r["steps"][-1]["max_abs_z"] > 0.05 * span_of(P)
+    from xshells.deploy.simulate import max_abs_z
+    c, s = np.cos(0.3), np.sin(0.3)
+    tilted = P @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T + [5.0, -3.0, 7.0]
+    assert max_abs_z(tilted) == pytest.approx(max_abs_z(P), rel=1e-9)
+    assert r["flat"]["max_abs_z"] < 1e-9 * span_of(P)
+
+
+def _grid_file(tmp_path):
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, warped_grid(4))
+    return str(design)
+
+
+def test_a_run_with_no_step_removes_an_earlier_runs_deployment_plot(tmp_path, monkeypatch):
+    """deployment.png of an earlier run stayed beside a result that finished no step (and drew none)."""
+    import xshells.deploy.run as run
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "deployment.png").write_bytes(b"an earlier run's plot")
+    real = run.deploy
+
+    def stopped_at_step_1(L, angle, options, callback=None, **kw):
+        def on_step(rec):
+            raise KeyboardInterrupt
+        return real(L, angle, options, callback=on_step, **kw)
+
+    monkeypatch.setattr(run, "deploy", stopped_at_step_1)
+    assert main(["deploy", _grid_file(tmp_path), "--angle", "70", "--steps", "4", "--subdivision", "4", "--out",
+                 str(out), "--no-progress"]) == 130
+    result = json.loads((out / "result.json").read_text())
+    assert result["steps"] == [] and not (out / "deployment.png").exists()
+    assert any("removed an earlier run's deployment.png" in w for w in result["warnings"]), result["warnings"]
+
+
+def test_a_rest_length_solve_that_does_not_converge_is_a_warning(tmp_path, monkeypatch):
+    """Its report was thrown away: single_linkage.json deployed from a flat state with a twist energy of 2e8."""
+    import xshells.deploy.run as run
+    from xshells.solve import NewtonOptions
+
+    real = run.rest_length_solve
+    monkeypatch.setattr(run, "rest_length_solve", lambda L: real(L, NewtonOptions(gradient_tolerance=1e-30, max_iterations=1)))
+    r = run.run_deployment(_grid_file(tmp_path), FLAT_BEAM, out_dir=str(tmp_path / "out"), subdivision=4,
+                           target_angle=np.radians(70), steps=2, progress=False)
+    assert any(w.startswith("the rest-length solve did not converge") and "twist" in w for w in r["warnings"]), r["warnings"]
+
+
+def test_density_is_refused_by_deploy_not_ignored(tmp_path, capsys):
+    assert main(["deploy", _grid_file(tmp_path), "--density", "4.2e-10", "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "deploy applies no self-weight: --density is used by xshells analyze" in err and len(err.splitlines()) == 1

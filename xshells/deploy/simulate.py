@@ -155,6 +155,24 @@ class _RestLengthProblem:
         return self.L.min_arc_length()
 
 
+def max_abs_z(points) -> float:
+    """The shell's height: the largest distance of a joint from its median height, heights measured along the
+    normal of the joints' best-fit plane (least squares through their centroid).
+
+    The one definition of ``max_abs_z`` (every step of a deployment, the deployed and flat summaries of
+    result.json, the progress bar): independent of the shell's rigid orientation, so a shell tilted by
+    which joint is pinned has the same height as the same shell level (the layout-normal height, the
+    pinned joint's, measured 52.33 and 30.86 for one state). A flat state measures 0 to round-off.
+    """
+    P = np.asarray(points, float)
+    if len(P) < 3:
+        return 0.0
+    Q = P - P.mean(axis=0)
+    normal = np.linalg.svd(Q, full_matrices=False)[2][-1]  # the direction of least spread
+    h = Q @ normal
+    return float(np.abs(h - np.median(h)).max())
+
+
 def _gradient_scale(linkage: Linkage) -> float:
     """A force scale for tolerances: bending stiffness over span squared."""
     B = float(np.max(linkage.rods.bending_stiffness))
@@ -203,6 +221,17 @@ def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, mi
     return report
 
 
+def rest_length_warning(report, linkage: Linkage) -> list[str]:
+    """[] or the warning of a rest-length solve that did not converge (its report was once thrown away: a flat
+    state with a twist energy of 2e8 was deployed without a word)."""
+    if report is None or report.converged:
+        return []
+    parts = linkage.energy_parts()
+    why = report.message or f"{report.iterations} iterations"
+    return [f"the rest-length solve did not converge ({why}): the flat state is not in equilibrium (energy {parts.total:.4g}: stretch "
+            f"{parts.stretch:.4g}, bend {parts.bend:.4g}, twist {parts.twist:.4g}); the deployment starts from it all the same"]
+
+
 def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = DeployOptions(), actuated=None,
            callback=None) -> DeploymentResult:
     """Open the linkage to an average joint angle ``target_angle`` (radians).
@@ -243,8 +272,6 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     newton = NewtonOptions(**{**options.newton.__dict__, "gradient_tolerance": max(options.newton.gradient_tolerance * scale, floor)})
     step_newton = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(options.newton.gradient_tolerance * options.step_tolerance_factor * scale, floor)})
     result = DeploymentResult(target_angle_deg=float(np.degrees(target_angle)))
-    Sz = linkage.height_selector()
-    z0 = Sz @ linkage.get_vars()
     target_deg = float(np.degrees(target_angle))
 
     # joint edge lengths ℓA, ℓB: bounded below by ε, with an active set
@@ -301,6 +328,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     def run_steps(alpha0: float, why: str) -> bool:
         """Steps from ``alpha0`` to the target (none if ``why`` says the start is broken); whether the first folded a joint."""
         last_good, last_angle = snapshot(linkage), float(np.degrees(alpha0))
+        kept["state"] = last_good
         result.reached_angle_deg = last_angle  # until a step is taken
         previous = None  # (x, joint frames) of the equilibrium before the last one, for the predictor
         smooth = False  # whether the last step was easy (then the path is smooth enough to extrapolate)
@@ -350,14 +378,14 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                 result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: {why} on the way to {np.degrees(angle):.2f}°"
                 return i == 1
             parts = linkage.energy_parts()
-            z = Sz @ linkage.get_vars() - z0
             g = linkage.gradient()
             torque = float(np.mean(g[linkage.angle_indices()[joints]]))
             rec = StepRecord(i, float(np.degrees(a @ linkage.get_vars())), parts.total, parts.stretch, parts.bend, parts.twist,
-                             torque, float(np.abs(z).max()), report.iterations, report.converged)
+                             torque, max_abs_z(linkage.joint_positions()), report.iterations, report.converged)
             result.steps.append(rec)
             result.reached_angle_deg, result.torque = rec.average_angle_deg, torque
             last_good, last_angle = snapshot(linkage), rec.average_angle_deg
+            kept["state"] = last_good
             if callback is not None and callback(rec):
                 result.message = f"stopped by request at {rec.average_angle_deg:.2f}°"
                 return False
@@ -378,33 +406,57 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             return angle, f"relaxing with joint {j}'s angle held did not converge ({report.message})"
         return angle, inversion(linkage.get_vars())
 
+    def start_and_steps() -> None:
+        """The start (re-done held by the central joint if "auto" asks) and the steps to the target."""
+        nonlocal active
+        alpha = alpha0
+        why = ""
+        if options.start == "central-joint":
+            alpha, why = relax_holding_central_joint()
+        initial, initial_active, initial_angle = snapshot(linkage), active.copy(), alpha
+        if run_steps(alpha, why) and options.start == "auto":
+            # the assembly state cannot relax at its own average angle: start over, held by one joint
+            first = result.message.split(": ", 1)[-1]
+            restore(linkage, initial)
+            active = initial_active
+            result.steps, result.torque = [], 0.0
+            alpha, why = relax_holding_central_joint()
+            result.start_note = (f"held at its average angle {np.degrees(initial_angle):.2f}°, the assembly state cannot relax "
+                                 f"({first}); relaxed with only the central joint's angle held"
+                                 + ("" if why else f", it settled at {result.start_angle_deg:.2f}°"))
+            run_steps(alpha, why)
+        if result.start_note:
+            result.message += f" (start: {result.start_note})"
+
     result.start, result.start_angle_deg = "average", float(np.degrees(alpha0))
-    why = ""
-    if options.start == "central-joint":
-        alpha0, why = relax_holding_central_joint()
-    initial, initial_active, initial_angle = snapshot(linkage), active.copy(), alpha0
-    if run_steps(alpha0, why) and options.start == "auto":
-        # the assembly state cannot relax at its own average angle: start over, held by one joint
-        first = result.message.split(": ", 1)[-1]
-        restore(linkage, initial)
-        active = initial_active
-        result.steps, result.torque = [], 0.0
-        alpha0, why = relax_holding_central_joint()
-        result.start_note = (f"held at its average angle {np.degrees(initial_angle):.2f}°, the assembly state cannot relax "
-                             f"({first}); relaxed with only the central joint's angle held"
-                             + ("" if why else f", it settled at {result.start_angle_deg:.2f}°"))
-        run_steps(alpha0, why)
-    if result.start_note:
-        result.message += f" (start: {result.start_note})"
-    result.active_joint_edges = [int(v) for v in edge_vars[active]]
+    kept = {"state": snapshot(linkage)}  # the last finished equilibrium (the start until a step ends)
+    try:
+        start_and_steps()
+    except BaseException:
+        # Ctrl-C, SIGTERM (the command line raises KeyboardInterrupt) or an error inside a solve: the linkage
+        # is left in the last finished equilibrium, as a run that stops on its own leaves it, never in the
+        # half-solved state of the step under way (an interrupted `xshells deploy` saved that as its result)
+        from ..errors import STOP
+
+        with STOP.deferred():
+            restore(linkage, kept["state"])
+        raise
+    _final_checks(linkage, result, a, pins, edge_vars[active])
+    result.time_s = time.perf_counter() - start
+    return result
+
+
+def _final_checks(linkage: Linkage, result: DeploymentResult, a, pins, held_edges) -> None:
+    """The final state's constrained gradient norm and stability (smallest eigenvalues) into ``result``."""
+    result.active_joint_edges = [int(v) for v in held_edges]
     # the constrained gradient norm of the final state (free variables, constraint force removed)
     held = np.zeros(linkage.num_vars, bool)
     held[pins] = True
-    held[edge_vars[active]] = True
+    held[held_edges] = True
     gf, af = linkage.gradient()[~held], a[~held]
     result.gradient_norm = float(np.linalg.norm(gf - af * (af @ gf) / (af @ af)))
     try:
-        free = np.setdiff1d(np.arange(linkage.num_vars), np.concatenate([pins, edge_vars[active]]))
+        free = np.setdiff1d(np.arange(linkage.num_vars), np.concatenate([pins, held_edges]))
         H = linkage.hessian()[free][:, free]
         M = linkage.mass_matrix()[free][:, free]
         lam, s_free = smallest_eigenvalues(H, M, k=2, return_shift=True)
@@ -424,8 +476,6 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                                                                           shift=s_free or None)[0])
     except Exception as exc:  # eigen-solver trouble must not lose the deployment
         result.message += f"; stability check failed: {exc}"
-    result.time_s = time.perf_counter() - start
-    return result
 
 
 def folded_joint(linkage: Linkage, x=None, margin: float = 0.0) -> str:
