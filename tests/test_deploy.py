@@ -590,9 +590,9 @@ def test_max_abs_z_is_one_definition_independent_of_the_shells_orientation(tmp_p
     assert r["flat"]["max_abs_z"] < 1e-9 * span_of(P)
 
 
-def _grid_file(tmp_path):
+def _grid_file(tmp_path, n=4):
     design = tmp_path / "grid.obj"
-    write_design_obj(design, warped_grid(4))
+    write_design_obj(design, warped_grid(n))
     return str(design)
 
 
@@ -634,3 +634,24 @@ def test_density_is_refused_by_deploy_not_ignored(tmp_path, capsys):
     assert main(["deploy", _grid_file(tmp_path), "--density", "4.2e-10", "--out", str(tmp_path / "o"), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "deploy applies no self-weight: --density is used by xshells analyze" in err and len(err.splitlines()) == 1
+
+
+def test_one_coarse_step_that_buckles_the_flat_layout_is_redone_and_lands_on_the_deployments_branch(tmp_path):
+    """--steps 1 landed silently on another branch (two_asymm_bumps: one bump down, energy 52,225, against
+    46,046.5 with 2 to 50 steps); on this grid asked "up", a single step went down. The step is redone from
+    the flat state in sub-steps, and said: in result.json (refined_steps) and in a warning."""
+    from xshells.deploy.run import run_deployment
+
+    fine = Linkage(warped_grid(), FLAT_BEAM, subdivision=4)
+    rest_length_solve(fine)
+    res = deploy(fine, np.radians(80), DeployOptions(steps=12))  # 3.75° steps: none redone
+    assert res.converged
+    states = {}
+    r = run_deployment(_grid_file(tmp_path, 6), FLAT_BEAM, out_dir=str(tmp_path / "out"), subdivision=4,
+                       target_angle=np.radians(80), steps=1, progress=False, states=states)
+    P, Q = states["deployed"].joint_positions(), fine.joint_positions()
+    assert np.abs(P - Q).max() < 1e-8 * span_of(Q)  # the same branch, the same side ("up")
+    assert res.refined_steps == []
+    (refined,) = r["refined_steps"]
+    assert refined["step"] == 1 and refined["substeps"] == 5 and refined["to_deg"] == pytest.approx(80.0)
+    assert any("buckled the flat layout in one step" in w for w in r["warnings"]), r["warnings"]

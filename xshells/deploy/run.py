@@ -344,6 +344,18 @@ def _say(warnings: list, printed: int, progress: bool) -> int:
     return len(warnings)
 
 
+def _note_refined_steps(result: dict, res) -> None:
+    """result.json's ``refined_steps`` and a warning for each step that buckled the flat layout in one coarse step
+    and was redone in sub-steps (:attr:`~.simulate.DeployOptions.max_buckling_step_deg`)."""
+    result["refined_steps"] = res.refined_steps
+    for r in res.refined_steps:
+        result["warnings"].append(
+            f"step {r['step']} ({r['from_deg']:.2f}° to {r['to_deg']:.2f}°) buckled the flat layout in one step: redone "
+            f"from the flat state in {r['substeps']} sub-steps, so that it buckles at its first instability (in one "
+            f"step it reached energy {r['energy_one_step']:.6g} there, in sub-steps {r['energy']:.6g}); more --steps "
+            f"avoid the redo")
+
+
 def _remove_if_present(path: str) -> bool:
     try:
         os.remove(path)
@@ -411,6 +423,7 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
         "units": UNITS,
     }
     if res is not None:
+        _note_refined_steps(result, res)
         # how the assembly state was held when it first relaxed (see DeployOptions.start)
         result["start"] = {"mode": res.start, "average_angle_deg": res.start_angle_deg, "note": res.start_note}
     buf = io.StringIO()
