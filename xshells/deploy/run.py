@@ -203,6 +203,31 @@ def _stress_summary(steps_out, stress_rows, strength, linkage) -> dict:
     }
 
 
+def _assembly_state(design_path, material, subdivision, rest_lengths_path, progress):
+    """The design, its rest lengths read (or None), the linkage in its flat assembly state (rest lengths solved,
+    or the file's relaxed), the warnings so far, how many of them are printed, and the seconds of the solve."""
+    design = read_design(design_path)
+    p = read_rest_lengths(rest_lengths_path, design.num_segments, design) if rest_lengths_path else None
+    linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
+    warnings = list(linkage.input_warnings())
+    if design.note:  # e.g. a .3dm's layer and its units, converted to mm
+        warnings = [design.note] + list(warnings)
+    if p is not None:  # rest lengths far from the drawing: the flat state relaxes to another layout, said
+        from ..fabrication.run import rest_lengths_note
+
+        warnings += rest_lengths_note(linkage, design, rest_lengths_path)
+    printed = _say(warnings, 0, progress)
+    t1 = time.perf_counter()
+    if p is None:  # a solve that did not converge is said (its report was thrown away)
+        warnings += rest_length_warning(rest_length_solve(linkage), linkage)
+        printed = _say(warnings, printed, progress)
+    else:
+        from ..solve import NewtonOptions, minimize
+
+        minimize(linkage, fixed=linkage.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+    return design, p, linkage, warnings, printed, time.perf_counter() - t1
+
+
 def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,
                    rest_lengths_path=None, direction="up", progress=True, name=None, start="auto", states=None,
                    strength=None, background=False) -> dict:
@@ -226,26 +251,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         from .background import IdleCores
 
         idle = IdleCores()
-    design = read_design(design_path)
-    p = read_rest_lengths(rest_lengths_path, design.num_segments, design) if rest_lengths_path else None
-    linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
-    warnings = list(linkage.input_warnings())
-    if design.note:  # e.g. a .3dm's layer and its units, converted to mm
-        warnings = [design.note] + list(warnings)
-    if p is not None:  # rest lengths far from the drawing: the flat state relaxes to another layout, said
-        from ..fabrication.run import rest_lengths_note
-
-        warnings += rest_lengths_note(linkage, design, rest_lengths_path)
-    printed = _say(warnings, 0, progress)
-    t1 = time.perf_counter()
-    if p is None:
-        warnings += rest_length_warning(rest_length_solve(linkage), linkage)
-        printed = _say(warnings, printed, progress)
-    else:
-        from ..solve import NewtonOptions, minimize
-
-        minimize(linkage, fixed=linkage.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
-    t_rest = time.perf_counter() - t1
+    design, p, linkage, warnings, printed, t_rest = _assembly_state(design_path, material, subdivision,
+                                                                    rest_lengths_path, progress)
     flat = _state_summary(linkage)
     flat_angles = linkage.joint_angles().copy()  # for the joint table of the fabrication files
     flat_xy = None  # the fabrication files' layout: the drawn one, or the flat state that a file's rest lengths relax to
@@ -369,7 +376,7 @@ def _stopped(out_dir, result) -> KeyboardInterrupt:
     exc = KeyboardInterrupt()
     n = len(result["steps"])
     exc.kept = (f"the {n} finished step{'s' * (n != 1)} (to {result['deployed']['average_angle_deg']:.2f}°) "
-                f"are kept in {os.path.join(out_dir, 'result.json')} and the deployed files beside it" if n else
+                f"{'are' if n != 1 else 'is'} kept in {os.path.join(out_dir, 'result.json')} and the deployed files beside it" if n else
                 f"no step finished: {os.path.join(out_dir, 'result.json')} keeps the assembly state")
     return exc
 

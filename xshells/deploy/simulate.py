@@ -486,7 +486,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             first = result.message.split(": ", 1)[-1]
             restore(linkage, initial)
             active = initial_active
-            result.steps, result.torque = [], 0.0
+            result.steps, result.torque, result.refined_steps = [], 0.0, []
             alpha, why = relax_holding_central_joint()
             result.start_note = (f"held at its average angle {np.degrees(initial_angle):.2f}°, the assembly state cannot relax "
                                  f"({first}); relaxed with only the central joint's angle held"
