@@ -655,3 +655,26 @@ def test_one_coarse_step_that_buckles_the_flat_layout_is_redone_and_lands_on_the
     (refined,) = r["refined_steps"]
     assert refined["step"] == 1 and refined["substeps"] == 5 and refined["to_deg"] == pytest.approx(80.0)
     assert any("buckled the flat layout in one step" in w for w in r["warnings"]), r["warnings"]
+
+
+def test_units_are_stated_and_the_flat_layout_is_drawn_along_its_normal(tmp_path, capsys):
+    """flat.png was a 3D view at 28° elevation (the manta ray's nearly closed 2317 × 204 layout a sliver); the
+    energy axis, result.json and the stress line gave no unit (units follow the input, never converted)."""
+    from xshells.deploy.run import _flat_view
+
+    grid = warped_grid(4)
+    upright = type(grid)(grid.vertices[:, [0, 2, 1]], grid.edges)  # drawn in the xz plane: seen along y
+    L = Linkage(upright, FLAT_BEAM, subdivision=4)
+    xy, axes = _flat_view(L)
+    # the layout's own extents, nothing foreshortened: a view along the layout normal
+    assert set(axes) == {"x", "z"}
+    assert np.allclose(sorted(np.ptp(xy, axis=0)), sorted(np.ptp(L.rods.points[:, [0, 2]], axis=0)))
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, upright)
+    out = tmp_path / "out"
+    assert main(["deploy", str(design), "--angle", "60", "--steps", "3", "--subdivision", "4", "--strength", "100",
+                 "--out", str(out), "--no-progress"]) in (0, 1)
+    stress = [x for x in capsys.readouterr().out.splitlines() if "largest von Mises" in x]
+    assert stress and "MPa for mm and MPa" in stress[0], stress
+    assert "never converted" in json.loads((out / "result.json").read_text())["units"]
+    assert (out / "flat.png").stat().st_size > 0 and (out / "deployment.png").stat().st_size > 0
