@@ -115,6 +115,63 @@ def test_an_interrupted_deploy_keeps_the_steps_it_finished(tmp_path, monkeypatch
     assert rows[0].startswith("step,") and len(rows) == 3
 
 
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_an_interrupt_inside_a_step_keeps_the_last_finished_equilibrium(tmp_path, monkeypatch, capsys, how):
+    """A stop landing inside step 3's solve: result.json's deployed state and the deployed files are step 2's
+    equilibrium (they once described the half-solved step 3: scary_face 44.93° and energy 204,902 against
+    the last finished step's 43.13°). SIGTERM says "terminated" and exits 143; Ctrl-C "interrupted", 130."""
+    import signal
+
+    import xshells.deploy.run as run
+    import xshells.deploy.simulate as simulate
+    from xshells.errors import STOP
+
+    real_deploy, real_minimize = run.deploy, simulate.minimize
+    finished = {}
+    monkeypatch.setattr(STOP, "requested", False)  # put back after the test: the stop below must not outlive it
+    monkeypatch.setattr(STOP, "signum", None, raising=False)
+
+    def deploy_recording(L, angle, options, callback=None, **kw):
+        def on_step(rec):
+            finished[rec.step] = (L.joint_positions().copy(), rec)
+            return callback(rec)
+        return real_deploy(L, angle, options, callback=on_step, **kw)
+
+    def minimize_stopped_in_step_3(problem, **kw):
+        if 2 in finished and 3 not in finished:  # step 3: one Newton iteration, then the stop
+            opts = kw.pop("options")
+            real_minimize(problem, options=type(opts)(**{**opts.__dict__, "max_iterations": 1}), **kw)
+            if how == "sigterm":
+                STOP.request(None, signal.SIGTERM)  # what the command line's handler does
+            raise KeyboardInterrupt
+        return real_minimize(problem, **kw)
+
+    monkeypatch.setattr(run, "deploy", deploy_recording)
+    monkeypatch.setattr(simulate, "minimize", minimize_stopped_in_step_3)
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, warped_grid(4))
+    out = tmp_path / "out"
+    code = main(["deploy", str(design), "--angle", "70", "--steps", "6", "--subdivision", "4", "--out", str(out),
+                 "--no-progress"])
+    err = capsys.readouterr().err
+    result = json.loads((out / "result.json").read_text())
+    assert result["status"] == "interrupted" and [s["step"] for s in result["steps"]] == [1, 2]
+    P2, rec2 = finished[2]
+    d = result["deployed"]
+    assert d["average_angle_deg"] == pytest.approx(rec2.average_angle_deg, abs=1e-9)
+    assert d["energy"] == pytest.approx(rec2.energy, rel=1e-12)
+    assert np.allclose(d["joint_positions"], P2, rtol=0, atol=1e-12 * span_of(P2))
+    assert d["max_abs_z"] == pytest.approx(result["steps"][-1]["max_abs_z"], rel=1e-12)  # one definition
+    assert "energy" in (out / "deployment.csv").read_text() and (out / "deployed.obj").exists()
+    assert result["message"].startswith("terminated (SIGTERM)" if how == "sigterm" else "interrupted by the user")
+    assert code == (143 if how == "sigterm" else 130)
+    assert ("terminated" if how == "sigterm" else "interrupted") in err and "2 finished steps" in err, err
+
+
+def span_of(P):
+    return float(np.ptp(np.asarray(P), axis=0).max())
+
+
 def test_an_opening_past_180_names_the_case_key_not_only_the_sum(tmp_path, capsys):
     design = tmp_path / "grid.obj"
     write_design_obj(design, rhombic_grid(3, 3, spacing=100.0))  # drawn at 90°
@@ -545,3 +602,110 @@ def test_deploy_of_a_design_that_is_not_flat_removes_an_earlier_flat_layout_draw
     assert not (out / "flat_layout.svg").exists() and not (out / "flat_layout.dxf").exists()
     warnings = json.loads((out / "result.json").read_text())["warnings"]
     assert any("flat_layout.svg" in w and w.startswith("removed an earlier run's") for w in warnings), warnings
+
+
+# ---------------------------------------------------------------- recheck31: heights, stale plot, rest lengths, density
+def test_max_abs_z_is_one_definition_independent_of_the_shells_orientation(tmp_path):
+    """result.json's deployed max_abs_z and its last step's were two measures of one state (30.86 and 52.33
+    on a 7-ring radial design); and a shell tilted by its pinned joint measured taller than the same shell level."""
+    from xshells.deploy.run import run_deployment
+
+    r = run_deployment(_grid_file(tmp_path), FLAT_BEAM, out_dir=str(tmp_path / "out"), subdivision=4,
+                       target_angle=np.radians(70), steps=6, progress=False)
+    P = np.array(r["deployed"]["joint_positions"])
+    assert r["deployed"]["max_abs_z"] == r["steps"][-1]["max_abs_z"] > 0.05 * span_of(P)
+    from xshells.deploy.simulate import max_abs_z
+    c, s = np.cos(0.3), np.sin(0.3)
+    tilted = P @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T + [5.0, -3.0, 7.0]
+    assert max_abs_z(tilted) == pytest.approx(max_abs_z(P), rel=1e-9)
+    assert r["flat"]["max_abs_z"] < 1e-9 * span_of(P)
+
+
+def _grid_file(tmp_path, n=4):
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, warped_grid(n))
+    return str(design)
+
+
+def test_a_run_with_no_step_removes_an_earlier_runs_deployment_plot(tmp_path, monkeypatch):
+    """deployment.png of an earlier run stayed beside a result that finished no step (and drew none)."""
+    import xshells.deploy.run as run
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "deployment.png").write_bytes(b"an earlier run's plot")
+    real = run.deploy
+
+    def stopped_at_step_1(L, angle, options, callback=None, **kw):
+        def on_step(rec):
+            raise KeyboardInterrupt
+        return real(L, angle, options, callback=on_step, **kw)
+
+    monkeypatch.setattr(run, "deploy", stopped_at_step_1)
+    assert main(["deploy", _grid_file(tmp_path), "--angle", "70", "--steps", "4", "--subdivision", "4", "--out",
+                 str(out), "--no-progress"]) == 130
+    result = json.loads((out / "result.json").read_text())
+    assert result["steps"] == [] and not (out / "deployment.png").exists()
+    assert any("removed an earlier run's deployment.png" in w for w in result["warnings"]), result["warnings"]
+
+
+def test_a_rest_length_solve_that_does_not_converge_is_a_warning(tmp_path, monkeypatch):
+    """Its report was thrown away: single_linkage.json deployed from a flat state with a twist energy of 2e8."""
+    import xshells.deploy.run as run
+    from xshells.solve import NewtonOptions
+
+    real = run.rest_length_solve
+    monkeypatch.setattr(run, "rest_length_solve", lambda L: real(L, NewtonOptions(gradient_tolerance=1e-30, max_iterations=1)))
+    r = run.run_deployment(_grid_file(tmp_path), FLAT_BEAM, out_dir=str(tmp_path / "out"), subdivision=4,
+                           target_angle=np.radians(70), steps=2, progress=False)
+    assert any(w.startswith("the rest-length solve did not converge") and "twist" in w for w in r["warnings"]), r["warnings"]
+
+
+def test_density_is_refused_by_deploy_not_ignored(tmp_path, capsys):
+    assert main(["deploy", _grid_file(tmp_path), "--density", "4.2e-10", "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "deploy applies no self-weight: --density is used by xshells analyze" in err and len(err.splitlines()) == 1
+
+
+def test_one_coarse_step_that_buckles_the_flat_layout_is_redone_and_lands_on_the_deployments_branch(tmp_path):
+    """--steps 1 landed silently on another branch (two_asymm_bumps: one bump down, energy 52,225, against
+    46,046.5 with 2 to 50 steps); on this grid asked "up", a single step went down. The step is redone from
+    the flat state in sub-steps, and said: in result.json (refined_steps) and in a warning."""
+    from xshells.deploy.run import run_deployment
+
+    fine = Linkage(warped_grid(), FLAT_BEAM, subdivision=4)
+    rest_length_solve(fine)
+    res = deploy(fine, np.radians(80), DeployOptions(steps=12))  # 3.75° steps: none redone
+    assert res.converged
+    states = {}
+    r = run_deployment(_grid_file(tmp_path, 6), FLAT_BEAM, out_dir=str(tmp_path / "out"), subdivision=4,
+                       target_angle=np.radians(80), steps=1, progress=False, states=states)
+    P, Q = states["deployed"].joint_positions(), fine.joint_positions()
+    assert np.abs(P - Q).max() < 1e-8 * span_of(Q)  # the same branch, the same side ("up")
+    assert res.refined_steps == []
+    (refined,) = r["refined_steps"]
+    assert refined["step"] == 1 and refined["substeps"] == 5 and refined["to_deg"] == pytest.approx(80.0)
+    assert any("buckled the flat layout in one step" in w for w in r["warnings"]), r["warnings"]
+
+
+def test_units_are_stated_and_the_flat_layout_is_drawn_along_its_normal(tmp_path, capsys):
+    """flat.png was a 3D view at 28° elevation (the manta ray's nearly closed 2317 × 204 layout a sliver); the
+    energy axis, result.json and the stress line gave no unit (units follow the input, never converted)."""
+    from xshells.deploy.run import _flat_view
+
+    grid = warped_grid(4)
+    upright = type(grid)(grid.vertices[:, [0, 2, 1]], grid.edges)  # drawn in the xz plane: seen along y
+    L = Linkage(upright, FLAT_BEAM, subdivision=4)
+    xy, axes = _flat_view(L)
+    # the layout's own extents, nothing foreshortened: a view along the layout normal
+    assert set(axes) == {"x", "z"}
+    assert np.allclose(sorted(np.ptp(xy, axis=0)), sorted(np.ptp(L.rods.points[:, [0, 2]], axis=0)))
+    design = tmp_path / "grid.obj"
+    write_design_obj(design, upright)
+    out = tmp_path / "out"
+    assert main(["deploy", str(design), "--angle", "60", "--steps", "3", "--subdivision", "4", "--strength", "100",
+                 "--out", str(out), "--no-progress"]) in (0, 1)
+    stress = [x for x in capsys.readouterr().out.splitlines() if "largest von Mises" in x]
+    assert stress and "MPa for mm and MPa" in stress[0], stress
+    assert "never converted" in json.loads((out / "result.json").read_text())["units"]
+    assert (out / "flat.png").stat().st_size > 0 and (out / "deployment.png").stat().st_size > 0

@@ -243,10 +243,13 @@ def test_strips_wider_than_their_arms_are_named_in_a_warning(tmp_path, capsys):
     # were written without a word
     out = tmp_path / "o"
     assert main(["fabricate", str(EXAMPLES / "single_linkage.obj"), "--out", str(out), "--no-progress"]) == 0
-    lines = [x for x in capsys.readouterr().out.splitlines() if "warning" in x]
+    warned = [x for x in capsys.readouterr().out.splitlines() if "warning" in x]
+    # its rest-length solve does not converge (twist energy 2e8 in the flat state): said, no longer thrown away
+    assert any("the rest-length solve did not converge" in x for x in warned), warned
+    lines = [x for x in warned if "strips" in x]
     assert len(lines) == 1 and "2 of 2 strips have an arm shorter than their section is wide" in lines[0]
     assert "from its free end to joint 2 for a 10 mm wide section" in lines[0]
-    assert json.loads((out / "bom.json").read_text())["warnings"] == [lines[0].split("warning: ", 1)[1]]
+    assert lines[0].split("warning: ", 1)[1] in json.loads((out / "bom.json").read_text())["warnings"]
     assert json.loads((out / "result.json").read_text())["bom"]["warnings"]
     assert json.loads((tmp_path / "o" / "bom.json").read_text())["beams"] == 2
 

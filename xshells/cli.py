@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from .errors import STOP
 
-    STOP.requested = False
+    STOP.reset()
 
     def _terminate(signum, frame):  # SIGTERM and Ctrl-C: work is kept and files are complete or absent
         # The flag is checked again at the next step, should a finalizer swallow the
@@ -135,8 +135,9 @@ def main(argv: list[str] | None = None) -> int:
             STOP.check()  # one that came during the imports
         except KeyboardInterrupt:
             command = argv[0] if argv and not argv[0].startswith("-") else None
-            print(f"xshells{f' {command}' if command else ''}: interrupted", file=sys.stderr)
-            return 130
+            word, code = STOP.how()
+            print(f"xshells{f' {command}' if command else ''}: {word}", file=sys.stderr)
+            return code
         if not getattr(args, "func", None):
             parser.print_help()
             return 2
@@ -215,9 +216,13 @@ def _run(args, debug: bool) -> int:
     except InputError as exc:
         print(f"xshells {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"xshells {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        from .errors import STOP
+
+        word, code = STOP.how()  # SIGTERM: "terminated", 143; Ctrl-C: "interrupted", 130
+        kept = getattr(exc, "kept", "")  # where a command says what it kept (xshells deploy: its finished steps)
+        print(f"xshells {args.command}: {word}{f'; {kept}' if kept else ''}", file=sys.stderr)
+        return code
     except Exception as exc:  # a bug of ours, not the user's input: one line, the traceback kept
         if debug:
             raise

@@ -50,8 +50,26 @@ class _StopRequest:
 
     def __init__(self):
         self.requested = False
+        self.signum = None  # the signal that asked (None: Ctrl-C as a KeyboardInterrupt, or not asked)
         self.deferring = 0  # > 0: inside :meth:`deferred`, the handler only records the request
         self._pending = None  # a signal waiting for an import to end (its cancel event)
+
+    def reset(self) -> None:
+        """No stop requested (a command starts)."""
+        self.requested = False
+        self.signum = None
+
+    @property
+    def terminated(self) -> bool:
+        """Whether the stop was a SIGTERM (a kill, a scheduler), not Ctrl-C."""
+        import signal
+
+        return self.signum is not None and self.signum == getattr(signal, "SIGTERM", None)
+
+    def how(self) -> tuple[str, int]:
+        """How a stopped command ends: its word and exit code ("terminated", 143 = 128 + SIGTERM, the
+        shells' convention; else "interrupted", 130 = 128 + SIGINT)."""
+        return ("terminated", 143) if self.terminated else ("interrupted", 130)
 
     def check(self) -> None:
         """Raise KeyboardInterrupt if a stop was requested."""
@@ -67,6 +85,8 @@ class _StopRequest:
         deploy's last files fail with "module 'matplotlib' has no attribute 'get_data_path'").
         """
         self.requested = True
+        if signum is not None and self.signum is None:  # the first one says how the run ended
+            self.signum = signum
         if self.deferring:
             return
         if frame is not None and signum is not None and _importing(frame):

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..deploy.case import load_case, material_from_spec, target_angle
-from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
+from ..deploy.simulate import DeployOptions, deploy, rest_length_solve, rest_length_warning
 from ..errors import InputError
 from ..io.design import read_design, read_rest_lengths
 from ..io.export import atomic_write_text, finite_json
@@ -53,8 +53,8 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
     why = "".join(f"; {w}" for w in warnings)  # a failure below is most likely explained by these
     if design.note:  # how a .3dm was read (its layer, units and the conversion to mm): printed with the warnings
         warnings = [design.note] + list(warnings)
-    if p is None:
-        rest_length_solve(L)
+    if p is None:  # a solve that did not converge is said, not thrown away
+        warnings = list(warnings) + rest_length_warning(rest_length_solve(L), L)
     else:
         minimize(L, fixed=L.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
     flat_energy = L.energy()

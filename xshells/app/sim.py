@@ -146,7 +146,6 @@ class Simulation:
         r2 = np.sum((P - P.mean(axis=0)) ** 2, axis=1)
         sign = 1.0 if settings.direction == "up" else -1.0
         self._hint = sign * (L.height_selector().T @ (r2.mean() - r2))
-        self._z0 = L.height_selector() @ L.get_vars()
         scale = _gradient_scale(L) * np.sqrt(L.num_vars)
         tol = max(DeployOptions().newton.gradient_tolerance * scale, _noise_floor(L))
         self._newton = NewtonOptions(**{**DeployOptions().newton.__dict__, "gradient_tolerance": tol})
@@ -174,10 +173,10 @@ class Simulation:
         L = self.linkage
         parts = L.energy_parts()
         g = L.gradient()
-        z = L.height_selector() @ L.get_vars()
-        z = z - getattr(self, "_z0", z)
+        from ..deploy.simulate import max_abs_z
+
         return StateInfo(float(np.degrees(L.average_angle())), parts.total, parts.bend, parts.twist, parts.stretch,
-                         float(np.mean(g[L.angle_indices()])), float(np.abs(z).max()) if z.size else 0.0,
+                         float(np.mean(g[L.angle_indices()])), max_abs_z(L.joint_positions()),  # deploy's own measure
                          bool(converged), int(iterations), message)
 
     def _store(self, angle: float, info: StateInfo) -> None:

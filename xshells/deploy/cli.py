@@ -5,6 +5,8 @@ import os
 
 import numpy as np
 
+from ..errors import InputError
+
 
 DEMO_DESIGN = os.path.join(os.path.dirname(__file__), "..", "data", "examples", "manta_ray.obj")
 
@@ -22,7 +24,9 @@ def register(subparsers) -> None:
     p.add_argument("--grade", help="a named material: gfrp-e23, softwood-c24, aluminium-6063-t6, birch-plywood "
                                    "(E, ν, density and strength; docs/analysis.md)")
     p.add_argument("--strength", type=float, help="allowable stress for the utilization (MPa for a design in mm)")
-    p.add_argument("--density", type=float, help="density (t/mm³ for a design in mm: 4.2e-10 is 420 kg/m³)")
+    # refused, not dropped from the parser: "unrecognized arguments" would not say where a density is used
+    p.add_argument("--density", type=float, help="refused: deploy applies no self-weight and writes no mass "
+                                                 "(the density is used by xshells analyze)")
     p.add_argument("--angle", type=float, help="target average opening angle, degrees")
     p.add_argument("--steps", type=int, help="deployment increments (default 40)")
     p.add_argument("--subdivision", type=int, help="edges per segment (default 10)")
@@ -56,6 +60,8 @@ def _deploy(args) -> int:
     from .run import run_deployment
 
     check_counts(args.subdivision, args.steps)
+    if args.density is not None:  # accepted and ignored it once: no gravity here, no mass in bom.json
+        raise InputError("deploy applies no self-weight: --density is used by xshells analyze")
     if args.input.lower().endswith(".json"):
         refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision and --steps override the case's
         case = load_case(args.input)
@@ -94,6 +100,10 @@ def _demo(args) -> int:
     return 0 if result["reached"] else 1
 
 
+# units follow the input, never converted (README: Units); the bundled data's are named as an example
+_STRESS_UNIT = "the input's stress unit: MPa for mm and MPa"
+
+
 def _print_summary(result, out, warned=False) -> None:
     """``warned``: the warnings were printed when the run started (with its progress bar)."""
     d, f = result["deployed"], result["flat"]
@@ -104,7 +114,7 @@ def _print_summary(result, out, warned=False) -> None:
     st = result.get("stress") or {}
     if st.get("strength") is not None:
         ff = st.get("first_failure")
-        print(f"  stress: largest von Mises {st['max_von_mises']:.4g}, utilization {st['utilization_max']:.3g} of "
+        print(f"  stress: largest von Mises {st['max_von_mises']:.4g} ({_STRESS_UNIT}), utilization {st['utilization_max']:.3g} of "
               f"strength {st['strength']:.4g}" + (f"; a beam would break at {ff['angle_deg']:.1f}° (beam {ff['beam']}, "
                                                   f"near joint {ff['nearest_joint']})" if ff else "; no beam breaks"))
     for w in [] if warned else result.get("warnings", []):

@@ -16,19 +16,24 @@ from ..io.export import atomic_write_text, finite_json
 from ..linkage.export import scalar_fields, swept_mesh, write_centerlines
 from ..linkage.linkage import Linkage
 from .case import opened_angle
-from .simulate import DeployOptions, StepRecord, deploy, rest_length_solve
+from .simulate import DeployOptions, StepRecord, deploy, max_abs_z, rest_length_solve, rest_length_warning
+
+
+# result.json's "units": they follow the input and are never converted (README: Units)
+UNITS = ("those of the input, never converted: lengths in the design's unit, stresses in that of E, energies in "
+         "force × length and torques in force × length per radian (N·mm for a design in mm with E in MPa, as the "
+         "bundled data); angles in degrees")
 
 
 def _state_summary(linkage: Linkage) -> dict:
     parts = linkage.energy_parts()
-    z = linkage.height_selector() @ linkage.get_vars()
     return {
         "energy": parts.total,
         "energy_stretch": parts.stretch,
         "energy_bend": parts.bend,
         "energy_twist": parts.twist,
         "average_angle_deg": float(np.degrees(linkage.average_angle())),
-        "max_abs_z": float(np.abs(z - np.median(z)).max()),
+        "max_abs_z": max_abs_z(linkage.joint_positions()),  # the steps' own definition (simulate.max_abs_z)
         "joint_positions": linkage.joint_positions().tolist(),
     }
 
@@ -61,8 +66,35 @@ def _write_outputs(out_dir: str, tag: str, linkage: Linkage, vmax: float | None 
     render_linkage(*_picture_args(out_dir, tag, linkage), vmax=vmax)
 
 
+def _flat_view(linkage: Linkage) -> tuple:
+    """The rod points in the layout plane's coordinates and those axes' names: the flat state seen from above,
+    along the layout normal (a 3D view at 28° elevation made a nearly closed layout, the manta ray's
+    2317 × 204, a sliver). A layout in the xy plane keeps x and y."""
+    n = np.asarray(linkage.graph.layout_normal, float)
+    k = int(np.argmax(np.abs(n)))
+    if abs(abs(n[k]) - 1.0) < 1e-12:  # a coordinate plane: its own two coordinates, right-handed about n
+        i, j = [(1, 2), (2, 0), (0, 1)][k]
+        if n[k] < 0:
+            i, j = j, i
+        return linkage.rods.points[:, [i, j]], ("xyz"[i], "xyz"[j])
+    u = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    P = linkage.rods.points - linkage.rods.points.mean(axis=0)
+    return np.stack([P @ u, P @ v], axis=1), ("along the layout plane", "across, in the layout plane")
+
+
 def _write_flat_outputs(out_dir: str, linkage: Linkage, design) -> None:
-    _write_outputs(out_dir, "flat", linkage)
+    if not linkage.graph.is_planar:  # no plane to look along: the 3D view
+        _write_outputs(out_dir, "flat", linkage)
+        return
+    from ..viz.render import render_flat
+
+    _write_meshes(out_dir, "flat", linkage)
+    xy, axes = _flat_view(linkage)
+    render_flat(os.path.join(out_dir, "flat.png"), xy, linkage.rods.edges, bending_field(linkage),
+                f"flat: average angle {np.degrees(linkage.average_angle()):.1f}°, seen along the layout normal",
+                axes=axes)
     if linkage.graph.is_planar:  # fabrication drawings of the flat layout with its rest lengths
         from ..io.fabrication import write_drawings
 
@@ -171,6 +203,31 @@ def _stress_summary(steps_out, stress_rows, strength, linkage) -> dict:
     }
 
 
+def _assembly_state(design_path, material, subdivision, rest_lengths_path, progress):
+    """The design, its rest lengths read (or None), the linkage in its flat assembly state (rest lengths solved,
+    or the file's relaxed), the warnings so far, how many of them are printed, and the seconds of the solve."""
+    design = read_design(design_path)
+    p = read_rest_lengths(rest_lengths_path, design.num_segments, design) if rest_lengths_path else None
+    linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
+    warnings = list(linkage.input_warnings())
+    if design.note:  # e.g. a .3dm's layer and its units, converted to mm
+        warnings = [design.note] + list(warnings)
+    if p is not None:  # rest lengths far from the drawing: the flat state relaxes to another layout, said
+        from ..fabrication.run import rest_lengths_note
+
+        warnings += rest_lengths_note(linkage, design, rest_lengths_path)
+    printed = _say(warnings, 0, progress)
+    t1 = time.perf_counter()
+    if p is None:  # a solve that did not converge is said (its report was thrown away)
+        warnings += rest_length_warning(rest_length_solve(linkage), linkage)
+        printed = _say(warnings, printed, progress)
+    else:
+        from ..solve import NewtonOptions, minimize
+
+        minimize(linkage, fixed=linkage.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+    return design, p, linkage, warnings, printed, time.perf_counter() - t1
+
+
 def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,
                    rest_lengths_path=None, direction="up", progress=True, name=None, start="auto", states=None,
                    strength=None, background=False) -> dict:
@@ -194,27 +251,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         from .background import IdleCores
 
         idle = IdleCores()
-    design = read_design(design_path)
-    p = read_rest_lengths(rest_lengths_path, design.num_segments, design) if rest_lengths_path else None
-    linkage = Linkage(design, material, subdivision=subdivision, rest_lengths=p)
-    warnings = list(linkage.input_warnings())
-    if design.note:  # e.g. a .3dm's layer and its units, converted to mm
-        warnings = [design.note] + list(warnings)
-    if p is not None:  # rest lengths far from the drawing: the flat state relaxes to another layout, said
-        from ..fabrication.run import rest_lengths_note
-
-        warnings += rest_lengths_note(linkage, design, rest_lengths_path)
-    if progress:
-        for w in warnings:
-            print(f"warning: {w}", file=sys.stderr)
-    t1 = time.perf_counter()
-    if p is None:
-        rest_length_solve(linkage)
-    else:
-        from ..solve import NewtonOptions, minimize
-
-        minimize(linkage, fixed=linkage.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
-    t_rest = time.perf_counter() - t1
+    design, p, linkage, warnings, printed, t_rest = _assembly_state(design_path, material, subdivision,
+                                                                    rest_lengths_path, progress)
     flat = _state_summary(linkage)
     flat_angles = linkage.joint_angles().copy()  # for the joint table of the fabrication files
     flat_xy = None  # the fabrication files' layout: the drawn one, or the flat state that a file's rest lengths relax to
@@ -245,9 +283,11 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     done = []
 
     def on_step(rec):
-        # the utilization along the way; without a strength, the final state's stresses only
-        row = _stress_row(linkage, strength) if strength is not None else None
-        done.append((rec, row))
+        # the utilization along the way; without a strength, the final state's stresses only. Deferred: a stop
+        # inside the stresses would drop this step from the list while deploy() keeps its state as the last one
+        with STOP.deferred():
+            row = _stress_row(linkage, strength) if strength is not None else None
+            done.append((rec, row))
         STOP.check()
         if bar is not None:
             bar.set_postfix(angle=f"{rec.average_angle_deg:.1f}°", z=f"{rec.max_abs_z:.3g}")
@@ -297,9 +337,55 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
             except Exception:  # noqa: BLE001 (the error under way is the one to report)
                 pass
         STOP.deferring -= 1  # also when the deploy failed with an error (the counter was left raised before)
+    _say(result["warnings"], printed, progress)  # those of the last files (a stale file removed, a part skipped)
     if interrupted or STOP.requested:
-        raise KeyboardInterrupt
+        raise _stopped(out_dir, result)
     return result
+
+
+def _say(warnings: list, printed: int, progress: bool) -> int:
+    """Print the warnings from ``printed`` on (with the progress bar; without it the summary lists them all)."""
+    if progress:
+        for w in warnings[printed:]:
+            print(f"warning: {w}", file=sys.stderr)
+    return len(warnings)
+
+
+def _note_refined_steps(result: dict, res) -> None:
+    """result.json's ``refined_steps`` and a warning for each step that buckled the flat layout in one coarse step
+    and was redone in sub-steps (:attr:`~.simulate.DeployOptions.max_buckling_step_deg`)."""
+    result["refined_steps"] = res.refined_steps
+    for r in res.refined_steps:
+        result["warnings"].append(
+            f"step {r['step']} ({r['from_deg']:.2f}° to {r['to_deg']:.2f}°) buckled the flat layout in one step: redone "
+            f"from the flat state in {r['substeps']} sub-steps, so that it buckles at its first instability (in one "
+            f"step it reached energy {r['energy_one_step']:.6g} there, in sub-steps {r['energy']:.6g}); more --steps "
+            f"avoid the redo")
+
+
+def _remove_if_present(path: str) -> bool:
+    try:
+        os.remove(path)
+    except FileNotFoundError:
+        return False
+    return True
+
+
+def _stopped(out_dir, result) -> KeyboardInterrupt:
+    """The KeyboardInterrupt an interrupted run ends with, saying what it kept (the command line prints it)."""
+    exc = KeyboardInterrupt()
+    n = len(result["steps"])
+    exc.kept = (f"the {n} finished step{'s' * (n != 1)} (to {result['deployed']['average_angle_deg']:.2f}°) "
+                f"{'are' if n != 1 else 'is'} kept in {os.path.join(out_dir, 'result.json')} and the deployed files beside it" if n else
+                f"no step finished: {os.path.join(out_dir, 'result.json')} keeps the assembly state")
+    return exc
+
+
+def _stop_message() -> str:
+    """result.json's message of an interrupted run: Ctrl-C or SIGTERM."""
+    if STOP.terminated:
+        return "terminated (SIGTERM): the finished steps are kept, the deployed state is the last of them"
+    return "interrupted by the user: the finished steps are kept, the deployed state is the last of them"
 
 
 def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, head, t0, writer=None) -> dict:
@@ -334,15 +420,17 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
         # complete: reached the target; stopped: ended short of it (the message says why); interrupted: Ctrl-C/SIGTERM
         "status": "interrupted" if interrupted else ("complete" if res.converged else "stopped"),
         "reached": bool(res is not None and res.converged),
-        "message": "interrupted by the user" if interrupted else res.message,
+        "message": _stop_message() if interrupted else res.message,
         "steps": steps_out,
         "timings_s": {**head["timings_s"], "total": time.perf_counter() - t0},
         "newton_iterations": res.newton_iterations if res is not None else sum(s["iterations"] for s in steps_out),
         "stress": stress,
         "utilization_max": stress["utilization_max"],
         "warnings": head["warnings"],
+        "units": UNITS,
     }
     if res is not None:
+        _note_refined_steps(result, res)
         # how the assembly state was held when it first relaxed (see DeployOptions.start)
         result["start"] = {"mode": res.start, "average_angle_deg": res.start_angle_deg, "note": res.start_note}
     buf = io.StringIO()
@@ -352,7 +440,10 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
     atomic_write_text(os.path.join(out_dir, "deployment.csv"), buf.getvalue())
     from ..viz.render import plot_deployment
 
-    if steps_out:
+    if not steps_out:  # none drawn: an earlier run's plot would sit beside this result as if it were its own
+        if _remove_if_present(os.path.join(out_dir, "deployment.png")):
+            head["warnings"].append("removed an earlier run's deployment.png: this run finished no step to plot")
+    else:
         args = (plot_deployment, os.path.join(out_dir, "deployment.png"), [s["average_angle_deg"] for s in steps_out],
                 [s["energy"] for s in steps_out], [s["torque"] for s in steps_out], head["name"] or "",
                 [s["utilization_max"] for s in steps_out] if strength is not None else None)
@@ -365,5 +456,5 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
     result["timings_s"]["total"] = time.perf_counter() - t0
     atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
     if interrupted:
-        raise KeyboardInterrupt
+        raise _stopped(out_dir, result)
     return result

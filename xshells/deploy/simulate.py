@@ -66,6 +66,14 @@ class DeployOptions:
         beside one); then the start is re-done as "central-joint" (a drawn
         state whose equilibrium at its own average angle needs a joint folded
         through: the Fig. 14 "hole" design folds joint 28 at once).
+    max_buckling_step_deg : float
+        A step longer than this (degrees) that starts flat and ends buckled out
+        of plane is redone from its flat start in sub-steps no longer than
+        this, so that the layout buckles at its first instability, as the
+        physical deployment does: one step of 60° landed two_asymm_bumps on
+        another branch (one bump down, energy 52,225 against 46,046.5 with
+        2 to 50 steps). 10°: the manta ray at 10 steps takes 7.7° steps and is
+        not redone. ``inf``: never redone.
     """
 
     steps: int = 40
@@ -85,6 +93,7 @@ class DeployOptions:
     inversion_margin: float = 0.0
     collapse_ratio: float = 1e-2
     start: str = "auto"
+    max_buckling_step_deg: float = 10.0
 
 
 @dataclass
@@ -119,6 +128,8 @@ class DeploymentResult:
     start: str = "average"
     start_angle_deg: float = float("nan")
     start_note: str = ""
+    # steps redone in sub-steps because they buckled the flat layout in one coarse step (DeployOptions.max_buckling_step_deg)
+    refined_steps: list = field(default_factory=list)
 
 
 class _RestLengthProblem:
@@ -153,6 +164,24 @@ class _RestLengthProblem:
 
     def min_arc_length(self):
         return self.L.min_arc_length()
+
+
+def max_abs_z(points) -> float:
+    """The shell's height: the largest distance of a joint from its median height, heights measured along the
+    normal of the joints' best-fit plane (least squares through their centroid).
+
+    The one definition of ``max_abs_z`` (every step of a deployment, the deployed and flat summaries of
+    result.json, the progress bar): independent of the shell's rigid orientation, so a shell tilted by
+    which joint is pinned has the same height as the same shell level (the layout-normal height, the
+    pinned joint's, measured 52.33 and 30.86 for one state). A flat state measures 0 to round-off.
+    """
+    P = np.asarray(points, float)
+    if len(P) < 3:
+        return 0.0
+    Q = P - P.mean(axis=0)
+    normal = np.linalg.svd(Q, full_matrices=False)[2][-1]  # the direction of least spread
+    h = Q @ normal
+    return float(np.abs(h - np.median(h)).max())
 
 
 def _gradient_scale(linkage: Linkage) -> float:
@@ -203,6 +232,17 @@ def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, mi
     return report
 
 
+def rest_length_warning(report, linkage: Linkage) -> list[str]:
+    """[] or the warning of a rest-length solve that did not converge (its report was once thrown away: a flat
+    state with a twist energy of 2e8 was deployed without a word)."""
+    if report is None or report.converged:
+        return []
+    parts = linkage.energy_parts()
+    why = report.message or f"{report.iterations} iterations"
+    return [f"the rest-length solve did not converge ({why}): the flat state is not in equilibrium (energy {parts.total:.4g}: stretch "
+            f"{parts.stretch:.4g}, bend {parts.bend:.4g}, twist {parts.twist:.4g}); the deployment starts from it all the same"]
+
+
 def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = DeployOptions(), actuated=None,
            callback=None) -> DeploymentResult:
     """Open the linkage to an average joint angle ``target_angle`` (radians).
@@ -243,8 +283,6 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     newton = NewtonOptions(**{**options.newton.__dict__, "gradient_tolerance": max(options.newton.gradient_tolerance * scale, floor)})
     step_newton = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(options.newton.gradient_tolerance * options.step_tolerance_factor * scale, floor)})
     result = DeploymentResult(target_angle_deg=float(np.degrees(target_angle)))
-    Sz = linkage.height_selector()
-    z0 = Sz @ linkage.get_vars()
     target_deg = float(np.degrees(target_angle))
 
     # joint edge lengths ℓA, ℓB: bounded below by ε, with an active set
@@ -301,6 +339,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     def run_steps(alpha0: float, why: str) -> bool:
         """Steps from ``alpha0`` to the target (none if ``why`` says the start is broken); whether the first folded a joint."""
         last_good, last_angle = snapshot(linkage), float(np.degrees(alpha0))
+        kept["state"] = last_good
         result.reached_angle_deg = last_angle  # until a step is taken
         previous = None  # (x, joint frames) of the equilibrium before the last one, for the predictor
         smooth = False  # whether the last step was easy (then the path is smooth enough to extrapolate)
@@ -316,10 +355,13 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                 opts = NewtonOptions(**{**newton.__dict__, "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
             try:
                 used_lead = unstable_lead = False
+                coarse = coarse_flat_step(last_angle, angle)
                 if i > 1:
                     previous, used_lead, unstable_lead = _predict(linkage, a, angle, previous if smooth and extrapolate else None, pins,
                                                    edge_vars[active])
                 report = solve(angle, opts)
+                if coarse is not None and report.converged and not _is_flat(linkage):
+                    report = redo_in_substeps(i, angle, opts, coarse, report)
             except InputError as exc:  # a non-finite or degenerate state: keep the last equilibrium
                 restore(linkage, last_good)
                 result.message = (f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: the solver broke down on the way to "
@@ -350,20 +392,73 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                 result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: {why} on the way to {np.degrees(angle):.2f}°"
                 return i == 1
             parts = linkage.energy_parts()
-            z = Sz @ linkage.get_vars() - z0
             g = linkage.gradient()
             torque = float(np.mean(g[linkage.angle_indices()[joints]]))
             rec = StepRecord(i, float(np.degrees(a @ linkage.get_vars())), parts.total, parts.stretch, parts.bend, parts.twist,
-                             torque, float(np.abs(z).max()), report.iterations, report.converged)
+                             torque, max_abs_z(linkage.joint_positions()), report.iterations, report.converged)
             result.steps.append(rec)
             result.reached_angle_deg, result.torque = rec.average_angle_deg, torque
             last_good, last_angle = snapshot(linkage), rec.average_angle_deg
+            kept["state"] = last_good
             if callback is not None and callback(rec):
                 result.message = f"stopped by request at {rec.average_angle_deg:.2f}°"
                 return False
         result.converged = True
         result.message = "reached the target angle"
         return False
+
+    def coarse_flat_step(last_angle_deg: float, angle: float):
+        """For a step longer than ``options.max_buckling_step_deg`` that starts flat: the start's state and joint
+        bounds (what a redo starts from); else None (every step of a normal run: nothing is computed for it)."""
+        if abs(np.degrees(angle) - last_angle_deg) <= options.max_buckling_step_deg or not _is_flat(linkage):
+            return None
+        return snapshot(linkage), active.copy(), last_angle_deg
+
+    def redo_in_substeps(i: int, angle: float, opts, coarse, report):
+        """Step ``i`` started flat and ended buckled in one coarse step, which can land on another branch than the
+        deployment's own (it buckles at its first instability): redone from the flat start in sub-steps no longer
+        than ``options.max_buckling_step_deg``. Returns the report of the whole, its iterations those of all tries."""
+        nonlocal active
+        snap, active_before, from_deg = coarse
+        coarse_energy, spent = linkage.energy(), [report.iterations]
+        restore(linkage, snap)
+        active = active_before
+        n = int(np.ceil(abs(np.degrees(angle) - from_deg) / options.max_buckling_step_deg))
+        report = walk(np.radians(from_deg), angle, n, opts, spent)
+        report.iterations = spent[0]
+        if report.converged:
+            result.refined_steps.append({
+                "step": i, "from_deg": from_deg, "to_deg": float(np.degrees(angle)), "substeps": n,
+                "energy_one_step": float(coarse_energy), "energy": float(linkage.energy())})
+        return report
+
+    def walk(start: float, end: float, n: int, opts, spent: list):
+        """From the equilibrium at ``start`` to ``end`` in ``n`` equal sub-steps (radians), ``opts`` for the last.
+        A sub-step that starts flat and ends buckled is redone from its start in 4 smaller ones, down to 1/8 of
+        ``options.max_buckling_step_deg``: the crossing of the first instability must be short, or the layout
+        can buckle to the other side (a warped grid asked "up" went down in 9° sub-steps, up in 7.5°)."""
+        nonlocal active
+        fine = np.radians(options.max_buckling_step_deg) / 8
+        size = abs(end - start) / n
+        report = None
+        for k in range(1, n + 1):
+            a0, sub = start + (end - start) * (k - 1) / n, start + (end - start) * k / n
+            refine = size > fine and _is_flat(linkage)
+            if refine:
+                snap, active_before = snapshot(linkage), active.copy()
+            # the tangent predictor between sub-steps; the first starts where it is, as the first step of all does
+            # (the factor _predict would reuse is then still that of a try that was undone)
+            if k > 1:
+                _predict(linkage, a, sub, None, pins, edge_vars[active])
+            report = solve(sub, opts if k == n else step_newton)
+            spent[0] += report.iterations
+            if report.converged and refine and not _is_flat(linkage):
+                restore(linkage, snap)
+                active = active_before
+                report = walk(a0, sub, 4, opts if k == n else step_newton, spent)
+            if not report.converged:
+                break
+        return report
 
     def relax_holding_central_joint() -> tuple[float, str]:
         """Relax with only the pinned joint's angle held; (the average angle reached, '' or why the start is broken)."""
@@ -378,33 +473,57 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             return angle, f"relaxing with joint {j}'s angle held did not converge ({report.message})"
         return angle, inversion(linkage.get_vars())
 
+    def start_and_steps() -> None:
+        """The start (re-done held by the central joint if "auto" asks) and the steps to the target."""
+        nonlocal active
+        alpha = alpha0
+        why = ""
+        if options.start == "central-joint":
+            alpha, why = relax_holding_central_joint()
+        initial, initial_active, initial_angle = snapshot(linkage), active.copy(), alpha
+        if run_steps(alpha, why) and options.start == "auto":
+            # the assembly state cannot relax at its own average angle: start over, held by one joint
+            first = result.message.split(": ", 1)[-1]
+            restore(linkage, initial)
+            active = initial_active
+            result.steps, result.torque, result.refined_steps = [], 0.0, []
+            alpha, why = relax_holding_central_joint()
+            result.start_note = (f"held at its average angle {np.degrees(initial_angle):.2f}°, the assembly state cannot relax "
+                                 f"({first}); relaxed with only the central joint's angle held"
+                                 + ("" if why else f", it settled at {result.start_angle_deg:.2f}°"))
+            run_steps(alpha, why)
+        if result.start_note:
+            result.message += f" (start: {result.start_note})"
+
     result.start, result.start_angle_deg = "average", float(np.degrees(alpha0))
-    why = ""
-    if options.start == "central-joint":
-        alpha0, why = relax_holding_central_joint()
-    initial, initial_active, initial_angle = snapshot(linkage), active.copy(), alpha0
-    if run_steps(alpha0, why) and options.start == "auto":
-        # the assembly state cannot relax at its own average angle: start over, held by one joint
-        first = result.message.split(": ", 1)[-1]
-        restore(linkage, initial)
-        active = initial_active
-        result.steps, result.torque = [], 0.0
-        alpha0, why = relax_holding_central_joint()
-        result.start_note = (f"held at its average angle {np.degrees(initial_angle):.2f}°, the assembly state cannot relax "
-                             f"({first}); relaxed with only the central joint's angle held"
-                             + ("" if why else f", it settled at {result.start_angle_deg:.2f}°"))
-        run_steps(alpha0, why)
-    if result.start_note:
-        result.message += f" (start: {result.start_note})"
-    result.active_joint_edges = [int(v) for v in edge_vars[active]]
+    kept = {"state": snapshot(linkage)}  # the last finished equilibrium (the start until a step ends)
+    try:
+        start_and_steps()
+    except BaseException:
+        # Ctrl-C, SIGTERM (the command line raises KeyboardInterrupt) or an error inside a solve: the linkage
+        # is left in the last finished equilibrium, as a run that stops on its own leaves it, never in the
+        # half-solved state of the step under way (an interrupted `xshells deploy` saved that as its result)
+        from ..errors import STOP
+
+        with STOP.deferred():
+            restore(linkage, kept["state"])
+        raise
+    _final_checks(linkage, result, a, pins, edge_vars[active])
+    result.time_s = time.perf_counter() - start
+    return result
+
+
+def _final_checks(linkage: Linkage, result: DeploymentResult, a, pins, held_edges) -> None:
+    """The final state's constrained gradient norm and stability (smallest eigenvalues) into ``result``."""
+    result.active_joint_edges = [int(v) for v in held_edges]
     # the constrained gradient norm of the final state (free variables, constraint force removed)
     held = np.zeros(linkage.num_vars, bool)
     held[pins] = True
-    held[edge_vars[active]] = True
+    held[held_edges] = True
     gf, af = linkage.gradient()[~held], a[~held]
     result.gradient_norm = float(np.linalg.norm(gf - af * (af @ gf) / (af @ af)))
     try:
-        free = np.setdiff1d(np.arange(linkage.num_vars), np.concatenate([pins, edge_vars[active]]))
+        free = np.setdiff1d(np.arange(linkage.num_vars), np.concatenate([pins, held_edges]))
         H = linkage.hessian()[free][:, free]
         M = linkage.mass_matrix()[free][:, free]
         lam, s_free = smallest_eigenvalues(H, M, k=2, return_shift=True)
@@ -424,8 +543,13 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                                                                           shift=s_free or None)[0])
     except Exception as exc:  # eigen-solver trouble must not lose the deployment
         result.message += f"; stability check failed: {exc}"
-    result.time_s = time.perf_counter() - start
-    return result
+
+
+def _is_flat(linkage: Linkage) -> bool:
+    """Whether the joints lie in one plane, to round-off (1e-8 of the span: a flat state after the rest-length
+    solve measures 0, a buckled one well above 1e-3)."""
+    P = linkage.joint_positions()
+    return max_abs_z(P) <= 1e-8 * float(np.ptp(P, axis=0).max())
 
 
 def folded_joint(linkage: Linkage, x=None, margin: float = 0.0) -> str:

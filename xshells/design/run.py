@@ -11,7 +11,7 @@ import numpy as np
 
 from ..deploy.case import load_case, material_from_spec, target_angle
 from ..deploy.run import _write_outputs, bending_field
-from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
+from ..deploy.simulate import DeployOptions, deploy, rest_length_solve, rest_length_warning
 from ..errors import InputError
 from ..io import read_design, read_rest_lengths
 from ..io.export import atomic_write_text, finite_json
@@ -37,8 +37,8 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
     why = "".join(f"; {w}" for w in warnings)  # a failure below is most likely explained by these
     if design.note:  # how a .3dm was read (its layer, units and the conversion to mm): printed with the warnings
         warnings = [design.note] + list(warnings)
-    if p is None:
-        rest_length_solve(L)
+    if p is None:  # a solve that did not converge is said, not thrown away
+        warnings = list(warnings) + rest_length_warning(rest_length_solve(L), L)
     target = target_angle(case, L, angle_deg)
     if not (0 < target < np.pi):
         raise InputError(f"target angle {np.degrees(target):.4g}° is out of reach: it must lie strictly between 0° and 180°")

@@ -431,9 +431,9 @@ def run_fabrication(design_path, material, *, out_dir, options: FabricationOptio
             bar.set_postfix(stage="rest lengths" if rest_lengths_path is None else "rest lengths (file)")
         xy, warnings = None, []
         if rest_lengths_path is None:
-            from ..deploy.simulate import rest_length_solve
+            from ..deploy.simulate import rest_length_solve, rest_length_warning
 
-            rest_length_solve(linkage)
+            warnings += rest_length_warning(rest_length_solve(linkage), linkage)  # said, not thrown away
         else:
             # the strips are cut to the file's rest lengths, and drawn in the flat state those relax to, as
             # `xshells deploy` draws them (rest lengths that xshells optimize moved, or another design's)

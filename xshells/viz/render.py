@@ -99,10 +99,11 @@ def plot_deployment(path, angles_deg, energies, torques, title: str = "", utiliz
         ax3.set_xlabel("average opening angle (°)")
     ax1.plot(angles_deg, energies, "o-", color="tab:blue", ms=3, label="elastic energy")
     ax1.set_xlabel("average opening angle (°)")
-    ax1.set_ylabel("energy", color="tab:blue")
+    # units follow the input, never converted: force × length (N·mm for a design in mm with E in MPa)
+    ax1.set_ylabel("elastic energy (N·mm for mm, MPa)", color="tab:blue")
     ax2 = ax1.twinx()
     ax2.plot(angles_deg, torques, "s-", color="tab:red", ms=3, label="torque per joint")
-    ax2.set_ylabel("torque per actuated joint", color="tab:red")
+    ax2.set_ylabel("torque per joint (N·mm/rad for mm, MPa)", color="tab:red")
     if utilization is not None:
         ax1.set_xlabel("")
     ax1.set_title(title)
@@ -257,8 +258,10 @@ def render_fit(path, V: np.ndarray, F: np.ndarray, points: np.ndarray, edges: np
 
 
 def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray | None = None, title: str = "",
-                label: str = "√(bending energy density)") -> None:
-    """A top view (x, y, equal scale) of a flat layout's rod centerlines, optionally coloured per edge."""
+                label: str = "√(bending energy density)", axes: tuple = ("x", "y"), vmax: float | None = None) -> None:
+    """A top view (the first two coordinates, equal scale) of a flat layout's rod centerlines, optionally coloured
+    per edge. ``axes``: the names of those two coordinates (a layout drawn in another plane, projected on it);
+    ``vmax``: the top of the colour scale (default: the field's maximum)."""
     plt = _pyplot()
     from matplotlib.collections import LineCollection
 
@@ -271,13 +274,15 @@ def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.n
     else:
         vals = 0.5 * (vertex_values[edges[:, 0]] + vertex_values[edges[:, 1]])
         lc = LineCollection(segs, array=vals, cmap="viridis", linewidths=1.4)
+        if vmax is not None:
+            lc.set_clim(0.0, vmax)
         fig.colorbar(lc, ax=ax, orientation="horizontal" if aspect < 0.6 else "vertical", shrink=0.6, pad=0.18,
                      label=label)
     ax.add_collection(lc)
     ax.autoscale()
     ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
+    ax.set_xlabel(axes[0])
+    ax.set_ylabel(axes[1])
     ax.set_title(title)
     fig.tight_layout()
     _save(fig, path)
