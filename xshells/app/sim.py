@@ -29,6 +29,8 @@ from .core import Layout, layout_to_design
 
 # xshells.deploy.simulate.rest_length_solve checks a cancel callback where it accepts one
 _REST_LENGTH_SOLVE_TAKES_CALLBACK = "callback" in inspect.signature(rest_length_solve).parameters
+# and xshells.deploy.simulate.deploy inside each step's Newton solve where it accepts one (else between steps only)
+_DEPLOY_TAKES_NEWTON_CALLBACK = "newton_callback" in inspect.signature(deploy).parameters
 
 
 class Cancelled(Exception):
@@ -302,8 +304,9 @@ class Simulation:
 
         if progress is not None:  # the start relaxation (before the first step) reports nothing by itself
             progress(0.0, f"{np.degrees(self.flat_angle):.1f}° (relaxing the flat state before the first step)")
+        kw = {"newton_callback": self._stopper(cancel)} if _DEPLOY_TAKES_NEWTON_CALLBACK and cancel is not None else {}
         result = deploy(L, target, DeployOptions(steps=self.settings.steps, direction=self.settings.direction),
-                        callback=step)
+                        callback=step, **kw)
         if result.converged:
             self.current_angle = float(self._a @ L.get_vars())
             return self.nearest_state(self.current_angle)[2]
