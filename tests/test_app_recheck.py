@@ -89,6 +89,8 @@ def test_an_optimized_case_says_at_export_that_xshells_deploy_starts_from_flat(t
         time.sleep(0.2)
         assert s.worker.wait_idle(120), s.worker.last_error
         assert s.rest_lengths is not None and s.last_warm is not None
+        # compared with a cold deployment, as `xshells deploy` of the exported case does it
+        assert [p for e, p in events if e == "branch"]
         s.export("case")
         assert "xshells deploy" in s.export_note and "flat state" in s.export_note
         s.export("svg")

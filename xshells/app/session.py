@@ -124,6 +124,7 @@ class Session:
         self._sims: list = []  # recent simulations [(key, layout, sim)], so that an undo finds its state again
         self._opt_stop = threading.Event()
         self.export_note = ""
+        self.compare_cold = True  # compare an optimized design's state with a cold deployment (as `xshells deploy`'s)
         self._cancel_generation = 0  # counts the user's Cancels (and loads): they stop an assembly solve too
         self.load(project)
 
@@ -680,6 +681,10 @@ class Session:
             self._emit("optimized", out)
             self.status(f"optimization: {out.message}; deploying the optimized design")
             self.request_angle(angle_deg)
+            if self.compare_cold:
+                # the optimized design's state is continued from the one before; `xshells deploy` of its case
+                # deploys it from flat (the boat's came out a mirrored dome): compare, and say so if they differ
+                self.check_branch()
 
         self.worker.submit(job, key="optimize", on_done=done, on_error=lambda e: self._task_error("optimization", e))
 

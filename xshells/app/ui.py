@@ -206,6 +206,7 @@ class App:
                 self.live = gui.add_checkbox("follow edits live", True)
                 self.live.on_update(lambda _: setattr(s, "live", bool(self.live.value)))
                 self.check_cold = gui.add_checkbox("compare with a cold deployment after each edit", True)
+                self.check_cold.on_update(lambda _: setattr(s, "compare_cold", bool(self.check_cold.value)))
                 self.branch_md = gui.add_markdown("")
                 self.branch_row = gui.add_button_group("branch", ("keep shown", "use cold"), visible=False)
                 self.branch_row.on_click(lambda ev: self._choose_branch(ev.target.value))
