@@ -180,12 +180,33 @@ def test_stability_is_judged_with_the_angle_held_and_a_negative_gap_is_not_shown
     text = stability_text(-3.61e-8, -1.31, 4.71e-8)
     assert text.startswith("stability: stable with the angle held") and "gap" not in text and "snap" in text
     assert "gap λ2/λ1 3" in stability_text(1e-3, 3.0, 2e-3)
+    assert stability_text(1e-3, 3.0, None).startswith("stability: stable, with the angle held and under a fixed torque")
     assert "unstable" in stability_text(-1e-3, 2.0, -1e-4)
     s, events = _session(tmp_path)
     try:
         lam_free, gap, held = s.sim.stability()
-        assert held > 0 and held >= lam_free - 1e-12
+        assert lam_free > 0 and held is None  # no second eigen-solve where the free Hessian says it already
         assert len([p for e, p in events if e == "stability"][-1]) == 3
+        # past the torque's limit point (as the boat at 62°): the held one is computed, and no smaller
+        from xshells.app import sim as sim_module
+
+        real = sim_module.smallest_eigenvalues
+        calls = []
+
+        def shifted(H, M, k=2, shift=None, return_shift=False, **kw):
+            calls.append(k)
+            out = real(H, M, k=k, shift=shift, return_shift=return_shift, **kw)
+            if len(calls) == 1:  # the free Hessian's: as if its lowest mode had turned negative
+                lam, sh = out
+                return np.array([-abs(lam[0]), lam[1]]), sh
+            return out
+
+        sim_module.smallest_eigenvalues = shifted
+        try:
+            lam_free, gap, held = s.sim.stability()
+        finally:
+            sim_module.smallest_eigenvalues = real
+        assert lam_free < 0 and held is not None and held > 0 and calls == [2, 1]
     finally:
         s.close()
 

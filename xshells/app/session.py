@@ -74,12 +74,16 @@ def spec_summary(spec: dict) -> str:
             f"ν = {float(spec.get('nu', 0.3)):.3g}  \nstiffnesses: computed with the first solve")
 
 
-def stability_text(lam_free: float, gap: float, lam_held: float) -> str:
+def stability_text(lam_free: float, gap: float, lam_held: float | None) -> str:
     """The stability readout, as ``xshells deploy`` judges it: with the average angle held (the deployment's control).
 
     The free Hessian's smallest eigenvalue says whether the state also holds
     under a fixed torque; its gap λ₂/λ₁ means something only when λ₁ > 0.
+    ``lam_held`` None: not computed, the free one being positive (the held one is no smaller).
     """
+    if lam_held is None:
+        return (f"stability: stable, with the angle held and under a fixed torque "
+                f"(λmin {lam_free:.3g}, gap λ2/λ1 {gap:.3g})")
     held = "stable" if lam_held > 0 else "unstable"
     text = f"stability: {held} with the angle held (λmin {lam_held:.3g})"
     if lam_free > 0:

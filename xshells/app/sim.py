@@ -595,9 +595,10 @@ class Simulation:
         self.current_angle = a
         return info
 
-    def stability(self) -> tuple[float, float, float]:
+    def stability(self) -> tuple[float, float, float | None]:
         """At the current state: the smallest generalized eigenvalue of the free Hessian, the gap λ₂/λ₁, and the
-        smallest eigenvalue with the average angle held (as ``xshells deploy``'s ``min_eigenvalue_at_fixed_angle``).
+        smallest eigenvalue with the average angle held (as ``xshells deploy``'s ``min_eigenvalue_at_fixed_angle``;
+        None where the free one is positive: it is then no smaller, and the state stable either way).
 
         The deployment holds the angle: past the torque's limit point the free
         Hessian's lowest (opening) mode turns negative while the state is
@@ -610,6 +611,8 @@ class Simulation:
         H = L.hessian()[free][:, free]
         M = L.mass_matrix()[free][:, free]
         lam, shift = smallest_eigenvalues(H, M, k=2, return_shift=True)
+        if lam[0] > 0:  # H + ρ a aᵀ ≥ H: stable with the angle held too, no second solve (the slider path's cost)
+            return float(lam[0]), float(lam[1] / lam[0]), None
         af = self._a[free]
         nz = np.flatnonzero(af)
         rho = 100.0 * float(np.abs(H.diagonal()).max()) / float(af @ af)
