@@ -333,3 +333,29 @@ def test_hover_shows_the_files_coordinates_of_a_re_centred_design(tmp_path):
         assert hover.flat_label(v, project.layout.vertices[v], project.layout.span(), project.to_file) == \
             f"joint {v}  ({V[v, 0]:.2f}, {V[v, 1]:.2f}, 0.00)"
     assert open_path(os.path.join(EXAMPLES, "manta_ray.obj")).to_file is None
+
+
+def test_cancel_stops_an_assembly_solve_at_its_next_check_and_says_so(tmp_path, monkeypatch):
+    """Cancel (unlike a newer angle for the same design) stops the assembly state being built: the rest-length
+    solve takes no cancel callback yet, so the check comes right after it, not after a whole deployment."""
+    from xshells.app import sim as sim_module
+
+    inside = threading.Event()
+    real = sim_module.rest_length_solve
+
+    def slow(L, *a, **kw):
+        inside.set()
+        time.sleep(1.0)
+        return real(L, *a, **kw)
+
+    monkeypatch.setattr(sim_module, "rest_length_solve", slow)
+    s, events = _session(tmp_path, angle=None)
+    try:
+        s.request_angle(40.0)
+        assert inside.wait(60)
+        s.cancel()
+        assert s.worker.wait_idle(60)
+        assert s.last_deployed is None and not [p for e, p in events if e == "flat"]
+        assert _statuses(events)[-1] == "solve cancelled"
+    finally:
+        s.close()
