@@ -168,6 +168,10 @@ def test_a_design_that_is_not_flat_is_said_so_when_opened_and_uploaded(tmp_path)
         assert s.open_upload("bumpy.obj", obj.encode())
         assert "not flat" in _statuses(events)[-1] and "best-fit plane" in _statuses(events)[-1]
         assert "not flat" in [p for e, p in events if e == "upload"][-1]
+        s.request_angle(80.0)
+        assert s.worker.wait_idle(60)
+        assert _statuses(events)[-1].endswith(
+            "(the design is not flat (up to 14.03 off its best-fit plane): this is its projection onto that plane)")
         assert open_path(os.path.join(EXAMPLES, "manta_ray.obj")).note is None
     finally:
         s.close()

@@ -159,6 +159,9 @@ class Session:
             self.subdivision = project.subdivision
             self.rest_lengths = project.rest_lengths
             self._optimized = False  # the rest lengths came from an optimization (its state was continued, not deployed cold)
+            # a design that is not flat: every deployed status keeps saying so (the opening line is soon replaced)
+            self._not_flat = next((part.removeprefix("warning: ").split(":")[0] for part in (project.note or "").split("; ")
+                                   if "not flat" in part), None)
             self.target_angle_deg = project.target_angle_deg
             self.material_spec = dict(project.material)
             self._material = None  # built on the worker, with the first solve
@@ -542,6 +545,8 @@ class Session:
             if warm.flipped or abs(warm.energy_change) > 0.5:
                 msg += ("; the shape flipped" if warm.flipped else f"; the energy changed by {100 * warm.energy_change:+.0f} %") \
                     + ": another branch? Compare with a cold deployment"
+        if self._not_flat:
+            msg += f" ({self._not_flat}: this is its projection onto that plane)"
         self._emit("progress", (1.0, "done"))
         self.status(msg)
         if stability:
