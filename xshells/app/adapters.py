@@ -52,6 +52,7 @@ class OptimizeOutcome:
     before: dict | None = None
     after: dict | None = None
     rest_lengths_before: np.ndarray | None = None
+    energy_scale: float | None = None  # the deployed energy at the start: the terms' energies are divided by it
 
 
 @dataclass(frozen=True)
@@ -139,7 +140,7 @@ def run_optimize(linkage, target_angle: float, *, progress, cancel, max_iteratio
         after = _terms(history[-1]) if history else None
     return OptimizeOutcome(np.asarray(res.rest_lengths, float), str(res.message), bool(res.success),
                            int(getattr(res, "iterations", len(history))), _terms(history[0]) if history else None, after,
-                           p_before)
+                           p_before, float(getattr(problem, "E0", np.nan)))
 
 
 def run_actuate(linkage, torque: float, *, progress, cancel, max_iterations: int | None = None) -> ActuateOutcome:

@@ -63,9 +63,17 @@ def decimals(span: float) -> int:
     return int(np.clip(np.ceil(-np.log10(1e-4 * span)), 0, 12)) if np.isfinite(span) and span > 0 else 4
 
 
-def flat_label(v: int, xy, span: float) -> str:
-    """The hover label of joint ``v`` of the flat layout: its layout coordinates."""
+def flat_label(v: int, xy, span: float, to_file: tuple | None = None) -> str:
+    """The hover label of joint ``v`` of the flat layout: its coordinates in the file opened.
+
+    ``to_file`` ``(A, b)`` maps layout coordinates to the file's (``xy @ A + b``) where the app re-centred
+    the design (one drawn off z = 0, or with round-off out of it); without it the layout's are the file's.
+    """
     d = decimals(span)
+    if to_file is not None:
+        x, y, z = np.asarray(xy, float) @ to_file[0] + to_file[1]
+        z = 0.0 if abs(z) < 0.5 * 10.0 ** -d else z  # no "-0.0" from round-off
+        return f"joint {v}  ({x:.{d}f}, {y:.{d}f}, {z:.{d}f})"
     return f"joint {v}  ({xy[0]:.{d}f}, {xy[1]:.{d}f})"
 
 

@@ -44,6 +44,9 @@ class Project:
     note : str or None
         How the design file was read where that says more than its name (a ``.3dm``'s layer and units,
         converted to mm): the status line says it when the project opens.
+    to_file : tuple or None
+        ``(A, b)``: the file's coordinates of a layout point ``xy`` are ``xy @ A + b`` (a design off z = 0, or
+        with round-off out of it, is laid out in its best-fit plane, re-centred); None where they are the same.
     steps : int
         Angle increments of a deployment from the flat state (a case's ``steps``); the branch it
         buckles into can depend on them, so the app deploys with the command line's.
@@ -58,6 +61,7 @@ class Project:
     direction: str = "up"
     note: str | None = None
     steps: int = DEFAULT_STEPS
+    to_file: tuple | None = None  # (A (2, 3), b (3,)): layout xy → the file's coordinates, xy @ A + b; None: the same
 
 
 def open_path(path: str) -> Project:
@@ -78,12 +82,39 @@ def open_path(path: str) -> Project:
         p = read_rest_lengths(case.rest_lengths_path, design.num_segments, design) if case.rest_lengths_path else None
         angle = np.degrees(case.angle_rad) if case.angle_rad is not None else None
         return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p, case.direction,
-                       note=design.note, steps=case.steps)
+                       note=design_note(design), to_file=file_frame(design), steps=case.steps)
     if ext in DESIGN_SUFFIXES:
         design = read_design(path)
         layout = layout_from_design(design)
-        return Project(os.path.splitext(os.path.basename(path))[0], layout, default_material(layout), note=design.note)
+        return Project(os.path.splitext(os.path.basename(path))[0], layout, default_material(layout), note=design_note(design), to_file=file_frame(design))
     raise InputError(f"{path}: open a design (.obj, .msh, .3dm) or a case file (.json)")
+
+
+def file_frame(design) -> tuple | None:
+    """The affine map from the app's layout coordinates back to the file's (for the hover labels), or None."""
+    V = np.asarray(design.vertices, float)
+    xy = layout_from_design(design).vertices
+    if len(V) < 3 or (np.all(V[:, 2] == 0) and np.array_equal(xy, V[:, :2])):
+        return None
+    M, *_ = np.linalg.lstsq(np.c_[xy, np.ones(len(xy))], V, rcond=None)
+    return M[:2], M[2]
+
+
+def design_note(design) -> str | None:
+    """What the status line says about an opened design: its reader's note (a .3dm's layer and units), and a design
+    that is not flat, as ``xshells deploy`` warns (the app edits and deploys its projection onto the best-fit plane)."""
+    from ..linkage.graph import _layout_plane
+
+    notes = [design.note] if design.note else []
+    V, E = np.asarray(design.vertices, float), np.asarray(design.edges, int)
+    used = V[np.unique(E)] if len(E) else V
+    if len(used) >= 3:
+        normal, planar = _layout_plane(used)
+        if not planar:
+            off = float(np.abs((used - used.mean(axis=0)) @ normal).max())
+            notes.append(f"warning: the design is not flat (up to {off:.4g} off its best-fit plane): the app uses its "
+                         f"projection onto that plane, while `xshells deploy` deploys it from the state as drawn")
+    return "; ".join(notes) or None
 
 
 def default_material(layout: Layout) -> dict:
@@ -141,7 +172,7 @@ class UploadStore:
             design = parse_design_bytes(name, content)
             self._designs[name] = design
             layout = layout_from_design(design)
-            return Project(os.path.splitext(name)[0], layout, default_material(layout), note=design.note)
+            return Project(os.path.splitext(name)[0], layout, default_material(layout), note=design_note(design), to_file=file_frame(design))
         if ext == ".json":
             return self._case_from_bytes(name, content)
         raise InputError(f"{name}: upload a design (.obj, .msh, .3dm) or a case file (.json)")
@@ -172,7 +203,7 @@ class UploadStore:
         # an uploaded case without a subdivision keeps the app's own default (8), not the case files' (10)
         sub = case.subdivision if "subdivision" in spec else 8
         return Project(case.name or os.path.splitext(name)[0], layout_from_design(design), material, sub, angle,
-                       direction=case.direction or "up", note=design.note, steps=case.steps)
+                       direction=case.direction or "up", note=design_note(design), to_file=file_frame(design), steps=case.steps)
 
 
 def grid_project(nx: int, ny: int, angle_deg: float = 90.0, spacing: float = 100.0) -> Project:

@@ -54,6 +54,16 @@ class View:
     joint_vertices: np.ndarray | None = None  # (n_joints,) the layout vertex of each row of ``joints``
 
 
+class _BuildCancel:
+    """The cancel check of an assembly solve: the job's cancel event, honoured only while ``applies()`` says so."""
+
+    def __init__(self, cancel: threading.Event, applies):
+        self._cancel, self._applies = cancel, applies
+
+    def is_set(self) -> bool:
+        return self._cancel.is_set() and self._applies()
+
+
 SIM_CACHE = 4  # simulations kept for undo/redo (each holds its deployed states)
 
 
@@ -62,6 +72,23 @@ def spec_summary(spec: dict) -> str:
     params = ", ".join(f"{float(v):g}" for v in spec.get("params", []))
     return (f"{spec.get('type', 'rectangle')} {params}, E = {float(spec.get('E', 20000.0)):.4g}, "
             f"ν = {float(spec.get('nu', 0.3)):.3g}  \nstiffnesses: computed with the first solve")
+
+
+def stability_text(lam_free: float, gap: float, lam_held: float | None) -> str:
+    """The stability readout, as ``xshells deploy`` judges it: with the average angle held (the deployment's control).
+
+    The free Hessian's smallest eigenvalue says whether the state also holds
+    under a fixed torque; its gap λ₂/λ₁ means something only when λ₁ > 0.
+    ``lam_held`` None: not computed, the free one being positive (the held one is no smaller).
+    """
+    if lam_held is None:
+        return (f"stability: stable, with the angle held and under a fixed torque "
+                f"(λmin {lam_free:.3g}, gap λ2/λ1 {gap:.3g})")
+    held = "stable" if lam_held > 0 else "unstable"
+    text = f"stability: {held} with the angle held (λmin {lam_held:.3g})"
+    if lam_free > 0:
+        return text + f"; under a fixed torque too (λmin {lam_free:.3g}, gap λ2/λ1 {gap:.3g})"
+    return text + f"; under a fixed torque it would snap (free λmin {lam_free:.3g}: past the torque's limit point)"
 
 
 def material_summary(material) -> str:
@@ -100,6 +127,9 @@ class Session:
         self._pending_solve = None  # ((layout key, angle), token) of the solve queued or running
         self._sims: list = []  # recent simulations [(key, layout, sim)], so that an undo finds its state again
         self._opt_stop = threading.Event()
+        self.export_note = ""
+        self.compare_cold = True  # compare an optimized design's state with a cold deployment (as `xshells deploy`'s)
+        self._cancel_generation = 0  # counts the user's Cancels (and loads): they stop an assembly solve too
         self.load(project)
 
     # ------------------------------------------------------------------ events
@@ -117,6 +147,7 @@ class Session:
     # ------------------------------------------------------------------ project
     def load(self, project: Project) -> None:
         """Make ``project`` current (resets undo history and the simulation)."""
+        self._cancel_generation += 1
         self.worker.cancel_all()
         with self._lock:
             self.project = project
@@ -127,6 +158,10 @@ class Session:
             self._pairing = {}  # how the beams pass through each joint, as drawn: edits must keep it (core.repairings)
             self.subdivision = project.subdivision
             self.rest_lengths = project.rest_lengths
+            self._optimized = False  # the rest lengths came from an optimization (its state was continued, not deployed cold)
+            # a design that is not flat: every deployed status keeps saying so (the opening line is soon replaced)
+            self._not_flat = next((part.removeprefix("warning: ").split(":")[0] for part in (project.note or "").split("; ")
+                                   if "not flat" in part), None)
             self.target_angle_deg = project.target_angle_deg
             self.material_spec = dict(project.material)
             self._material = None  # built on the worker, with the first solve
@@ -146,7 +181,8 @@ class Session:
         """Open an uploaded file; a bad upload only produces a message (``"upload"`` and status). Returns success."""
         try:
             self.load(self.uploads.open_upload(name, content))
-            self._emit("upload", f"opened {os.path.basename(str(name))}")
+            note = self.project.note
+            self._emit("upload", f"opened {os.path.basename(str(name))}" + (f" ({note})" if note else ""))
             return True
         except InputError as exc:
             self.upload_refused(str(exc))
@@ -180,6 +216,16 @@ class Session:
             if new.num_segments != before.num_segments:
                 self.rest_lengths = None  # per-segment data no longer matches
         self._layout_changed()
+        # the status line follows every edit (a click's "click its other end" must not stay), and a problem the
+        # edit made is said there, where it is seen, not only in the Edit panel below
+        what = getattr(fn, "__name__", "edit").replace("_", " ")
+        what = "edit" if what.startswith("<") else what
+        problems = self.problems()
+        if problems:
+            more = f" (and {len(problems) - 1} more, listed under Edit)" if len(problems) > 1 else ""
+            self.status(f"{what}: the layout cannot be simulated: {problems[0]}{more}")
+        else:
+            self.status(f"{what}: done ({new.num_vertices} joints, {new.num_segments} segments)")
         self._follow_edit()
         return True
 
@@ -302,9 +348,24 @@ class Session:
             self._emit("material", material_summary(m))
         return m
 
-    def set_material(self, kind: str, params, E: float, nu: float) -> bool:
-        """Change the cross-section and elastic constants; a bad value only shows a message."""
-        spec = {"type": kind, "params": [float(v) for v in params], "E": float(E), "nu": float(nu)}
+    def set_material(self, kind: str, params, E: float, nu: float, subdivision: int | None = None) -> bool:
+        """Change the cross-section, elastic constants (and edges per segment); a bad value only shows a message.
+
+        A value out of range is refused, naming the field and its range, and
+        nothing changes (the page's fields do not clamp it to another value).
+        """
+        E, nu = float(E), float(nu)
+        why = None
+        if not (np.isfinite(E) and E > 0):
+            why = f"E must be a positive number (MPa), got {E:g}"
+        elif not (np.isfinite(nu) and -1.0 < nu < 0.5):
+            why = f"ν must lie strictly between -1 and 0.5, got {nu:g}"
+        elif subdivision is not None:
+            why = self._subdivision_problem(subdivision)
+        if why:
+            self.status(f"material: {why}; the previous material is kept")
+            return False
+        spec = {"type": kind, "params": [float(v) for v in params], "E": E, "nu": nu}
         try:
             material = self._build_material(spec)
         except (InputError, ValueError) as exc:
@@ -312,16 +373,38 @@ class Session:
             return False
         with self._lock:
             self.material_spec, self._material = spec, material
+            if subdivision is not None:
+                self.subdivision = int(subdivision)
         self._emit("material", material_summary(material))
         return True
 
-    def set_subdivision(self, k: int) -> None:
-        self.subdivision = max(3, int(k))
+    MAX_SUBDIVISION = 30
+
+    @classmethod
+    def _subdivision_problem(cls, k) -> str | None:
+        kf = float(k)
+        if not (np.isfinite(kf) and kf == int(kf) and 3 <= kf <= cls.MAX_SUBDIVISION):
+            return f"edges per segment must be a whole number from 3 to {cls.MAX_SUBDIVISION}, got {kf:g}"
+        return None
+
+    def set_subdivision(self, k: int) -> bool:
+        """Set the edges per segment (3 to 30); a bad value is refused with a message and changes nothing."""
+        why = self._subdivision_problem(k)
+        if why:
+            self.status(f"material: {why}; the previous value ({self.subdivision}) is kept")
+            return False
+        self.subdivision = int(k)
+        return True
 
     # ------------------------------------------------------------------ simulation
     def _key(self):
-        return (id(self.layout), id(self.material_spec), self.subdivision,
-                None if self.rest_lengths is None else id(self.rest_lengths))
+        # values, not ids: an id is reused once its object is freed, and a changed material (or rest lengths)
+        # would then find a stale simulation. The layout's id is safe: the cached simulation holds its layout.
+        spec = self.material_spec
+        material = (spec.get("type"), tuple(float(v) for v in spec.get("params", [])), float(spec.get("E", 20000.0)),
+                    float(spec.get("nu", 0.3)), str(spec.get("stiff_axis")), str(spec.get("contour_file")))
+        return (id(self.layout), material, self.subdivision,
+                None if self.rest_lengths is None else np.asarray(self.rest_lengths, float).tobytes())
 
     def _ensure_sim(self, cancel, angle_deg: float | None = None):
         """The simulation of the current layout and material, building it if stale (warm-started at ``angle_deg``)."""
@@ -402,15 +485,20 @@ class Session:
         """Re-solve the deployed equilibrium at ``angle_deg`` in the background (latest request wins)."""
         self.angle_deg = float(angle_deg)
 
+        request = (self._key(), float(angle_deg))
+        generation = self._cancel_generation
+
         def job(cancel, progress):
             t0 = time.perf_counter()
-            sim = self._ensure_sim(cancel, angle_deg)
+            # a newer angle for the same design does not stop the assembly state being built (the newer
+            # request needs it too); Cancel, another design, material or rest lengths do
+            build_cancel = _BuildCancel(cancel, lambda: self._cancel_generation != generation or self._key() != request[0])
+            sim = self._ensure_sim(build_cancel, angle_deg)
             info = sim.solve_to(angle_deg, cancel=cancel,
                                 progress=lambda f, text: progress(f, f"deploying to {angle_deg:.1f}°: at {text}"))
             view = self._view(sim, t0, info)
             return view
 
-        request = (self._key(), float(angle_deg))
         with self._lock:
             if self._pending_solve is not None and self._pending_solve[0] == request:
                 return  # the same layout and angle is being solved already (an edit follows itself, then asks again)
@@ -431,7 +519,16 @@ class Session:
             self._deployed(view)
 
         def failed(exc):
+            from .sim import Cancelled
+
+            with self._lock:
+                newer = self._pending_solve
             finished()
+            if isinstance(exc, Cancelled) and newer is not None and newer[1] is not token:
+                # superseded, not cancelled: the newer request runs next, and the bar goes on with it
+                self.status(f"the solve for {angle_deg:.1f}° was superseded: solving for {newer[0][1]:.1f}° instead")
+                self._emit("progress", (0.05, f"restarting for {newer[0][1]:.1f}°…"))
+                return
             self._job_error(exc)
 
         with self._lock:
@@ -448,6 +545,8 @@ class Session:
             if warm.flipped or abs(warm.energy_change) > 0.5:
                 msg += ("; the shape flipped" if warm.flipped else f"; the energy changed by {100 * warm.energy_change:+.0f} %") \
                     + ": another branch? Compare with a cold deployment"
+        if self._not_flat:
+            msg += f" ({self._not_flat}: this is its projection onto that plane)"
         self._emit("progress", (1.0, "done"))
         self.status(msg)
         if stability:
@@ -543,6 +642,9 @@ class Session:
         self._emit("progress", (0.0, "stopped"))
 
     def cancel(self) -> None:
+        with self._lock:
+            self._cancel_generation += 1
+            self._pending_solve = None
         self._opt_stop.set()
         self.worker.cancel_all()
 
@@ -574,11 +676,24 @@ class Session:
                                          max_iterations=max_iterations)
 
         def done(out) -> None:
+            before = out.rest_lengths_before
+            if before is not None and np.array_equal(np.asarray(out.rest_lengths), np.asarray(before)):
+                # nothing changed: the design stays exactly as it was (rest lengths "of its own" would hold the
+                # flat state differently, and the next run, the exported case and its deployment would differ)
+                self._emit("optimized", out)
+                self.status(f"optimization: {out.message}; rest lengths unchanged, the design stays as it was")
+                self.request_angle(angle_deg)
+                return
             with self._lock:
                 self.rest_lengths = out.rest_lengths
+                self._optimized = True
             self._emit("optimized", out)
             self.status(f"optimization: {out.message}; deploying the optimized design")
             self.request_angle(angle_deg)
+            if self.compare_cold:
+                # the optimized design's state is continued from the one before; `xshells deploy` of its case
+                # deploys it from flat (the boat's came out a mirrored dome): compare, and say so if they differ
+                self.check_branch()
 
         self.worker.submit(job, key="optimize", on_done=done, on_error=lambda e: self._task_error("optimization", e))
 
@@ -670,6 +785,7 @@ class Session:
         state, else the flat assembly state). Returns the paths written.
         """
         layout, p = self.layout, self._rest_lengths()
+        self.export_note = ""  # what the status line adds about the files written (the state they hold)
         if kind in ("svg", "dxf"):
             path = self._path(f"_flat.{kind}")
             (exports.write_svg if kind == "svg" else exports.write_dxf)(path, layout, p)
@@ -684,7 +800,11 @@ class Session:
             # state differently (the pinned joint's frame as drawn, not as solved), and the deployed joints
             # came out rotated against the shown ones by 3.2e-3 of the span (manta ray at 90°).
             with self._lock:
-                given = self.rest_lengths
+                given, optimized, warm = self.rest_lengths, self._optimized, self.last_warm
+            if given is not None and optimized and warm is not None:
+                self.export_note = ("the case holds the optimized rest lengths: the shown state was continued from the "
+                                    "design before, while `xshells deploy` deploys it from its flat state and may reach "
+                                    "another branch (*Compare with a cold deployment* shows which)")
             return exports.write_case(self._path(".json"), self.name, layout, self.material_spec, self.subdivision,
                                       self.angle_deg if self.angle_deg is not None else self.target_angle_deg, given,
                                       direction=self.project.direction, steps=self.project.steps)
@@ -692,7 +812,18 @@ class Session:
             sim = self.sim
             if sim is None:
                 raise InputError("nothing solved yet: move the angle slider first")
-            path = self._path(f"_deployed.{kind}")
+            # the files are named after the state they hold: a deployment that stopped short is no "deployed" shape
+            view = self.last_deployed
+            if view is None or self.angle_deg is None:
+                path = self._path(f"_flat_state.{kind}")
+                self.export_note = "nothing deployed yet: the files hold the flat assembly state"
+            elif not view.info.converged or abs(view.info.angle_deg - self.angle_deg) > 0.05:
+                path = self._path(f"_stopped_at_{view.info.angle_deg:.1f}deg.{kind}")
+                self.export_note = (f"the deployment did not reach {self.angle_deg:.1f}°: the files hold the state "
+                                    f"where it stopped ({view.info.angle_deg:.1f}°)"
+                                    + (f": {view.info.message}" if view.info.message else ""))
+            else:
+                path = self._path(f"_deployed.{kind}")
             done = threading.Event()
             err: list = []
 

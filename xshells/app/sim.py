@@ -12,6 +12,7 @@ animation. Work can be cancelled between and inside Newton solves.
 from __future__ import annotations
 
 import bisect
+import inspect
 import threading
 import time
 from dataclasses import dataclass
@@ -24,6 +25,12 @@ from ..linkage.linkage import Linkage
 from ..linkage.state import restore, snapshot
 from ..solve import NewtonOptions, NewtonReport, minimize, smallest_eigenvalues
 from .core import Layout, layout_to_design
+
+
+# xshells.deploy.simulate.rest_length_solve checks a cancel callback where it accepts one
+_REST_LENGTH_SOLVE_TAKES_CALLBACK = "callback" in inspect.signature(rest_length_solve).parameters
+# and xshells.deploy.simulate.deploy inside each step's Newton solve where it accepts one (else between steps only)
+_DEPLOY_TAKES_NEWTON_CALLBACK = "newton_callback" in inspect.signature(deploy).parameters
 
 
 class Cancelled(Exception):
@@ -130,7 +137,14 @@ class Simulation:
         t0 = time.perf_counter()
         self.linkage = L = Linkage(layout_to_design(layout), material, subdivision=subdivision, rest_lengths=rest_lengths)
         if rest_lengths is None:
-            rest_length_solve(L)
+            if cancel is not None and cancel.is_set():
+                raise Cancelled()
+            if _REST_LENGTH_SOLVE_TAKES_CALLBACK:  # checked inside the solve, once it can be
+                rest_length_solve(L, callback=self._stopper(cancel))
+            else:  # only between the stages (the solve itself takes no callback yet)
+                rest_length_solve(L)
+            if cancel is not None and cancel.is_set():
+                raise Cancelled()
         else:
             minimize(L, fixed=L.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100),
                      callback=self._stopper(cancel))
@@ -226,6 +240,8 @@ class Simulation:
         target = np.radians(float(angle_deg))
         if not 0 < target < np.pi:
             raise InputError(f"opening angle {angle_deg}° must lie strictly between 0° and 180°")
+        if cancel is not None and cancel.is_set():
+            raise Cancelled()  # superseded while the assembly state was built: no start relaxation for nothing
         start_angle, snap, info = self.nearest_state(target)
         restore(self.linkage, snap)
         if abs(start_angle - target) < 1e-10:
@@ -285,8 +301,11 @@ class Simulation:
                 progress(rec.step / self.settings.steps, f"{rec.average_angle_deg:.1f}°")
             return False
 
+        if progress is not None:  # the start relaxation (before the first step) reports nothing by itself
+            progress(0.0, f"{np.degrees(self.flat_angle):.1f}° (relaxing the flat state before the first step)")
+        kw = {"newton_callback": self._stopper(cancel)} if _DEPLOY_TAKES_NEWTON_CALLBACK and cancel is not None else {}
         result = deploy(L, target, DeployOptions(steps=self.settings.steps, direction=self.settings.direction),
-                        callback=step)
+                        callback=step, **kw)
         if result.converged:
             self.current_angle = float(self._a @ L.get_vars())
             return self.nearest_state(self.current_angle)[2]
@@ -575,11 +594,28 @@ class Simulation:
         self.current_angle = a
         return info
 
-    def stability(self) -> tuple[float, float]:
-        """Smallest generalized eigenvalue of the free Hessian and the gap λ₂/λ₁ at the current state."""
+    def stability(self) -> tuple[float, float, float | None]:
+        """At the current state: the smallest generalized eigenvalue of the free Hessian, the gap λ₂/λ₁, and the
+        smallest eigenvalue with the average angle held (as ``xshells deploy``'s ``min_eigenvalue_at_fixed_angle``;
+        None where the free one is positive: it is then no smaller, and the state stable either way).
+
+        The deployment holds the angle: past the torque's limit point the free
+        Hessian's lowest (opening) mode turns negative while the state is
+        stable with the angle held (the boat at 62°: −3.6e-8 against +4.7e-8).
+        """
+        import scipy.sparse as sp
+
         L = self.linkage
         free = np.setdiff1d(np.arange(L.num_vars), self._pins)
         H = L.hessian()[free][:, free]
         M = L.mass_matrix()[free][:, free]
-        lam = smallest_eigenvalues(H, M, k=2)
-        return float(lam[0]), float(lam[1] / lam[0]) if lam[0] != 0 else float("inf")
+        lam, shift = smallest_eigenvalues(H, M, k=2, return_shift=True)
+        if lam[0] > 0:  # H + ρ a aᵀ ≥ H: stable with the angle held too, no second solve (the slider path's cost)
+            return float(lam[0]), float(lam[1] / lam[0]), None
+        af = self._a[free]
+        nz = np.flatnonzero(af)
+        rho = 100.0 * float(np.abs(H.diagonal()).max()) / float(af @ af)
+        A = sp.csr_matrix((np.full(len(nz) ** 2, rho * af[nz[0]] ** 2), (np.repeat(nz, len(nz)), np.tile(nz, len(nz)))),
+                          shape=H.shape)
+        held = float(smallest_eigenvalues((H + A).tocsr(), M, k=1, shift=shift or None)[0])
+        return float(lam[0]), float(lam[1] / lam[0]) if lam[0] != 0 else float("inf"), held

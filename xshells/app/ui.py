@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from . import adapters, core, hover
-from .session import FIELDS, Session, View, material_summary, spec_summary
+from .session import FIELDS, Session, View, material_summary, spec_summary, stability_text
 
 EXAMPLES_DIR = os.path.join(os.path.dirname(__file__), "..", "data", "examples")
 MODES = ("view / orbit", "move joint", "brush", "cage", "add joint", "add segment", "delete joint", "delete segment")
@@ -200,12 +200,13 @@ class App:
                 self.cage_shape.on_update(lambda _: self._set_mode())
                 self.snap_step = gui.add_number("snap to grid (design units, 0: off)", 0.0, min=0.0)
                 self.joint_labels = gui.add_checkbox("joint numbers", False)
-                self.joint_labels.on_update(lambda _: self._draw_layout(s.layout, keep_frame=True))
+                self.joint_labels.on_update(lambda _: self._joint_labels_toggled())
                 row = gui.add_button_group("view", ("Plan", "3D"))
                 row.on_click(lambda ev: self._set_camera(ev.target.value, ev.client))
                 self.live = gui.add_checkbox("follow edits live", True)
                 self.live.on_update(lambda _: setattr(s, "live", bool(self.live.value)))
                 self.check_cold = gui.add_checkbox("compare with a cold deployment after each edit", True)
+                self.check_cold.on_update(lambda _: setattr(s, "compare_cold", bool(self.check_cold.value)))
                 self.branch_md = gui.add_markdown("")
                 self.branch_row = gui.add_button_group("branch", ("keep shown", "use cold"), visible=False)
                 self.branch_row.on_click(lambda ev: self._choose_branch(ev.target.value))
@@ -234,9 +235,10 @@ class App:
             self.sec_type = gui.add_dropdown("cross-section", SECTION_TYPES,
                                              initial_value=spec.get("type", "rectangle") if spec.get("type") in SECTION_TYPES else "rectangle")
             self.sec_params = gui.add_text("dimensions", ", ".join(f"{v:g}" for v in spec.get("params", [10, 7])))
-            self.young = gui.add_number("E", float(spec.get("E", 20000.0)), min=1e-9)
-            self.poisson = gui.add_number("ν", float(spec.get("nu", 0.3)), min=-0.99, max=0.49, step=0.01)
-            self.subdiv = gui.add_number("edges per segment", int(s.subdivision), min=3, max=30, step=1)
+            # no min/max: the page would clamp a bad value to another one silently; the session refuses it, saying why
+            self.young = gui.add_number("E", float(spec.get("E", 20000.0)))
+            self.poisson = gui.add_number("ν", float(spec.get("nu", 0.3)), step=0.01)
+            self.subdiv = gui.add_number("edges per segment", int(s.subdivision), step=1)
             b = gui.add_button("Apply material")
             b.on_click(lambda _: self._apply_material())
             self.material_md = gui.add_markdown("")
@@ -358,9 +360,14 @@ class App:
         except ValueError:
             self.session.status("material: dimensions must be numbers separated by commas")
             return
-        self.session.set_subdivision(int(self.subdiv.value))
-        if self.session.set_material(self.sec_type.value, params, float(self.young.value), float(self.poisson.value)):
-            self.session.request_angle(float(self.angle.value))
+        s = self.session
+        if s.set_material(self.sec_type.value, params, float(self.young.value), float(self.poisson.value),
+                          subdivision=float(self.subdiv.value)):
+            s.request_angle(float(self.angle.value))
+        else:  # refused (the status line says why): the fields show the values still in use
+            spec = s.material_spec
+            self.young.value, self.poisson.value = float(spec.get("E", 20000.0)), float(spec.get("nu", 0.3))
+            self.subdiv.value = int(s.subdivision)
 
     def _warp(self, which: str) -> None:
         a = float(self.warp_amount.value)
@@ -438,7 +445,8 @@ class App:
         layout = self.session.layout
         P = [self._to_scene(layout.vertices) + [0, 0, 0.025]] if layout.num_vertices else []
         span = layout.span()
-        labels = [hover.flat_label(v, xy, span) for v, xy in enumerate(layout.vertices)]
+        to_file = self.session.project.to_file  # the file's coordinates, where the app re-centred the design
+        labels = [hover.flat_label(v, xy, span, to_file) for v, xy in enumerate(layout.vertices)]
         view = self._shown_deployed
         if view is not None and view.joint_vertices is not None and len(view.joints):
             P.append(self._deployed_to_scene(view.joints, view))
@@ -642,9 +650,7 @@ class App:
         elif event == "task_failed":
             self.result_md.content = f"**failed** — {payload}"
         elif event == "stability":
-            lam, gap = payload
-            self.info_md.content = self.info_md.content.split("  \nstability")[0] + \
-                f"  \nstability: λmin {lam:.3g}, gap λ2/λ1 {gap:.3g}"
+            self.info_md.content = self.info_md.content.split("  \nstability")[0] + "  \n" + stability_text(*payload)
 
     def _show_material_spec(self, spec: dict) -> None:
         """Put the current material into the Material panel (a newly opened design brings its own)."""
@@ -680,12 +686,25 @@ class App:
         else:
             self._remove("/flat/cage")
 
+    def _joint_labels_toggled(self) -> None:
+        self._draw_layout(self.session.layout, keep_frame=True)
+        shown, total = self._labels_shown
+        if self.joint_labels.value and shown < total:
+            self.session.status(f"joint numbers: {shown} of {total} shown, the others would overlap at the default "
+                                f"zoom (hover a joint for its number)")
+
     def _draw_labels(self, layout: core.Layout, P: np.ndarray) -> None:
-        """Joint numbers (design vertex ids): all of them when asked, else the selected joint's."""
+        """Joint numbers (design vertex ids): all of them when asked (thinned where they would overlap), else the
+        selected joint's."""
         for name in [n for n in self._extras if n.startswith("/flat/labels/")]:
             self._remove(name)
-        show = range(len(P)) if getattr(self, "joint_labels", None) is not None and self.joint_labels.value else \
-            ([self._selected] if self._selected is not None and self._selected < len(P) else [])
+        if getattr(self, "joint_labels", None) is not None and self.joint_labels.value:
+            show = list(thin_labels(P, LABEL_SPACING))
+            if self._selected is not None and self._selected < len(P) and self._selected not in show:
+                show.append(self._selected)
+        else:
+            show = [self._selected] if self._selected is not None and self._selected < len(P) else []
+        self._labels_shown = (len(show), len(P))
         for v in show:
             name = f"/flat/labels/{v}"
             self._extras[name] = self.server.scene.add_label(name, str(v), position=tuple(P[v] + [0, 0, 0.04]))
@@ -767,18 +786,7 @@ class App:
             self.result_md.content = "sparse actuation…"
 
     def _show_optimized(self, out) -> None:
-        b, a = out.before or {}, out.after or {}
-        rows = [f"**optimization** ({out.iterations} iterations): {out.message}"]
-        for key, label in (("J", "J"), ("deployed_energy", "deployed energy"), ("flat_energy", "flat energy")):
-            if key in b and key in a:
-                rows.append(f"{label}: {b[key]:.4g} → {a[key]:.4g}")
-        p0 = out.rest_lengths_before
-        if p0 is not None and len(p0) == len(out.rest_lengths):
-            change = float(np.max(np.abs(out.rest_lengths / p0 - 1)))
-            rows.append(f"rest lengths changed by up to {change:.2%}" if change > 0 else
-                        "rest lengths unchanged: no better feasible design in these iterations")
-        rows.append("grey: the deployed state before")
-        self.result_md.content = "  \n".join(rows)
+        self.result_md.content = "  \n".join(optimization_summary(out))
 
     def _show_actuated(self, out, joints) -> None:
         n, idx = len(out.torques), np.asarray(out.actuated, int)
@@ -802,11 +810,13 @@ class App:
             except Exception as exc:  # noqa: BLE001
                 self.session.status(f"export failed: {type(exc).__name__}: {exc}")
                 return
+            name, data = download(paths, kind)
             self.export_md.content = "written:\n\n" + "\n".join(f"- `{p}`" for p in paths)
-            self.session.status(f"exported {os.path.basename(paths[0])}")
+            note = self.session.export_note
+            self.session.status(f"exported {', '.join(os.path.basename(p) for p in paths)}"
+                                + (f" (downloaded as {name})" if len(paths) > 1 else "") + (f"; {note}" if note else ""))
             if client is not None:
-                with open(paths[0], "rb") as fh:
-                    client.send_file_download(os.path.basename(paths[0]), fh.read(), save_immediately=True)
+                client.send_file_download(name, data, save_immediately=True)
 
         # off the UI callback thread: mesh exports wait for the solver
         threading.Thread(target=job, daemon=True, name="xshells-app-export").start()
@@ -820,6 +830,64 @@ class App:
             self.session.listeners.remove(self._on_event)
         self.session.close()
         self.server.stop()
+
+
+LABEL_SPACING = 0.07  # scene units between joint numbers (the flat half is 2 across): about a 3-digit label's width
+
+
+def thin_labels(P: np.ndarray, spacing: float) -> np.ndarray:
+    """Indices of the points to label so that no two labels are closer than ``spacing`` (greedy, in order)."""
+    P = np.asarray(P, float)[:, :2] if len(P) else np.zeros((0, 2))
+    cells: dict = {}
+    keep = []
+    for i, p in enumerate(P):
+        c = tuple(np.floor(p / spacing).astype(int))
+        near = (cells.get((c[0] + dx, c[1] + dy), ()) for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+        if any(np.sum((P[j] - p) ** 2) < spacing ** 2 for group in near for j in group):
+            continue
+        cells.setdefault(c, []).append(i)
+        keep.append(i)
+    return np.array(keep, int)
+
+
+def optimization_summary(out) -> list[str]:
+    """The optimization result's lines: J (dimensionless) and the energies themselves, in the input's units."""
+    b, a = out.before or {}, out.after or {}
+    rows = [f"**optimization** ({out.iterations} iterations): {out.message}"]
+    if "J" in b and "J" in a:
+        rows.append(f"J: {b['J']:.4g} → {a['J']:.4g}")
+    scale = getattr(out, "energy_scale", None)
+    known = scale is not None and np.isfinite(scale) and scale > 0
+    for key, label in (("deployed_energy", "deployed energy"), ("flat_energy", "flat energy")):
+        if key in b and key in a:  # the terms are divided by the deployed energy at the start
+            rows.append(f"{label}: {b[key] * scale:.5g} → {a[key] * scale:.5g} N·mm" if known else
+                        f"{label} (relative to the deployed energy at the start): {b[key]:.4g} → {a[key]:.4g}")
+    if known:
+        rows.append("(energies in N·mm for a design in mm and E in MPa: the input's units)")
+    p0 = out.rest_lengths_before
+    if p0 is not None and len(p0) == len(out.rest_lengths):
+        change = float(np.max(np.abs(out.rest_lengths / p0 - 1)))
+        rows.append(f"rest lengths changed by up to {change:.2%}" if change > 0 else
+                    "rest lengths unchanged: no better feasible design in these iterations; the design stays as it was")
+    rows.append("grey: the deployed state before")
+    return rows
+
+
+def download(paths: list[str], kind: str = "export") -> tuple[str, bytes]:
+    """What the browser downloads for an export: its one file, or all its files in one zip (a remote user has no
+    other way to reach them: the cut list's joints and bill of materials, the strips' DXF and assembly drawing)."""
+    if len(paths) == 1:
+        with open(paths[0], "rb") as fh:
+            return os.path.basename(paths[0]), fh.read()
+    import io
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for p in paths:
+            zf.write(p, os.path.basename(p))
+    stem = os.path.commonprefix([os.path.basename(p) for p in paths]).rstrip("_.-") or "xshell"
+    return f"{stem}_{kind}.zip", buf.getvalue()
 
 
 class _DiscardingParts(dict):
