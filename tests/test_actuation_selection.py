@@ -194,7 +194,7 @@ def test_too_few_allowed_joints_are_named_as_the_cause(dense):
     (["--max-iters", "5"], "--max-iters applies"), (["--etas", "1e-3"], "--etas needs --sweep"),
     # these were ignored: --max-fit beside --actuators, and an empty list meant every joint
     (["--actuators", "2", "--max-fit", "1%"], "--max-fit limits the deviation"),
-    (["--eta", "1e-3", "--max-fit", "1%"], "does not apply with --eta"),
+    (["--sweep", "--etas", "1e-3", "--max-fit", "1%"], "--max-fit does not apply to --sweep --etas"),
     (["--candidates", ""], "no vertex index given"), (["--candidates", ",,,"], "no vertex index given"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, capsys, argv, match):

@@ -48,7 +48,7 @@ from scipy.optimize import lsq_linear
 from ..deploy.simulate import folded_joint
 from ..errors import InputError
 from ..linkage.state import restore, snapshot
-from .sparsify import TorqueFit
+from .sparsify import TorqueFit, _number, _whole, answer_report
 
 log = logging.getLogger(__name__)
 
@@ -98,18 +98,25 @@ class SelectionOptions:
     candidates: int = 4
 
     def __post_init__(self):
-        if not (np.isfinite(self.max_fit) and self.max_fit > 0):
-            raise InputError(f"max_fit must be a positive fraction of the span, got {self.max_fit}")
+        _number("max_fit", self.max_fit, positive=True)
+        if not self.max_fit < 1:
+            raise InputError(f"max_fit must be a fraction of the span below 1 (0.01 is 1 %), got {self.max_fit}")
         if self.actuators is not None:
+            _number("actuators", self.actuators)
             if not (int(self.actuators) == self.actuators and self.actuators >= 1):
                 raise InputError(f"actuators must be a whole number of at least 1, got {self.actuators}")
             object.__setattr__(self, "actuators", int(self.actuators))  # 6.0 from a spec file counts as 6
-        if self.tau_max is not None and not (self.tau_max > 0):
-            raise InputError(f"tau_max must be positive, got {self.tau_max}")
+        if self.tau_max is not None:
+            _number("tau_max", self.tau_max, positive=True, finite=False)
+            if self.tau_max == np.inf:
+                object.__setattr__(self, "tau_max", None)  # no limit
+        if not isinstance(self.full_curve, (bool, np.bool_)):
+            raise InputError(f"full_curve must be true or false, got {self.full_curve!r}")
+        _number("cut_fraction", self.cut_fraction)
         if not (0 < self.cut_fraction < 1):
             raise InputError(f"cut_fraction must lie in (0, 1), got {self.cut_fraction}")
-        if self.refit_iterations < 1 or self.candidates < 1:
-            raise InputError("refit_iterations and candidates must be at least 1")
+        _whole("refit_iterations", self.refit_iterations)
+        _whole("candidates", self.candidates)
 
 
 @dataclass
@@ -127,6 +134,10 @@ class CurvePoint:
 
 @dataclass
 class SelectionResult:
+    """The answer of :func:`select_actuators`; the fields as in :class:`.sparsify.SparsifyResult`
+    (``actuated``: joint numbers, ``actuated_vertices``: input vertex indices, ``state``: the answer's
+    equilibrium; the linkage is back at the state the call started from)."""
+
     torques: np.ndarray
     actuated: np.ndarray
     fit_mean: float
@@ -138,6 +149,10 @@ class SelectionResult:
     curve: list = field(default_factory=list)
     rounds: int = 0
     equilibrium_solves: int = 0
+    actuated_vertices: np.ndarray = None
+    free_end_fit_mean: float = float("nan")
+    free_end_fit_max: float = float("nan")
+    state: dict = None
 
 
 class _Refit:
@@ -433,22 +448,26 @@ def _refit_cut(refit: _Refit, trial, trial_active, iterations, good_enough, give
 
 
 def select_actuators(linkage, tau_ref: float, options: SelectionOptions = SelectionOptions(), *, allowed=None,
-                     flat_energy: float = 0.0, callback=None) -> SelectionResult:
+                     flat_energy: float | None = None, targets=None, callback=None) -> SelectionResult:
     """Few actuators that deploy ``linkage`` to its current (densely actuated) shape.
 
     Parameters
     ----------
     linkage : Linkage
-        At the densely actuated deployed equilibrium; it ends at the chosen
-        answer's equilibrium.
+        At the densely actuated deployed equilibrium: its joint positions are
+        the targets unless ``targets`` is given. It is back at that state when
+        the call returns (so a second call measures against the same targets);
+        the answer's equilibrium is ``result.state``.
     tau_ref : float
         The dense torque per joint (``DeploymentResult.torque``).
     options : SelectionOptions
     allowed : (n,) bool array, optional
         Joints that may carry an actuator (default all).
-    flat_energy : float
-        Energy of the flat assembly state (the reported work is the energy
-        stored from there).
+    flat_energy : float, optional
+        Energy of the flat assembly state (``DenseDeployment.flat_energy``):
+        the reported work is the energy stored from there; without it, NaN.
+    targets : (n, 3) array, optional
+        Target joint positions (default: the linkage's current ones).
     callback : callable(CurvePoint) -> bool, optional
         Called at every accepted cut; return True to stop (the answer is
         then the best one found so far).
@@ -458,9 +477,17 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
     SelectionResult
     """
     start = time.perf_counter()
+    start_state = snapshot(linkage)
+    try:
+        return _select(linkage, tau_ref, options, allowed, flat_energy, targets, callback, start)
+    finally:
+        restore(linkage, start_state)
+
+
+def _select(linkage, tau_ref, options, allowed, flat_energy, targets, callback, start) -> SelectionResult:
     o = options
     n = linkage.num_joints
-    fit = TorqueFit(linkage, tau_ref, p=1.0, eta=0.0)
+    fit = TorqueFit(linkage, tau_ref, p=1.0, eta=0.0, targets=targets)
     ub = np.full(n, np.inf if o.tau_max is None else o.tau_max / tau_ref)
     t = np.ones(n)
     if allowed is not None:
@@ -498,7 +525,8 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
         _, dev = fit.fit_terms()
         dist = np.linalg.norm(dev, axis=1) / fit.l0
         act = np.flatnonzero(t > 0)
-        p = CurvePoint(len(act), float(dist.mean()), float(dist.max()), float(linkage.energy()) - flat_energy,
+        work = float(linkage.energy()) - flat_energy if flat_energy is not None else float("nan")
+        p = CurvePoint(len(act), float(dist.mean()), float(dist.max()), work,
                        act, fit.torques(t)[act], time.perf_counter() - start)
         curve.append(p)
         return p
@@ -594,14 +622,11 @@ def select_actuators(linkage, tau_ref: float, options: SelectionOptions = Select
         restore(linkage, st)
         fit._t = None
     fit.evaluate(final_t)
-    _, dev = fit.fit_terms()
-    dist = np.linalg.norm(dev, axis=1) / fit.l0
     tau = fit.torques(final_t)
     folded = folded_joint(linkage)
     if folded:
         converged = False
         message += f"; the final state is not valid: {folded}"
-    return SelectionResult(torques=tau, actuated=np.flatnonzero(tau > 0), fit_mean=float(dist.mean()),
-                           fit_max=float(dist.max()), work=float(linkage.energy()) - flat_energy, converged=converged,
+    return SelectionResult(torques=tau, **answer_report(fit, tau, flat_energy), converged=converged,
                            message=message.strip("; "), time_s=time.perf_counter() - start, curve=curve, rounds=rounds,
                            equilibrium_solves=refit.solves)
