@@ -432,6 +432,65 @@ def _cuts_to_try(refit: _Refit, r, t, active, ub, batch: int, candidates: int, g
         yield allowed[S], trial, np.inf
 
 
+EXCHANGE_MAX_ACTUATORS = 12
+"""``--actuators N`` up to this N ends with the exchange search of :func:`_exchange_refine`."""
+EXCHANGE_TRIES = 6
+"""Swaps re-fitted on the nonlinear model per round of the exchange search (the linear model's best first)."""
+EXCHANGE_ROUNDS = 10
+
+
+def _exchange_refine(refit: _Refit, t, r, fit_mean, active, ub, iterations, good_enough):
+    """Improve a set of N actuators by swapping one member for one joint outside it.
+
+    Elimination is greedy: on a grid, ``--actuators 1`` ended at a joint
+    with 0.80 % mean deviation where another alone gives 0.22 %. Each round
+    ranks every swap (member × allowed joint outside) by the linear model's
+    fit at the current equilibrium and re-fits the best
+    :data:`EXCHANGE_TRIES` on the nonlinear model; the first that lowers the
+    mean deviation by more than 0.1 % of itself is taken. Yields ``(t, r,
+    fit_mean, active, trials)`` after each improvement, then ``(…, None,
+    trials)`` when a round finds none (the linkage back at the last set).
+    """
+    fit, L = refit.fit, refit.fit.L
+    allowed = np.flatnonzero(ub > 0)
+    for _round in range(EXCHANGE_ROUNDS):
+        pos = np.searchsorted(allowed, active)
+        outside = np.setdiff1d(np.arange(len(allowed)), pos)
+        if not len(outside):
+            break
+        J_all = refit.jacobian(allowed)
+        b = r - J_all[:, pos] @ t[active]
+        G = J_all.T @ J_all
+        c = -(J_all.T @ b)
+        ridge = 1e-10 * np.trace(G) / len(allowed) + 1e-300
+        k = len(pos)
+        swaps = np.repeat(pos[None, :], k * len(outside), axis=0)
+        swaps[np.arange(len(swaps)), np.repeat(np.arange(k), len(outside))] = np.tile(outside, k)
+        sx, sg = _set_fits(G, c, swaps, ridge)
+        order = [i for i in np.argsort(-sg, kind="stable")[:EXCHANGE_TRIES] if np.isfinite(sg[i])]
+        state = snapshot(L)
+        tried, found = 0, None
+        for i in order:
+            S = allowed[swaps[i]]
+            trial = np.zeros(len(t))
+            trial[S] = np.clip(sx[i], 0.0, ub[S])
+            tried += 1
+            ok, t_new, r_new, fm_new = _refit_cut(refit, trial, S, iterations, good_enough, np.inf)
+            S_new = np.sort(S[t_new[S] > 0])
+            if ok and len(S_new) == k and not folded_joint(L) and fm_new < fit_mean * (1 - 1e-3):
+                found = (t_new, r_new, fm_new, S_new)
+                break
+            restore(L, state)
+            fit._t = None
+            refit.evaluate(t)
+        if found is None:
+            yield t, r, fit_mean, None, tried
+            return
+        t, r, fit_mean, active = found
+        yield t, r, fit_mean, active, tried
+    yield t, r, fit_mean, None, 0
+
+
 def _refit_cut(refit: _Refit, trial, trial_active, iterations, good_enough, give_up_above):
     """Equilibrium and nonlinear re-fit after a cut: (ok, t, r, fit_mean); ok is False where the equilibrium is lost."""
     start = time.perf_counter()
@@ -598,6 +657,27 @@ def _select(linkage, tau_ref, options, allowed, flat_energy, targets, callback, 
                 break
         else:
             message = f"reached {len(active)} actuator{'s' if len(active) != 1 else ''}"
+            if target_count is not None and len(active) == target_count and target_count <= EXCHANGE_MAX_ACTUATORS:
+                swaps_tried, gained = 0, 0
+                for t_new, r_new, fm_new, active_new, tried in _exchange_refine(
+                        refit, t, r, fit_mean, active, ub, o.refit_iterations, good_enough):
+                    swaps_tried += tried
+                    if active_new is None:
+                        break
+                    gained += 1
+                    t, r, fit_mean, active = t_new, r_new, fm_new, active_new
+                    state = snapshot(linkage)
+                    if curve and curve[-1].num_actuators == len(active):
+                        curve.pop()  # the same count, a better set: the curve keeps the better one
+                    point = record()
+                    best = (t.copy(), state, point)
+                message += (f"; {gained} exchange{'s' if gained != 1 else ''} of one joint for another improved it "
+                            f"({swaps_tried} tried)")
+        if o.full_curve and best is not None and len(best[0].nonzero()[0]) != len(active):
+            k = int(np.count_nonzero(best[0]))
+            message = (f"the curve reached {len(active)} actuator{'s' if len(active) != 1 else ''}; the answer is the "
+                       f"fewest within the limit, {k} actuator{'s' if k != 1 else ''}"
+                       + (f" ({message})" if not message.startswith("reached") else ""))
         if unholdable and restricted and dense_holds:
             message = (f"{RESTRICTED}: {restricted}, with their torques re-fitted, the mean deviation is "
                        f"{100 * fit_mean:.2f}% (limit {100 * o.max_fit:g}%), while every joint at the dense torque "
