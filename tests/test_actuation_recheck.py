@@ -197,3 +197,28 @@ def test_one_actuator_is_the_best_single_joint(tmp_path, capsys, monkeypatch):
     assert _run(tmp_path, case, "--sweep", "--max-fit", "0.15%") == 0
     r = json.loads((tmp_path / "out" / "result.json").read_text())
     assert r["num_actuators"] > 1 and f"the answer is the fewest within the limit, {r['num_actuators']} actuators" in r["message"]
+
+
+def test_an_interrupted_eta_run_is_told_to_run_again():
+    from xshells.actuation.run import suggestion
+
+    text = suggestion({"converged": False, "message": "interrupted by the user", "method": "eta"})
+    assert text.startswith("run again")  # was "try the default mode (no --eta)"
+
+
+def test_the_plots_mark_runs_that_did_not_converge(tmp_path, monkeypatch):
+    import matplotlib.axes
+
+    from xshells.viz.render import plot_actuation_curve, plot_actuation_tradeoff
+
+    labels = []
+    real = matplotlib.axes.Axes.plot
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", lambda self, *a, **kw: (labels.append(kw.get("label")), real(self, *a, **kw))[1])
+    rows = [{"p": 0.5, "eta": e, "num_actuators": k, "fit_mean": f, "converged": c}
+            for e, k, f, c in ((1e-4, 9, 0.002, "True"), (1e-3, 4, 0.004, "False"))]
+    plot_actuation_tradeoff(tmp_path / "s.png", rows)
+    assert "not converged" in labels
+    labels.clear()
+    plot_actuation_curve(tmp_path / "c.png", [{"num_actuators": 2, "fit_mean": 0.002, "fit_max": 0.005}], max_fit=0.001,
+                         chosen=2, chosen_failed=True)
+    assert any(lab and lab.startswith("NOT CONVERGED") for lab in labels)
