@@ -222,3 +222,13 @@ def test_the_plots_mark_runs_that_did_not_converge(tmp_path, monkeypatch):
     plot_actuation_curve(tmp_path / "c.png", [{"num_actuators": 2, "fit_mean": 0.002, "fit_max": 0.005}], max_fit=0.001,
                          chosen=2, chosen_failed=True)
     assert any(lab and lab.startswith("NOT CONVERGED") for lab in labels)
+
+
+def test_another_commands_result_is_not_removed(tmp_path):
+    from xshells.actuation.run import remove_stale_outputs
+
+    (tmp_path / "result.json").write_text('{"name": "an inverse design"}')
+    (tmp_path / "sweep.csv").write_text("gamma,beta,J\n1,2,3\n")
+    (tmp_path / "torques.txt").write_text("1\n")
+    assert remove_stale_outputs(tmp_path) == ["torques.txt"]
+    assert (tmp_path / "result.json").exists() and (tmp_path / "sweep.csv").exists()

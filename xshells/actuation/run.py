@@ -151,7 +151,7 @@ def remove_stale_outputs(out_dir) -> list[str]:
     removed = []
     for name in OUTPUTS:
         path = os.path.join(out_dir, name)
-        if os.path.isfile(path):
+        if os.path.isfile(path) and _ours(path):
             os.remove(path)
             removed.append(name)
     if removed:
@@ -159,6 +159,21 @@ def remove_stale_outputs(out_dir) -> list[str]:
 
         print(f"removed an earlier run's {', '.join(removed)} from {out_dir}/", file=sys.stderr)
     return removed
+
+
+def _ours(path) -> bool:
+    """Whether ``path`` is a file of ``xshells sparsify`` (another command's result.json is left alone)."""
+    name = os.path.basename(path)
+    if name not in ("result.json", "sweep.csv"):
+        return True  # names only this command writes
+    try:
+        with open(path, encoding="utf-8") as f:
+            head = f.read(200_000 if name == "result.json" else 200)
+    except (OSError, UnicodeDecodeError):
+        return False
+    if name == "sweep.csv":
+        return head.startswith(("num_actuators,", "p,eta,"))
+    return '"actuated_joints"' in head and '"dense_torque"' in head
 
 
 def _write_outputs(out_dir, dense: DenseDeployment, res, result: dict, title: str) -> None:
