@@ -151,7 +151,7 @@ def test_bad_options(kwargs, match):
 
 
 @pytest.mark.parametrize("argv,match", [
-    (["--eta", "-1"], "eta must be"), (["--p", "2"], "p must lie"), (["--tau-max", "-3"], "tau_max must be"),
+    (["--eta", "-1"], "eta must be"), (["--p", "2"], "p must lie"), (["--tau-max", "-3"], "--tau-max must be positive"), (["--tau-max", "-inf"], "--tau-max must be positive"),
     (["--candidates", "5,99999"], "candidate joint 99999 is out of range"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, capsys, argv, match):

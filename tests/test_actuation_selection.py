@@ -144,8 +144,9 @@ def test_actuators_and_the_full_curve_answer_as_well_as_the_default(dense):
     exact = select_actuators(L, tau, SelectionOptions(max_fit=0.003, actuators=k))
     restore(L, state)
     curve = select_actuators(L, tau, SelectionOptions(max_fit=0.003, full_curve=True))
-    for r in (exact, curve):
-        assert list(r.actuated) == list(default.actuated) and r.fit_mean == pytest.approx(default.fit_mean, rel=1e-6)
+    assert list(curve.actuated) == list(default.actuated) and curve.fit_mean == pytest.approx(default.fit_mean, rel=1e-6)
+    # --actuators N then exchanges joints (issue 44): the default's set, or a better one of the same size
+    assert len(exact.actuated) == k and exact.fit_mean <= default.fit_mean * (1 + 1e-6)
 
 
 def test_full_curve_goes_down_to_few_and_keeps_the_answer_within_the_limit(dense):
@@ -194,7 +195,7 @@ def test_too_few_allowed_joints_are_named_as_the_cause(dense):
     (["--max-iters", "5"], "--max-iters applies"), (["--etas", "1e-3"], "--etas needs --sweep"),
     # these were ignored: --max-fit beside --actuators, and an empty list meant every joint
     (["--actuators", "2", "--max-fit", "1%"], "--max-fit limits the deviation"),
-    (["--eta", "1e-3", "--max-fit", "1%"], "does not apply with --eta"),
+    (["--sweep", "--etas", "1e-3", "--max-fit", "1%"], "--max-fit does not apply to --sweep --etas"),
     (["--candidates", ""], "no vertex index given"), (["--candidates", ",,,"], "no vertex index given"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, capsys, argv, match):

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..deploy.case import load_case, material_from_spec, target_angle
 from ..deploy.simulate import DeployOptions, deploy, rest_length_solve, rest_length_warning
-from ..errors import InputError
+from ..errors import STOP, InputError
 from ..io.design import read_design, read_rest_lengths
 from ..io.export import atomic_write_text, finite_json
 from ..linkage.linkage import Linkage
@@ -111,6 +111,10 @@ def _result_dict(dense: DenseDeployment, res, method: dict) -> dict:
         "num_joints": int(L.num_joints),
         "fit_mean": res.fit_mean,
         "fit_max": res.fit_max,
+        # not part of the fit (the joints'): how far the free ends moved from the dense deployment
+        "num_free_ends": int(len(L.graph.free_end_vertex)),
+        "free_end_fit_mean": res.free_end_fit_mean if len(L.graph.free_end_vertex) else None,
+        "free_end_fit_max": res.free_end_fit_max if len(L.graph.free_end_vertex) else None,
         "work": res.work,
         "dense_torque": dense.tau_ref,
         "dense_work": dense.dense_energy - dense.flat_energy,
@@ -129,9 +133,53 @@ def _result_dict(dense: DenseDeployment, res, method: dict) -> dict:
     return out
 
 
+def _count(k: int, what: str = "actuator") -> str:
+    return f"{k} {what}{'' if k == 1 else 's'}"
+
+
+OUTPUTS = ("result.json", "torques.txt", "actuators.png", "actuated.3dm", "sweep.csv", "sweep.png")
+"""Every file ``xshells sparsify`` writes into its folder (besides ``case.json`` for a bare design)."""
+
+
+def remove_stale_outputs(out_dir) -> list[str]:
+    """Removes what an earlier ``xshells sparsify`` left in ``out_dir``; returns the names removed.
+
+    A run writes only some of :data:`OUTPUTS` (an ``--eta`` run no sweep
+    files), and one that fails writes none: an earlier run's files would sit
+    beside, or in place of, this run's.
+    """
+    removed = []
+    for name in OUTPUTS:
+        path = os.path.join(out_dir, name)
+        if os.path.isfile(path) and _ours(path):
+            os.remove(path)
+            removed.append(name)
+    if removed:
+        import sys
+
+        print(f"removed an earlier run's {', '.join(removed)} from {out_dir}/", file=sys.stderr)
+    return removed
+
+
+def _ours(path) -> bool:
+    """Whether ``path`` is a file of ``xshells sparsify`` (another command's result.json is left alone)."""
+    name = os.path.basename(path)
+    if name not in ("result.json", "sweep.csv"):
+        return True  # names only this command writes
+    try:
+        with open(path, encoding="utf-8") as f:
+            head = f.read(200_000 if name == "result.json" else 200)
+    except (OSError, UnicodeDecodeError):
+        return False
+    if name == "sweep.csv":
+        return head.startswith(("num_actuators,", "p,eta,"))
+    return '"actuated_joints"' in head and '"dense_torque"' in head
+
+
 def _write_outputs(out_dir, dense: DenseDeployment, res, result: dict, title: str) -> None:
-    """``result.json``, ``torques.txt`` and ``actuators.png`` (over the dense deployment's joints)."""
+    """``result.json``, ``torques.txt``, ``actuators.png`` (over the dense deployment's joints) and ``actuated.3dm``."""
     L = dense.linkage
+    restore(L, res.state)  # the answer's equilibrium (the solvers hand the linkage back at the dense state)
     atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
     atomic_write_text(os.path.join(out_dir, "torques.txt"), "".join(f"{v:.10g}\n" for v in res.torques))
     from ..viz.render import render_actuators
@@ -140,7 +188,8 @@ def _write_outputs(out_dir, dense: DenseDeployment, res, result: dict, title: st
     restore(L, dense.state)
     dense_joints = L.joint_positions()
     restore(L, restore_after)
-    render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints, title=title)
+    render_actuators(os.path.join(out_dir, "actuators.png"), L, res.actuated, res.torques, reference=dense_joints, title=title,
+                     labels=np.asarray(L.graph.joint_vertex)[np.asarray(res.actuated, int)])
     from ..rhino.write import write_3dm
 
     act = np.asarray(res.actuated, int)  # the sparsely actuated state, its actuators and their torques (mm)
@@ -149,20 +198,38 @@ def _write_outputs(out_dir, dense: DenseDeployment, res, result: dict, title: st
 
 
 def _start(case_path, out_dir, dense, angle_deg, progress, candidates):
-    """The output folder, the dense deployment (given or computed) at its state, and the allowed joints."""
+    """The output folder (an earlier run's outputs removed), the dense deployment (given or computed) at its state,
+    and the allowed joints."""
     os.makedirs(out_dir, exist_ok=True)
+    remove_stale_outputs(out_dir)
     dense = dense or dense_deployment(case_path, angle_deg=angle_deg, progress=progress)
     allowed = _allowed_from_vertices(dense.linkage, candidates)
     restore(dense.linkage, dense.state)
     return dense, allowed
 
 
+ETA_ACCEPT_FIT = 0.01
+"""With ``--eta``, an answer whose mean joint deviation is above this (unless ``--max-fit`` says otherwise)
+is reported as not converged: eq. 8 has no limit on the fit, and a large ``η`` or a small ``--tau-max``
+gives an optimum far from the shape (0 actuators at 12 %)."""
+
+
+def _far_from_target(res, accept: float) -> str:
+    """'' or why an eq. 8 answer is not one (its fit above ``accept``)."""
+    if res.fit_mean <= accept:
+        return ""
+    return (f"the answer's mean joint deviation {100 * res.fit_mean:.2f}% (max {100 * res.fit_max:.2f}%) is above "
+            f"{100 * accept:g}% of the span{' with no actuator at all' if not len(res.actuated) else ''}")
+
+
 def run_sparsify(case_path, out_dir, options: SparsifyOptions = SparsifyOptions(), *, candidates=None,
-                 angle_deg=None, progress=True, dense: DenseDeployment | None = None) -> dict:
+                 angle_deg=None, progress=True, dense: DenseDeployment | None = None,
+                 accept_fit: float = ETA_ACCEPT_FIT) -> dict:
     """Sparse actuation of a case; writes ``result.json``, ``torques.txt`` and ``actuators.png`` into ``out_dir``.
 
     Returns the ``result.json`` content. Ctrl-C during the optimization keeps
-    and writes the last accepted iterate.
+    and writes the last accepted iterate. An answer whose mean deviation is
+    above ``accept_fit`` counts as not converged (its message says why).
     """
     dense, allowed = _start(case_path, out_dir, dense, angle_deg, progress, candidates)
     L = dense.linkage
@@ -183,10 +250,15 @@ def run_sparsify(case_path, out_dir, options: SparsifyOptions = SparsifyOptions(
     finally:
         if bar is not None:
             bar.close()
+    far = _far_from_target(res, accept_fit)
+    if far and "interrupted" not in res.message:
+        res.message = (f"{res.message}, but {far}" if res.converged else f"{res.message}; {far}")
+        res.converged = False
     result = _result_dict(dense, res, {"method": "eta", "eta": options.eta, "p": options.p, "tau_max": options.tau_max,
-                                       "objective": res.objective, "iterations": res.iterations})
+                                       "max_fit": accept_fit, "objective": res.objective, "iterations": res.iterations})
     _write_outputs(out_dir, dense, res, result,
-                   f"{dense.name}: {len(res.actuated)} actuators (η = {options.eta:g}, p = {options.p:g})")
+                   f"{dense.name}: {_count(len(res.actuated))} (η = {options.eta:g}, p = {options.p:g}; "
+                   f"mean {100 * res.fit_mean:.2f}%{'' if res.converged else ', NOT CONVERGED'})")
     return result
 
 
@@ -194,22 +266,36 @@ DEFAULT_ETAS = tuple(float(v) for v in np.geomspace(1e-5, 1e-2, 8))
 DEFAULT_PS = (1.0, 0.5, 0.25)
 
 
+class SweepInterrupted(KeyboardInterrupt):
+    """Ctrl-C during ``run_sweep``: ``rows`` holds the runs that finished (written to ``sweep.csv``/``sweep.png``);
+    the run that was cut short is not among them."""
+
+    def __init__(self, rows, total):
+        super().__init__(f"interrupted: {len(rows)} of {total} runs finished")
+        self.rows, self.total = rows, total
+
+
 def run_sweep(case_path, out_dir, *, etas=DEFAULT_ETAS, ps=DEFAULT_PS, base: SparsifyOptions = SparsifyOptions(),
-              angle_deg=None, progress=True) -> list[dict]:
+              candidates=None, angle_deg=None, progress=True) -> list[dict]:
     """Sparsify for every ``(p, η)``; writes ``sweep.csv`` and ``sweep.png`` (Fig. 9) into ``out_dir``.
 
     Every run starts from the dense deployment, so each point is what a
     single ``xshells sparsify`` gives (warm starts from a neighbouring ``η``
-    were measured to land in worse local minima). Rows are written as they
-    finish, so an interrupted sweep keeps them.
+    were measured to land in worse local minima). ``candidates``: the input
+    vertices that may carry an actuator (default all). Rows are written as
+    they finish, each with ``converged`` and ``message``. Ctrl-C stops the
+    sweep: the finished rows stay written, the run it cut short is dropped,
+    and :class:`SweepInterrupted` (a KeyboardInterrupt) carries the rows.
     """
     for eta in etas:
-        SparsifyOptions(eta=eta, p=base.p)  # validates
+        replace(base, eta=eta)  # validates
     for p in ps:
-        SparsifyOptions(eta=base.eta, p=p)
+        replace(base, p=p)
     os.makedirs(out_dir, exist_ok=True)
+    remove_stale_outputs(out_dir)
     dense = dense_deployment(case_path, angle_deg=angle_deg, progress=progress)
     L = dense.linkage
+    allowed = _allowed_from_vertices(L, candidates)
     rows: list[dict] = []
     total = len(etas) * len(ps)
     bar = None
@@ -222,10 +308,17 @@ def run_sweep(case_path, out_dir, *, etas=DEFAULT_ETAS, ps=DEFAULT_PS, base: Spa
             for eta in sorted(etas):
                 restore(L, dense.state)
                 opts = replace(base, eta=eta, p=p)
-                res = sparsify(L, dense.tau_ref, opts, flat_energy=dense.flat_energy)
+                try:
+                    res = sparsify(L, dense.tau_ref, opts, allowed=allowed, flat_energy=dense.flat_energy)
+                except KeyboardInterrupt:
+                    raise SweepInterrupted(rows, total) from None
+                if "interrupted" in res.message or STOP.requested:  # sparsify keeps its last iterate: not a finished run
+                    raise SweepInterrupted(rows, total)
+                jv = np.asarray(L.graph.joint_vertex)
                 rows.append({"p": p, "eta": eta, "num_actuators": len(res.actuated), "fit_mean": res.fit_mean,
                              "fit_max": res.fit_max, "work": res.work, "iterations": res.iterations, "time_s": res.time_s,
-                             "actuated_joints": " ".join(str(int(L.graph.joint_vertex[j])) for j in res.actuated)})
+                             "converged": bool(res.converged), "message": res.message,
+                             "actuated_joints": " ".join(str(int(jv[j])) for j in res.actuated)})
                 _write_sweep(out_dir, rows, dense.name)
                 if bar is not None:
                     bar.update(1)
@@ -270,6 +363,11 @@ def suggestion(result: dict) -> str:
         if result.get("actuators_requested"):
             return "try a larger --actuators, or --max-fit to let the count follow the deviation"
         return "check the warnings above; a larger --max-fit gives fewer actuators"
+    if "interrupted" in msg or "stopped" in msg:
+        return "run again to finish; the answer above is the last accepted iterate before the stop"
+    if "is above" in msg and "of the span" in msg:
+        return ("a smaller --eta (more actuators)" + (", a larger --tau-max" if result.get("tau_max") is not None else "")
+                + ", or the default mode (no --eta: the fewest actuators within --max-fit)")
     if "trust region collapsed" in msg or "iteration limit" in msg or "step vanished" in msg:
         return ("try the default mode (no --eta: the fewest actuators within --max-fit), "
                 "or a larger --max-iters, or another --eta")
@@ -285,12 +383,12 @@ def _curve_rows(L, curve) -> list[dict]:
              "torques": " ".join(f"{v:.6g}" for v in c.torques)} for c in curve]
 
 
-def _write_curve(out_dir, rows, name, options: SelectionOptions, chosen) -> None:
+def _write_curve(out_dir, rows, name, options: SelectionOptions, chosen, converged=True) -> None:
     _write_csv(os.path.join(out_dir, "sweep.csv"), rows)
     from ..viz.render import plot_actuation_curve
 
     plot_actuation_curve(os.path.join(out_dir, "sweep.png"), rows, max_fit=options.max_fit if options.actuators is None else None,
-                         chosen=chosen, title=f"{name}: actuators against deviation")
+                         chosen=chosen, chosen_failed=not converged, title=f"{name}: actuators against deviation")
 
 
 def run_selection(case_path, out_dir, options: SelectionOptions = SelectionOptions(), *, candidates=None,
@@ -326,8 +424,9 @@ def run_selection(case_path, out_dir, options: SelectionOptions = SelectionOptio
     result = _result_dict(dense, res, {"method": "elimination", "max_fit": options.max_fit,
                                        "actuators_requested": options.actuators, "tau_max": options.tau_max,
                                        "rounds": res.rounds, "equilibrium_solves": res.equilibrium_solves})
-    _write_curve(out_dir, _curve_rows(dense.linkage, res.curve), dense.name, options, len(res.actuated))
+    _write_curve(out_dir, _curve_rows(dense.linkage, res.curve), dense.name, options, len(res.actuated), res.converged)
     limit = f"mean ≤ {100 * options.max_fit:g}%" if options.actuators is None else f"best {options.actuators}"
     _write_outputs(out_dir, dense, res, result,
-                   f"{dense.name}: {len(res.actuated)} actuators ({limit}; mean {100 * res.fit_mean:.2f}%)")
+                   f"{dense.name}: {_count(len(res.actuated))} ({limit}; mean {100 * res.fit_mean:.2f}%"
+                   f"{'' if res.converged else ', NOT CONVERGED'})")
     return result

@@ -92,12 +92,40 @@ class SparsifyOptions:
     max_cg_iterations: int = 50
 
     def __post_init__(self):
-        if not (np.isfinite(self.eta) and self.eta >= 0):
-            raise InputError(f"eta must be a non-negative number, got {self.eta}")
+        _number("eta", self.eta, minimum=0.0)
+        _number("p", self.p)
         if not (0 < self.p <= 1):
             raise InputError(f"p must lie in (0, 1], got {self.p}")
-        if self.tau_max is not None and not (self.tau_max > 0):
-            raise InputError(f"tau_max must be positive, got {self.tau_max}")
+        if self.tau_max is not None:
+            _number("tau_max", self.tau_max, positive=True, finite=False)
+            if self.tau_max == np.inf:
+                object.__setattr__(self, "tau_max", None)  # no limit
+        _whole("max_iterations", self.max_iterations)
+        _whole("max_cg_iterations", self.max_cg_iterations)
+        _number("tolerance", self.tolerance, positive=True)
+        _number("off_threshold", self.off_threshold, minimum=0.0)
+        if not self.off_threshold < 1:
+            raise InputError(f"off_threshold must lie in [0, 1) (a fraction of the dense torque), got {self.off_threshold}")
+        _number("initial_radius", self.initial_radius, positive=True)
+
+
+def _number(name, value, *, minimum=None, positive=False, finite=True) -> None:
+    """An option that must be a real number (not a string or a bool), finite unless told, ≥ minimum / > 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(f"{name} must be a number, got {value!r}")
+    v = float(value)
+    if np.isnan(v) or (finite and not np.isfinite(v)):
+        raise InputError(f"{name} must be a finite number, got {value!r}")
+    if positive and not v > 0:
+        raise InputError(f"{name} must be positive, got {value!r}")
+    if minimum is not None and not v >= minimum:
+        raise InputError(f"{name} must be a non-negative number, got {value!r}")
+
+
+def _whole(name, value, minimum: int = 1) -> None:
+    """An option that must be a whole number of at least ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise InputError(f"{name} must be a whole number of at least {minimum}, got {value!r}")
 
 
 @dataclass
@@ -114,6 +142,20 @@ class IterationRecord:
 
 @dataclass
 class SparsifyResult:
+    """The answer of :func:`sparsify`.
+
+    ``actuated`` holds joint numbers (indices into ``torques``, the
+    linkage's joint order); ``actuated_vertices`` the same joints as input
+    vertex indices (what the CLI prints and ``result.json`` calls
+    ``actuated_joints``). ``fit_mean``/``fit_max``: the joints' distance to
+    the targets relative to the span; ``free_end_fit_mean``/``_max``: the
+    free ends' distance to where they were at the call's start (not part of
+    the fit; NaN without free ends). ``work``: energy stored from
+    ``flat_energy`` (NaN when it was not given). ``state``: a snapshot of the
+    sparsely actuated equilibrium (``xshells.linkage.state.restore``); the
+    linkage itself is back at the state the call started from.
+    """
+
     torques: np.ndarray
     actuated: np.ndarray
     objective: float
@@ -125,6 +167,10 @@ class SparsifyResult:
     message: str
     time_s: float
     history: list = field(default_factory=list)
+    actuated_vertices: np.ndarray = None
+    free_end_fit_mean: float = float("nan")
+    free_end_fit_max: float = float("nan")
+    state: dict = None
 
 
 def _equilibrium_options(linkage, tau_ref) -> NewtonOptions:
@@ -164,6 +210,10 @@ class TorqueFit:
         self.tau_ref, self.p, self.eta = float(tau_ref), float(p), float(eta)
         n = linkage.num_joints
         self.targets = linkage.joint_positions() if targets is None else np.asarray(targets, float)
+        if self.targets.shape != (n, 3) or not np.isfinite(self.targets).all():
+            raise InputError(f"targets: expected {n} finite joint positions (shape ({n}, 3)), got shape {self.targets.shape}")
+        self.free_end_vertices = np.asarray(linkage.graph.free_end_vertex, int)
+        self.free_end_targets = linkage.vertex_positions()[self.free_end_vertices]  # reported, not fitted
         self.weights = np.full(n, 1.0 / n) if weights is None else np.asarray(weights, float)
         self.l0 = float(np.linalg.norm(np.ptp(self.targets, axis=0)))
         self.pins = linkage.rigid_pin_indices()
@@ -198,6 +248,13 @@ class TorqueFit:
         """``T(x)`` and the joint deviations ``P − P_tgt`` (n, 3) at the linkage's state."""
         dev = self.L.joint_positions() - self.targets
         return 0.5 * float(np.sum(self.weights[:, None] * dev**2)), dev
+
+    def free_end_distances(self) -> np.ndarray:
+        """The free ends' distances to their positions at the start, relative to the span (not part of the fit)."""
+        if not len(self.free_end_vertices):
+            return np.zeros(0)
+        P = self.L.vertex_positions()[self.free_end_vertices]
+        return np.linalg.norm(P - self.free_end_targets, axis=1) / self.l0
 
     def fold_excess(self) -> np.ndarray:
         """How far (radians) each joint angle lies outside the angle window, signed (n,): the fold penalty is ``⅓ FOLD_WEIGHT Σ |excess|³``."""
@@ -281,15 +338,17 @@ class TorqueFit:
 
 
 def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions(), *, targets=None, weights=None,
-             t0=None, allowed=None, flat_energy: float = 0.0, callback=None) -> SparsifyResult:
+             t0=None, allowed=None, flat_energy: float | None = None, callback=None) -> SparsifyResult:
     """Sparse joint torques that deploy ``linkage`` to its current (densely actuated) shape.
 
     Parameters
     ----------
     linkage : Linkage
         At the densely actuated deployed equilibrium (e.g. after
-        :func:`xshells.deploy.simulate.deploy`); it ends at the sparsely
-        actuated equilibrium.
+        :func:`xshells.deploy.simulate.deploy`): its joint positions are the
+        targets unless ``targets`` is given. It is back at that state when
+        the call returns (so a second call measures against the same
+        targets); the sparse equilibrium is ``result.state``.
     tau_ref : float
         The dense torque per joint (``DeploymentResult.torque``).
     options : SparsifyOptions
@@ -300,11 +359,11 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
     allowed : (n,) bool array, optional
         Joints that may carry an actuator (default all); the others get
         no torque.
-    flat_energy : float
-        Energy of the flat assembly state: the reported work is the energy
-        stored from there to the sparse equilibrium, which is what the
-        actuators do over any quasi-static deployment (the loads are
-        conservative).
+    flat_energy : float, optional
+        Energy of the flat assembly state (``DenseDeployment.flat_energy``):
+        the reported work is the energy stored from there to the sparse
+        equilibrium, which is what the actuators do over any quasi-static
+        deployment (the loads are conservative). Without it the work is NaN.
     callback : callable(IterationRecord) -> bool, optional
         Progress; return True to stop (the result keeps the last accepted
         iterate).
@@ -314,6 +373,29 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
     SparsifyResult
     """
     start = time.perf_counter()
+    start_state = snapshot(linkage)
+    try:
+        return _sparsify(linkage, tau_ref, options, targets, weights, t0, allowed, flat_energy, callback, start)
+    finally:
+        restore(linkage, start_state)
+
+
+def answer_report(fit: TorqueFit, tau, flat_energy) -> dict:
+    """What both methods report about the state the linkage is at: fits, free ends, work, vertices, its snapshot."""
+    L = fit.L
+    _, dev = fit.fit_terms()
+    dist = np.linalg.norm(dev, axis=1) / fit.l0
+    free = fit.free_end_distances()
+    actuated = np.flatnonzero(tau > 0)
+    return dict(actuated=actuated, actuated_vertices=np.asarray(L.graph.joint_vertex)[actuated],
+                fit_mean=float(dist.mean()), fit_max=float(dist.max()),
+                free_end_fit_mean=float(free.mean()) if len(free) else float("nan"),
+                free_end_fit_max=float(free.max()) if len(free) else float("nan"),
+                work=float(L.energy()) - flat_energy if flat_energy is not None else float("nan"),
+                state=snapshot(L))
+
+
+def _sparsify(linkage, tau_ref, options, targets, weights, t0, allowed, flat_energy, callback, start) -> SparsifyResult:
     o = options
     n = linkage.num_joints
     fit = TorqueFit(linkage, tau_ref, o.p, o.eta, targets, weights)
@@ -402,9 +484,6 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
     fit.evaluate(t)
     tau = fit.torques(t)
     tau[tau < o.off_threshold * tau_ref] = 0.0
-    _, dev = fit.fit_terms()
-    dist = np.linalg.norm(dev, axis=1)
-    span = fit.l0
     # Iterates may pass through folded states (rejecting such trials left the pointy wings
     # with 9 actuators); the fold penalty keeps the answer out of them, and this says so
     # if it did not.
@@ -414,11 +493,8 @@ def sparsify(linkage, tau_ref: float, options: SparsifyOptions = SparsifyOptions
         message += f"; the final state is not valid: {folded}"
     return SparsifyResult(
         torques=tau,
-        actuated=np.flatnonzero(tau > 0),
         objective=float(f),
-        fit_mean=float(dist.mean() / span),
-        fit_max=float(dist.max() / span),
-        work=float(linkage.energy()) - flat_energy,
+        **answer_report(fit, tau, flat_energy),
         iterations=it,
         converged=converged,
         message=message,

@@ -113,7 +113,7 @@ def plot_deployment(path, angles_deg, energies, torques, title: str = "", utiliz
     plt.close(fig)
 
 
-def render_actuators(path, linkage, actuated, torques, reference=None, title: str = "") -> None:
+def render_actuators(path, linkage, actuated, torques, reference=None, title: str = "", labels=None) -> None:
     """The deployed linkage with its actuated joints marked (paper Fig. 8).
 
     Parameters
@@ -126,6 +126,8 @@ def render_actuators(path, linkage, actuated, torques, reference=None, title: st
         Torque per joint; marker areas scale with it.
     reference : (n, 3) array, optional
         Dense-actuation joint positions, drawn as small grey dots.
+    labels : (m,) optional
+        A label per actuator (the input vertex numbers), written beside its marker.
     """
     plt = _pyplot()
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
@@ -134,7 +136,7 @@ def render_actuators(path, linkage, actuated, torques, reference=None, title: st
     segs = [rods.points[a:b] for a, b in zip(rods.vertex_offsets[:-1], rods.vertex_offsets[1:])]
     P = linkage.joint_positions()
     fig = plt.figure(figsize=(7, 5.5))
-    ax = fig.add_subplot(projection="3d")
+    ax = fig.add_subplot(projection="3d", computed_zorder=False)  # the markers on top of the rods, not sorted behind them
     ax.add_collection3d(Line3DCollection(segs, colors="0.35", linewidths=1.1))
     if reference is not None:
         R = np.asarray(reference)
@@ -142,10 +144,18 @@ def render_actuators(path, linkage, actuated, torques, reference=None, title: st
     actuated = np.asarray(actuated, int)
     if len(actuated):
         tau = np.asarray(torques)[actuated]
-        size = 30 + 170 * tau / tau.max()
-        ax.scatter(P[actuated, 0], P[actuated, 1], P[actuated, 2], s=size, c="tab:red", edgecolors="k",
-                   depthshade=False, label="actuators (area ∝ torque)")
+        size = 60 + 200 * tau / tau.max()
+        ax.scatter(P[actuated, 0], P[actuated, 1], P[actuated, 2], s=size, c="tab:red", edgecolors="k", linewidths=1.2,
+                   depthshade=False, zorder=10, label="actuators (area ∝ torque)")
     _equal_axes(ax, rods.points)
+    if len(actuated) and labels is not None and len(actuated) <= 40:  # more would hide each other: result.json lists them
+        from mpl_toolkits.mplot3d import proj3d
+
+        proj = ax.get_proj()
+        for (x, y, z), text in zip(P[actuated], labels):  # beside the marker (offset on screen), not over it
+            x2, y2, _ = proj3d.proj_transform(x, y, z, proj)
+            ax.annotate(str(text), (x2, y2), xytext=(8, 6), textcoords="offset points", fontsize=9, fontweight="bold",
+                        color="darkred", zorder=11, bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
     ax.legend(loc="upper left", fontsize=8)
     ax.set_title(title)
     _save(fig, path)
@@ -161,13 +171,19 @@ def plot_actuation_tradeoff(path, rows, title: str = "") -> None:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     groups = {r.get("p") for r in rows}
+    failed_drawn = False
     for p in sorted(groups - {None}, reverse=True) + ([None] if None in groups else []):
         sel = sorted((r for r in rows if r.get("p") == p), key=lambda r: r["num_actuators"])
-        ax.plot([r["num_actuators"] for r in sel], [100 * r["fit_mean"] for r in sel], "o-", ms=4,
-                label="elimination (--max-fit / --actuators)" if p is None else f"p = {p:g}")
+        line, = ax.plot([r["num_actuators"] for r in sel], [100 * r["fit_mean"] for r in sel], "o-", ms=4,
+                        label="elimination (--max-fit / --actuators)" if p is None else f"p = {p:g}")
+        bad = [r for r in sel if not _truthy(r.get("converged", True))]
+        if bad:  # a run that stopped short (iteration limit, collapsed trust region): an open ring
+            ax.plot([r["num_actuators"] for r in bad], [100 * r["fit_mean"] for r in bad], "o", ms=11, mfc="none",
+                    mec="C3", mew=1.5, label=None if failed_drawn else "not converged")
+            failed_drawn = True
     ax.set_xlabel("number of actuators")
-    ax.set_ylabel("mean joint distance to the dense deployment (% of span)")
-    ax.legend()
+    ax.set_ylabel("mean joint distance to\nthe dense deployment (% of span)")
+    ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     ax.set_title(title)
     fig.tight_layout()
@@ -175,7 +191,12 @@ def plot_actuation_tradeoff(path, rows, title: str = "") -> None:
     plt.close(fig)
 
 
-def plot_actuation_curve(path, rows, *, max_fit=None, chosen=None, title: str = "") -> None:
+def _truthy(value) -> bool:
+    """A flag from a row: a bool, or its text as read back from a CSV."""
+    return value if isinstance(value, bool) else str(value).strip().lower() in ("true", "1", "yes")
+
+
+def plot_actuation_curve(path, rows, *, max_fit=None, chosen=None, chosen_failed=False, title: str = "") -> None:
     """Mean and largest joint deviation against the number of actuators, from one elimination run.
 
     ``rows``: dicts with ``num_actuators``, ``fit_mean`` and ``fit_max``
@@ -195,8 +216,12 @@ def plot_actuation_curve(path, rows, *, max_fit=None, chosen=None, title: str = 
         ax.axhline(100 * max_fit, color="C3", lw=1, label=f"limit on the mean ({100 * max_fit:g}%)")
     if chosen is not None:
         r = min(sel, key=lambda r: abs(r["num_actuators"] - chosen))
-        ax.plot([r["num_actuators"]], [100 * r["fit_mean"]], "*", ms=14, color="C3", zorder=5,
-                label=f"answer: {r['num_actuators']} actuator{'' if r['num_actuators'] == 1 else 's'}")
+        what = f"{r['num_actuators']} actuator{'' if r['num_actuators'] == 1 else 's'}"
+        if chosen_failed:  # no answer met the request: an open marker, and the legend says so
+            ax.plot([r["num_actuators"]], [100 * r["fit_mean"]], "X", ms=12, mfc="none", mec="C3", mew=2, zorder=5,
+                    label=f"NOT CONVERGED, last state: {what}")
+        else:
+            ax.plot([r["num_actuators"]], [100 * r["fit_mean"]], "*", ms=14, color="C3", zorder=5, label=f"answer: {what}")
     ax.set_xscale("log")
     if all(r["fit_mean"] > 0 for r in sel):
         ax.set_yscale("log")
