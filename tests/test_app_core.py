@@ -417,6 +417,14 @@ def test_session_optimize_and_actuate_on_the_worker(tmp_path):
         assert [p for e, p in events if e == "opt_progress"]  # live progress, one record per iteration
         assert [p for e, p in events if e == "deployed"][-1].info.message.startswith("sparse actuation")
         assert s.last_deployed is dense  # the dense state stays the reference for the next actuation
+        if len(out.actuated) < len(out.torques):  # shown: the sparse equilibrium, not the dense one it started from
+            assert np.abs(np.asarray(joints) - np.asarray(dense.joints)).max() > 0
+        # a second actuation starts from the dense state again: the same answer (it measured against the sparse one)
+        events.clear()
+        assert s.actuate(max_iterations=3)
+        assert s.worker.wait_idle(120), s.worker.last_error
+        (again, joints2), = [p for e, p in events if e == "actuated"]
+        assert np.array_equal(again.actuated, out.actuated) and np.allclose(joints2, joints, atol=1e-9)
 
         events.clear()
         s.optimize(100.0, max_iterations=1)

@@ -63,6 +63,7 @@ class ActuateOutcome:
     actuated: np.ndarray
     message: str
     success: bool
+    state: dict | None = None  # the sparsely actuated equilibrium (select_actuators hands the linkage back dense)
 
 
 def _lookup(module: str, name: str):
@@ -164,4 +165,5 @@ def run_actuate(linkage, torque: float, *, progress, cancel, max_iterations: int
         return cancel.is_set()
 
     res = select(linkage, float(torque), callback=cb)
-    return ActuateOutcome(np.asarray(res.torques, float), np.asarray(res.actuated), str(res.message), bool(res.converged))
+    return ActuateOutcome(np.asarray(res.torques, float), np.asarray(res.actuated), str(res.message), bool(res.converged),
+                          getattr(res, "state", None))

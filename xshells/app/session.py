@@ -727,6 +727,10 @@ class Session:
             t0 = time.perf_counter()
             out = adapters.run_actuate(sim.linkage, view.info.torque, progress=step, cancel=stop,
                                        max_iterations=max_iterations)
+            if out.state is not None:  # shown: the sparse equilibrium (the selection hands the linkage back dense;
+                from ..linkage.state import restore  # the next actuation starts from show_state's dense one again)
+
+                restore(sim.linkage, out.state)
             info = sim._info(out.success, 0, f"sparse actuation: {len(out.actuated)} actuated joints")
             return out, self._view(sim, t0, info)
 
