@@ -363,3 +363,26 @@ def test_cancel_stops_an_assembly_solve_at_its_next_check_and_says_so(tmp_path, 
         assert _statuses(events)[-1] == "solve cancelled"
     finally:
         s.close()
+
+
+def test_cancel_stops_a_deployment_from_flat_inside_its_step():
+    """Cancel was checked only between deployment steps (40 s inside one step on the 1004-segment fans): the app now
+    hands deploy a Newton callback, so a Cancel set during a step stops at its next iteration, at the flat state."""
+    from xshells.app.session import Session
+    from xshells.app.sim import Cancelled, Simulation
+
+    g = grid_project(3, 3, 70)
+    sim = Simulation(core.warp_bend(g.layout, 0.3), Session._build_material(g.material), 4)
+    flat = sim.linkage.joint_positions().copy()
+    cancel = threading.Event()
+    seen = []
+
+    def progress(fraction, text):
+        seen.append(text)
+        if "relaxing" in text:  # before the first step: the next Newton iteration must see it
+            cancel.set()
+
+    with pytest.raises(Cancelled):
+        sim.solve_to(100.0, cancel=cancel, progress=progress)
+    assert len(seen) == 1  # no step finished
+    assert np.abs(sim.linkage.joint_positions() - flat).max() < 1e-9 * np.ptp(flat, axis=0).max()

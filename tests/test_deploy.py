@@ -709,3 +709,48 @@ def test_units_are_stated_and_the_flat_layout_is_drawn_along_its_normal(tmp_path
     assert stress and "MPa for mm and MPa" in stress[0], stress
     assert "never converted" in json.loads((out / "result.json").read_text())["units"]
     assert (out / "flat.png").stat().st_size > 0 and (out / "deployment.png").stat().st_size > 0
+
+
+def test_a_newton_callback_stops_inside_a_step_and_keeps_the_last_finished_equilibrium():
+    """A stop checked only between steps waited out a whole step (40 s in the app on the 1004-segment fans):
+    deploy's newton_callback is called after every Newton iteration, and stopping there keeps the last step."""
+    L = Linkage(warped_grid(4), FLAT_BEAM, subdivision=4)
+    rest_length_solve(L)
+    whole = Linkage(warped_grid(4), FLAT_BEAM, subdivision=4)
+    rest_length_solve(whole)
+    first = deploy(whole, np.radians(60), DeployOptions(steps=4), callback=lambda rec: rec.step == 2)
+    assert len(first.steps) == 2
+    calls, steps = [0], []
+
+    def stop_in_step_3(it, report):
+        calls[0] += 1
+        return len(steps) == 2 and it >= 1
+
+    res = deploy(L, np.radians(60), DeployOptions(steps=4), callback=lambda rec: steps.append(rec) and False,
+                 newton_callback=stop_in_step_3)
+    assert not res.converged and res.message.startswith("stopped by request at") and calls[0] > 0
+    assert len(res.steps) == 2
+    assert np.abs(L.joint_positions() - whole.joint_positions()).max() < 1e-12 * span_of(whole.joint_positions())
+
+    class Stop(Exception):
+        pass
+
+    def raise_in_step_3(it, report):
+        if len(steps) == 2 and it >= 1:
+            raise Stop()
+        return False
+
+    L2 = Linkage(warped_grid(4), FLAT_BEAM, subdivision=4)
+    rest_length_solve(L2)
+    steps.clear()
+    with pytest.raises(Stop):
+        deploy(L2, np.radians(60), DeployOptions(steps=4), callback=lambda rec: steps.append(rec) and False,
+               newton_callback=raise_in_step_3)
+    assert np.abs(L2.joint_positions() - whole.joint_positions()).max() < 1e-12 * span_of(whole.joint_positions())
+
+
+def test_the_rest_length_solve_calls_back_after_each_iteration_and_stops():
+    L = Linkage(warped_grid(4), FLAT_BEAM, subdivision=4)
+    seen = []
+    report = rest_length_solve(L, callback=lambda it, rep: seen.append(it) or True)
+    assert seen == [0] and not report.converged and report.message == "stopped by callback"

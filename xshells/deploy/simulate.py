@@ -18,7 +18,7 @@ import scipy.sparse as sp
 from ..errors import InputError
 from ..linkage.linkage import Linkage
 from ..solve import NewtonOptions, minimize, smallest_eigenvalues
-from ..solve.newton import _constrained_tangent
+from ..solve.newton import STOPPED_BY_CALLBACK, _constrained_tangent
 
 
 @dataclass(frozen=True)
@@ -203,7 +203,8 @@ def _noise_floor(linkage: Linkage) -> float:
     return 10.0 * eps * float(linkage.rods.ks.max()) * coords / edge * np.sqrt(linkage.num_vars)
 
 
-def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, min_rest_length: float | None = None):
+def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, min_rest_length: float | None = None,
+                      callback=None):
     """Minimize the energy over the state and the rest lengths with joint positions held (eq. 2).
 
     Rest lengths stay above ``min_rest_length`` (default: 1/100 of the
@@ -214,6 +215,10 @@ def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, mi
     that end, so its rest length and the end's position slide together at
     zero energy (left free, a 2-by-3 grid's end segments drifted from 141 to
     1.7e7 length units).
+
+    ``callback(iteration, report)``, if given, is called after every Newton
+    iteration (return True or raise to stop: a large design's solve takes
+    seconds, and the app's Cancel waited for it).
     """
     scale = _gradient_scale(linkage)
     opts = options or NewtonOptions(gradient_tolerance=max(1e-8 * scale * np.sqrt(linkage.num_vars), _noise_floor(linkage)),
@@ -224,7 +229,9 @@ def rest_length_solve(linkage: Linkage, options: NewtonOptions | None = None, mi
     fixed += [P.nx + int(s) for s in np.flatnonzero((linkage.graph.segment_joints < 0).any(axis=1))]
     active: list[int] = []
     for _ in range(10):
-        report = minimize(P, fixed=np.array(fixed + [P.nx + s for s in active], dtype=int), options=opts)
+        report = minimize(P, fixed=np.array(fixed + [P.nx + s for s in active], dtype=int), options=opts, callback=callback)
+        if report.message == STOPPED_BY_CALLBACK:
+            return report
         p = linkage.rest_lengths
         low = [s for s in np.flatnonzero(p < eps) if s not in active]
         if not low:
@@ -247,7 +254,7 @@ def rest_length_warning(report, linkage: Linkage) -> list[str]:
 
 
 def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = DeployOptions(), actuated=None,
-           callback=None) -> DeploymentResult:
+           callback=None, newton_callback=None) -> DeploymentResult:
     """Open the linkage to an average joint angle ``target_angle`` (radians).
 
     Parameters
@@ -261,6 +268,13 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         Joints whose average angle is driven (default all).
     callback : callable(StepRecord) -> bool, optional
         Progress; return True to stop (the result keeps what was finished).
+    newton_callback : callable(iteration, NewtonReport) -> bool, optional
+        Called after every Newton iteration of every solve (a step can take
+        tens of seconds on a large design, so a stop checked only between
+        steps waited that long: 40 s in the app on the 1004-segment fans).
+        Return True, or raise, to stop at once; either way the linkage is put
+        back at the last finished equilibrium (True: the result says it
+        stopped by request; an exception passes on).
     """
     if options.direction not in ("up", "down"):
         raise InputError(f"direction must be 'up' or 'down', got {options.direction!r}")
@@ -306,7 +320,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         iterations = 0
         for _ in range(2 * len(edge_vars) + 2):
             report = minimize(linkage, fixed=np.concatenate([pins, edge_vars[active]]), constraint=(a, angle), options=opts,
-                              saddle_hint=hint)
+                              saddle_hint=hint, callback=newton_callback)
             iterations += report.iterations
             if not report.converged:
                 break
@@ -375,6 +389,10 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             smooth = report.indefinite_events == 0 and report.iterations <= 3
             if unstable_lead or (used_lead and report.indefinite_events):
                 extrapolate = False  # this path is too close to instabilities for extrapolation: tangent guesses from now on
+            if not report.converged and report.message == STOPPED_BY_CALLBACK:  # newton_callback asked to stop
+                restore(linkage, last_good)
+                result.message = f"stopped by request at {last_angle:.2f}° (on the way to {np.degrees(angle):.2f}°)"
+                return False
             if not report.converged:
                 x_stalled = linkage.get_vars()
                 reached_now = float(np.degrees(a @ x_stalled))
@@ -468,7 +486,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         j = int(pins[0]) // 9
         held = np.concatenate([pins, [9 * j + 6]])
         opts = NewtonOptions(**{**newton.__dict__, "max_iterations": max(newton.max_iterations, 2000)})
-        report = minimize(linkage, fixed=held, options=opts, saddle_hint=hint)
+        report = minimize(linkage, fixed=held, options=opts, saddle_hint=hint, callback=newton_callback)
         result.newton_iterations += report.iterations
         angle = float(a @ linkage.get_vars())
         result.start, result.start_angle_deg = "central-joint", float(np.degrees(angle))

@@ -225,6 +225,9 @@ CONSTRAINT_ROUND_OFF = 1e-12
 (the size of the terms it sums), or of ``|target|`` or 1, whichever is largest."""
 
 ROUND_OFF_CURVATURE = 1e3 * np.finfo(float).eps
+
+STOPPED_BY_CALLBACK = "stopped by callback"
+"""The report's message when the callback asked :func:`minimize` to stop."""
 """Generalized eigenvalues of ``H d = λ M d`` above ``−ROUND_OFF_CURVATURE·λmax``
 are indistinguishable from zero in a Hessian assembled in double precision."""
 
@@ -591,7 +594,7 @@ def minimize(problem, *, fixed=None, force=None, constraint=None, options: Newto
             stalled = True
         sigma = 0.0 if sigma < 1e-8 * (sigma0 or 0.0) else sigma / options.shift_decay
         if callback is not None and callback(it, report):
-            report.message = "stopped by callback"
+            report.message = STOPPED_BY_CALLBACK
             break
     report.time_s = time.perf_counter() - start
     return report
