@@ -125,7 +125,10 @@ def test_an_early_ctrl_c_exits_quietly(tmp_path):
         proc.send_signal(signal.SIGINT)
         err = proc.communicate(timeout=120)[1]
         assert "Traceback" not in err and not (out / "error.log").exists(), err
-        assert (proc.returncode, err) in ((130, "xshells deploy: interrupted\n"), (0, "")), (proc.returncode, err)
+        # landed in the run (a loaded machine), it also says what was kept: "interrupted; the 1 finished step ..."
+        assert (proc.returncode, err) == (0, "") or (
+            proc.returncode == 130 and err.startswith("xshells deploy: interrupted") and err.count("\n") == 1), \
+            (proc.returncode, err)
 
 
 SPECIAL_FILES_SCRIPT = r"""
@@ -159,7 +162,7 @@ def test_a_named_pipe_a_folder_or_a_device_is_refused_before_it_is_opened(tmp_pa
     assert p.stderr.splitlines() == [
         f"xshells deploy: error: {d}/pipe.obj: cannot read file (a named pipe, not a regular file)",
         f"xshells deploy: error: {d}/pipe.json: cannot read case file (a named pipe, not a regular file)",
-        f"xshells deploy: error: {d}/folder.msh: cannot read file (a folder, not a regular file)",
+        f"xshells deploy: error: {d}/folder.msh: a folder, not a design file (.obj, .msh or .3dm)",
         f"xshells deploy: error: {d}/zero.obj: cannot read file (a device, not a regular file)",
         f"xshells sweep: error: {d}/pipe.yaml: cannot read sweep file (a named pipe, not a regular file)",
         f"xshells inverse: error: {d}/pipe.obj: cannot read the target surface (a named pipe, not a regular file)",

@@ -90,8 +90,7 @@ def material_spec_from_option(option: str | None, young: float | None = None, po
         from ..analysis.stress import check_strength
 
         check_strength(strength, "--strength")
-        if density is not None and not (np.isfinite(density) and density > 0):  # the rods' masses must be positive
-            raise InputError(f"--density must be a positive mass per volume (t/mm³ for a design in mm), got {density:g}")
+        check_density(density)
         if grade is not None:
             named_material(grade)
         spec = material_spec_from_option(option, young, poisson)
@@ -117,6 +116,12 @@ def material_spec_from_option(option: str | None, young: float | None = None, po
     if count is not None and len(values) != count:
         raise InputError(f"--material {option}: {kind} takes {count} parameters ({PARAM_NAMES[kind]}), got {len(values)}")
     return {"type": kind, "params": values, "E": E, "nu": nu}
+
+
+def check_density(density) -> None:
+    """``--density``, if given, is a positive finite mass per volume (the rods' masses must be positive)."""
+    if density is not None and not (np.isfinite(density) and density > 0):
+        raise InputError(f"--density must be a positive mass per volume (t/mm³ for a design in mm), got {density:g}")
 
 
 def with_material_options(spec: dict, grade=None, density=None, strength=None) -> dict:

@@ -55,12 +55,13 @@ def _material_spec_from_args(args) -> dict:
 
 
 def _deploy(args) -> int:
-    from .case import (MATERIAL_OPTIONS, check_counts, load_case, material_from_spec, material_strength,
+    from .case import (MATERIAL_OPTIONS, check_counts, check_density, load_case, material_from_spec, material_strength,
                        refuse_case_options, with_material_options)
     from .run import run_deployment
 
     check_counts(args.subdivision, args.steps)
     if args.density is not None:  # accepted and ignored it once: no gravity here, no mass in bom.json
+        check_density(args.density)  # a bad value is named as such first, as analyze names it
         raise InputError("deploy applies no self-weight: --density is used by xshells analyze")
     if args.input.lower().endswith(".json"):
         refuse_case_options(args, MATERIAL_OPTIONS)  # --subdivision and --steps override the case's
