@@ -224,7 +224,7 @@ def test_axes_combine_as_a_product_with_globs_and_cases(tmp_path):
     ({"task": "sparsify", "base": {"file": "grid.obj"}, "axes": {"p": [0.5, 2]}}, "axes.p[1]: Input should be less than or equal to 1, got 2"),
     ({"task": "explode", "base": {"file": "grid.obj"}}, "task: unknown task 'explode'"),
     ({"base": {"file": "grid.obj"}, "cases": [{"material": {"type": "recangle"}}]}, "'material': unknown cross-section type"),
-    ({"base": {"file": "grid.obj"}, "axes": {"params": [[4, 1.5], [4]]}}, "material: rectangle takes 2 parameters"),
+    ({"base": {"file": "grid.obj"}, "axes": {"params": [[4, 1.5], [4]]}}, "key 'material': rectangle takes 2 parameters"),
     ({"axes": {"angle_deg": [70]}}, "base.file: missing"),
     ({"base": {"file": "grid.obj", "start": "joint"}}, "base.start: Input should be 'auto', 'average' or 'central-joint'"),
 ])
