@@ -731,13 +731,30 @@ class Linkage:
         segments that cross without a joint, nodes of valence 2 that look like a polyline's bends (hinges
         there), and a design that is not flat (then simulated from the
         state as drawn)."""
-        out = [w for w in [self.slenderness_warning(), self.graph.crossings, self.graph.bends] if w]
+        out = [w for w in [self.slenderness_warning(), self.graph.crossings, self.graph.bends, self.offset_warning()] if w]
         if not self.graph.is_planar:
             P = np.asarray(self.graph.design.vertices, float)
             off = float(np.abs((P - P.mean(axis=0)) @ self.graph.layout_normal).max())
             out.append(f"the design is not flat (up to {off:.4g} off its best-fit plane): it is deployed from the "
                        f"state as drawn, not from a flat assembly state")
         return out
+
+    def offset_warning(self) -> str:
+        """A one-line warning when the design lies more than :data:`FAR_FROM_ORIGIN` spans from the origin, else "".
+
+        Coordinates that large carry fewer digits of the design itself: the same grid (184 mm across)
+        deployed to the same torque to 1e-7 up to 54,000 spans from the origin, and 0.06 % off at 540,000
+        (georeferenced coordinates in mm reach that). Said, not changed: the outputs stay where the input is.
+        """
+        P = np.asarray(self.graph.design.vertices, float)[np.unique(self.graph.design.edges)]
+        centre = P.mean(axis=0)
+        span = float(np.ptp(P, axis=0).max())
+        far = float(np.abs(centre).max())
+        if span <= 0 or far <= FAR_FROM_ORIGIN * span:
+            return ""
+        return (f"the design lies {far / span:.2g} spans from the origin (its centre at "
+                f"({', '.join(f'{c:.6g}' for c in centre)})): round-off then limits the accuracy of the results; "
+                f"move it near the origin")
 
     def slenderness_warning(self) -> str:
         """A one-line warning when a beam's cross-section is wider than its shortest segment, else "".
@@ -764,6 +781,11 @@ class Linkage:
 
     def summary(self) -> dict:
         return {"segments": self.num_segments, "joints": self.num_joints, "dof": self.num_vars, "subdivision": self.subdivision}
+
+
+FAR_FROM_ORIGIN = 1e4
+"""Spans from the origin beyond which :meth:`Linkage.offset_warning` speaks (measured: 5.4e4 spans harmless,
+5.4e5 spans 0.06 % off in the torque)."""
 
 
 def _segment_at(design: Design, s: int) -> str:
