@@ -754,3 +754,26 @@ def test_the_rest_length_solve_calls_back_after_each_iteration_and_stops():
     seen = []
     report = rest_length_solve(L, callback=lambda it, rep: seen.append(it) or True)
     assert seen == [0] and not report.converged and report.message == "stopped by callback"
+
+
+def test_the_deployment_plot_keeps_both_axis_labels_on_its_canvas(monkeypatch):
+    """The picture is cropped to its artists but never beyond the canvas: with units in the labels, the energy
+    label lost its first letter beside six-digit ticks and the torque label half its width."""
+    from xshells.viz import render
+
+    figures = []
+    monkeypatch.setattr(render, "_save", lambda fig, path: figures.append(fig))
+    a = np.linspace(23, 93, 10)
+    render.plot_deployment("unused.png", a, 9e5 * (a / 93) ** 2, 1e4 * (a / 93), "manta_ray.obj")
+    render.plot_deployment("unused.png", a, 9e5 * (a / 93) ** 2, 1e4 * (a / 93), "manta_ray.obj", utilization=a / 93)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    for fig in figures:
+        agg = FigureCanvasAgg(fig)
+        fig.set_dpi(render.DPI)  # as _save draws it
+        agg.draw()
+        renderer = agg.get_renderer()
+        canvas = fig.bbox
+        for ax in fig.axes:
+            label = ax.yaxis.label.get_window_extent(renderer)
+            assert canvas.x0 <= label.x0 and label.x1 <= canvas.x1, (ax.get_ylabel(), label, canvas)
