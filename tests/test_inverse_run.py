@@ -564,3 +564,120 @@ def test_the_command_says_which_try_it_kept(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(run, "run_inverse", fake)
     assert main(["inverse", str(CAP), "--tries", "2", "--out", str(tmp_path / "o"), "--no-progress"]) == 0
     assert "tries: kept try 2 of 2 (fit weight 1000: failed, 2000: 0.40%)" in capsys.readouterr().out
+
+
+_NARROW = {"status": "missed", "fit_mean": 0.0108, "fit_max": 0.0294, "coverage": 1.0, "spacing": 240.0,
+           "developable": False}
+
+
+@pytest.mark.parametrize("result, options, net, refined", [
+    (_NARROW, {}, None, True),  # the elliptic dome of 2026-12-05, at its default spacing
+    (_NARROW, {"spacing": 240.0}, None, False),  # a spacing the designer gave is kept
+    (_NARROW, {"refine": False}, None, False),
+    (_NARROW, {}, "net.obj", False),  # the designer's net
+    ({**_NARROW, "developable": True}, {}, None, False),  # a finer net cannot reach a developable surface
+    ({**_NARROW, "status": "complete", "fit_mean": 0.008}, {}, None, False),
+    ({**_NARROW, "status": "stopped"}, {}, None, False),
+    ({**_NARROW, "fit_mean": 0.0188}, {}, None, False),  # far: the weakly curved saddle (docs/inverse.md)
+    ({**_NARROW, "fit_max": 0.046}, {}, None, False),
+    ({**_NARROW, "fit_mean": 0.0149, "fit_max": 0.0449, "coverage": 0.851}, {}, None, True),  # near the edge
+    ({**_NARROW, "fit_mean": 0.008, "fit_max": 0.02, "coverage": 0.84}, {}, None, False),
+])
+def test_a_narrow_miss_at_the_default_spacing_is_worth_a_finer_net(result, options, net, refined):
+    import xshells.inverse.run as run
+
+    why = run.refine_reason(result, run.InverseOptions(**options), net)
+    assert (why is not None) == refined
+    if refined:
+        assert "default spacing (240" in why and f"mean {100 * result['fit_mean']:.2f}%" in why
+
+
+def _fake_spacings(results):
+    """A stand-in for :func:`_run_at_spacing`: writes a design marker, a file of its own and result.json per call;
+    returns the next result (an exception is raised), with the spacing it was given (None: 240)."""
+    spacings = []
+
+    def fake(surface, surface_path, out_dir, material_spec, options, net_path, progress):
+        os.makedirs(out_dir, exist_ok=True)
+        r = results[len(spacings)]
+        spacings.append(options.spacing)
+        if isinstance(r, BaseException):
+            raise r
+        for name, text in (("flat_design.obj", f"design {len(spacings)}\n"), (f"only_{len(spacings)}.txt", "x"),
+                           ("result.json", json.dumps(r))):
+            with open(os.path.join(out_dir, name), "w") as fh:
+                fh.write(text)
+        return {**r, "spacing": options.spacing or 240.0}
+
+    return fake, spacings
+
+
+@pytest.mark.parametrize("second, kept", [
+    ({"status": "complete", "fit_mean": 0.0079, "fit_max": 0.023, "coverage": 0.999}, 2),
+    ({"status": "missed", "fit_mean": 0.0121, "fit_max": 0.0228, "coverage": 0.99}, 1),
+])
+def test_the_finer_net_is_designed_into_refined_and_the_better_design_kept(tmp_path, monkeypatch, second, kept):
+    import xshells.inverse.run as run
+
+    fake, spacings = _fake_spacings([_NARROW, second])
+    monkeypatch.setattr(run, "_run_at_spacing", fake)
+    out = tmp_path / "out"
+    r = run.run_inverse(str(_write_hypar(tmp_path / "h.obj", n=9)), str(out), {}, progress=False)
+    assert spacings == [None, run.REFINE_FACTOR * 240.0]
+    assert (out / "flat_design.obj").read_text() == f"design {kept}\n"
+    assert sorted(p.name for p in out.glob("only_*")) == [f"only_{kept}.txt"]  # no stale file of the other
+    assert (out / "refined" / "flat_design.obj").read_text() == "design 2\n"  # the finer net's design stays
+    assert json.loads((out / "result.json").read_text()) == r
+    assert r["refined"]["kept"] == ("refined" if kept == 2 else "default")
+    assert r["refined"]["spacing"] == run.REFINE_FACTOR * 240.0 and r["refined"]["default_spacing"] == 240.0
+    assert r["fit_mean"] == (second if kept == 2 else _NARROW)["fit_mean"]
+    other = r["refined"]["default" if kept == 2 else "refined"]
+    assert other["fit_mean"] == (_NARROW if kept == 2 else second)["fit_mean"]
+
+
+def test_a_finer_net_that_fails_or_is_interrupted_leaves_the_default_design(tmp_path, monkeypatch):
+    import xshells.inverse.run as run
+    from xshells.errors import InputError
+
+    surface = str(_write_hypar(tmp_path / "h.obj", n=9))
+    fake, _ = _fake_spacings([_NARROW, InputError("the first layout does not deploy to 90°")])
+    monkeypatch.setattr(run, "_run_at_spacing", fake)
+    r = run.run_inverse(surface, str(tmp_path / "a"), {}, progress=False)
+    assert r["refined"]["kept"] == "default" and r["refined"]["refined"]["status"] == "failed"
+    assert "does not deploy" in r["refined"]["refined"]["message"]
+    assert (tmp_path / "a" / "flat_design.obj").read_text() == "design 1\n"
+
+    fake, _ = _fake_spacings([_NARROW, KeyboardInterrupt()])
+    monkeypatch.setattr(run, "_run_at_spacing", fake)
+    with pytest.raises(KeyboardInterrupt):
+        run.run_inverse(surface, str(tmp_path / "b"), {}, progress=False)
+    assert (tmp_path / "b" / "flat_design.obj").read_text() == "design 1\n"
+    r = json.loads((tmp_path / "b" / "result.json").read_text())
+    assert r["fit_mean"] == _NARROW["fit_mean"] and r["refined"]["refined"]["status"] == "interrupted"
+
+
+def test_no_refinement_where_the_first_design_is_not_a_narrow_miss(tmp_path, monkeypatch):
+    import xshells.inverse.run as run
+
+    fake, spacings = _fake_spacings([{**_NARROW, "status": "complete", "fit_mean": 0.006}])
+    monkeypatch.setattr(run, "_run_at_spacing", fake)
+    r = run.run_inverse(str(_write_hypar(tmp_path / "h.obj", n=9)), str(tmp_path / "out"), {}, progress=False)
+    assert spacings == [None] and "refined" not in r and not (tmp_path / "out" / "refined").exists()
+
+
+def test_a_stage_design_within_the_bar_ranks_before_a_lower_mean_that_misses_it():
+    from xshells.inverse.run import REACH, stage_rank
+
+    within, flared = stage_rank(0.008, 0.025), stage_rank(0.0066, 0.0541)
+    assert within < flared
+    assert stage_rank(0.004, 0.01) < within  # within the bar, the mean decides
+    assert stage_rank(0.012, 0.02) < stage_rank(0.013, 0.02)  # and beyond it
+    assert stage_rank(REACH["fit_mean"], REACH["fit_max"]) < stage_rank(0.0, 1.01 * REACH["fit_max"])
+
+
+def test_every_checked_stage_design_is_reported(cap_run):
+    _, _, r = cap_run
+    checked = r["checked_stages"]
+    assert len(checked) >= 2 and all(set(c) == {"load_factor", "fit_mean", "fit_max"} for c in checked)
+    assert all(0 <= c["fit_mean"] <= c["fit_max"] for c in checked)
+    assert r["chosen_stage_fit_mean"] in [c["fit_mean"] for c in checked]

@@ -53,6 +53,9 @@ def register(subparsers) -> None:
     p.add_argument("--tries", type=int, default=1,
                    help="designs of each net, the fit weight doubled from one to the next; the best is kept "
                         "(default 1; each try costs a whole design's time)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="at the default spacing, keep the first design even where it misses the bar narrowly "
+                        "(default: such a design is designed again on a net 3/4 as fine, and the better kept)")
     p.add_argument("--polish", type=float, default=None,
                    help="after the last stage, 20 more iterations with the fit weight times this, from the design "
                         "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
@@ -79,6 +82,7 @@ def _inverse(args) -> int:
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
                           force=args.force, grading=args.grading, beams=args.beams, fan=args.fan,
                           free_ends=not args.no_free_ends, workers=args.workers, tries=args.tries,
+                          refine=not args.no_refine,
                           **({} if args.max_iters is None else {"max_iters": args.max_iters}),
                           **({} if args.buckling is None else {"buckling": args.buckling}))
     if args.polish is not None:
@@ -98,5 +102,14 @@ def _inverse(args) -> int:
         figures = ", ".join(f"{d['beta']:g}: " + (f"{100 * d['fit_mean']:.2f}%" if d.get("fit_mean") is not None else d["status"])
                             for d in t["designs"])
         print(f"  tries: kept try {t['kept']} of {len(t['designs'])} (fit weight {figures})")
+    if r.get("refined"):
+        f = r["refined"]
+        other = f["refined"] if f["kept"] == "default" else f["default"]
+        figures = (f"fit mean {100 * other['fit_mean']:.2f}%, max {100 * other['fit_max']:.2f}%"
+                   if other.get("fit_mean") is not None else other.get("message", other.get("status", "")))
+        print(f"  refined: {f['why']}; " + (
+            f"the finer net (spacing {f['spacing']:.4g}) did better and is kept; the default's: {figures}"
+            if f["kept"] == "refined" else f"the finer net (spacing {f['spacing']:.4g}) did not do better "
+                                           f"({figures}); the default's design is kept"))
     print(f"  outputs in {args.out}/ (xshells deploy {args.out}/case.json reproduces the deployment)")
     return 0 if r["status"] == "complete" else 1
