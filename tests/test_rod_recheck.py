@@ -74,6 +74,19 @@ def test_set_vars_reversing_an_edge_is_an_invalid_state():
     assert np.isfinite(rod.energy())
 
 
+def test_set_vars_folding_the_rod_back_is_an_invalid_state():
+    # edge 1 turns by 90° only (no reversal against its source frame), but the rod then folds back at vertex 1
+    rod = ElasticRods([PTS, np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.0]])], **GOOD)
+    x = rod.get_vars()
+    x[18:21] = [0, 0, 0]  # vertex 2 of rod 1 onto vertex 0
+    with pytest.raises(InvalidState, match=r"state: the rod folds back at vertex 1 of rod 1"):
+        rod.set_vars(x)
+    assert np.isfinite(rod.energy())
+    x[18:21] = [0, 0.01, 0]  # a sharp but finite turn: allowed
+    rod.set_vars(x)
+    assert np.isfinite(rod.energy())
+
+
 def test_rod_folding_back_is_refused():
     folded = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 0.0], [0, 1, 0]])
     one_value_error(lambda: ElasticRod(folded, **GOOD), r"folds back at vertex 1 of rod 0")

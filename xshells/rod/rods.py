@@ -80,8 +80,6 @@ def _real(name: str, value) -> np.ndarray:
 # (1 + a·b <= 1e-8) its round-off grows past the square root of the machine epsilon and, worse, the
 # carried frame swings through a full turn for a tiny change of b: refused there, accepted elsewhere.
 _ANTIPARALLEL = 1e-8
-# 1 + cos <= eps  <=>  cos <= -(1 - eps)  <=>  cos |cos| <= -(1 - eps)**2: no square roots in set_vars
-_ANTIPARALLEL_COS2 = (1.0 - _ANTIPARALLEL) ** 2
 # Coordinates past this would overflow squared lengths (3 (2·1e150)² ≈ 1e301 < 1.8e308) in the checks and kernels.
 _MAX_COORDINATE = 1e150
 
@@ -231,6 +229,9 @@ class ElasticRods:
             [self.edges[inner_edges - 1, 0], self.edges[inner_edges, 0], self.edges[inner_edges, 1]], axis=1
         )
         self.num_stencils = len(inner_edges)
+        # which pairs of consecutive edges (j, j + 1) meet at a vertex of one rod (set_vars' fold check)
+        self._pair_is_stencil = np.zeros(max(E - 1, 0), dtype=bool)
+        self._pair_is_stencil[inner_edges - 1] = True
 
         points = np.concatenate(pts)
         self._check_points(points, "rod points")
@@ -408,8 +409,9 @@ class ElasticRods:
         ------
         InvalidState
             A coordinate or angle that is not finite, a coordinate too large, an edge of zero
-            length, or an edge turned (nearly) opposite its direction in the source frame (the
-            frame cannot be carried over: a line search shortens its step).
+            length, an edge turned (nearly) opposite its direction in the source frame (the
+            frame cannot be carried over), or a rod folding back at a vertex (infinite
+            curvature): a line search answers it by shortening its step.
         """
         x = _real("state", x)
         if x.shape != (self.num_vars,):
@@ -420,16 +422,28 @@ class ElasticRods:
         if not np.isfinite(thetas).all():
             j = int(np.flatnonzero(~np.isfinite(thetas))[0])
             raise InvalidState(f"state: the material angle of {self._edge_name(j)} is not finite: {thetas[j]}")
-        # Time-parallel transport from the source tangent is undefined for a reversed edge (see _ANTIPARALLEL);
-        # squared cosines reuse the squared lengths, no norms on this path.
+        # Time-parallel transport from the source tangent is undefined for a reversed edge, and the curvature
+        # of two edges pointing opposite ways is infinite (see _ANTIPARALLEL). Cosines times lengths: the
+        # lengths are at most ~3.5e150 (_MAX_COORDINATE), so their products cannot overflow.
+        n = np.sqrt(sq)
         c = np.einsum("ij,ij->i", d, self.t_src)
-        flipped = c * np.abs(c) <= -_ANTIPARALLEL_COS2 * sq  # c < 0 and c² >= (1 - ε)² |d|²
+        flipped = c <= -(1.0 - _ANTIPARALLEL) * n
         if flipped.any():
             bad = np.flatnonzero(flipped)
             raise InvalidState(
                 f"state: {self._edge_name(bad[0])} points (nearly) opposite its direction at the last source frame "
                 "update, so its frame cannot be carried over; move it in smaller steps"
             )
+        if self.num_stencils:
+            # consecutive edges as views (no gathers); pairs across two rods are masked out
+            folded = np.einsum("ij,ij->i", d[:-1], d[1:]) <= -(1.0 - _ANTIPARALLEL) * (n[:-1] * n[1:])
+            folded &= self._pair_is_stencil
+            if folded.any():
+                j = int(np.flatnonzero(folded)[0])
+                raise InvalidState(
+                    f"state: the rod folds back at {self._vertex_name(int(self.edges[j, 1]))} (its two edges point "
+                    "opposite ways: infinite curvature)"
+                )
         self.points = points.copy()
         self.thetas = thetas.copy()
 
