@@ -115,6 +115,7 @@ def test_bad_director_names_its_rod():
 def test_good_director_still_accepted():
     rod = ElasticRod(PTS, directors=[1, 1, 0], **GOOD)  # not along the edge: its normal part is used
     assert np.isfinite(rod.energy())
+    assert ElasticRod(PTS, directors=[[1, 1, 0]], **GOOD).energy() == rod.energy()  # one rod's, nested
 
 
 # ---------------------------------------------------------------- 3: set_vars angles

@@ -56,6 +56,8 @@ def _real(name: str, value) -> np.ndarray:
         arr = np.asarray(value)
     except ValueError:  # NumPy refuses ragged nesting outright
         raise InputError(f"{name}: expected a rectangular array of real numbers, got rows of different lengths") from None
+    except (TypeError, OverflowError) as exc:  # an object NumPy cannot take as an array at all
+        raise InputError(f"{name}: expected real numbers ({exc})") from None
     kind = arr.dtype.kind
     if kind == "f" and arr.dtype == np.float64:
         return arr  # the common case: no copy (set_vars runs at every trial state)
@@ -364,8 +366,8 @@ class ElasticRods:
     def _check_directors(self, directors, t_first: np.ndarray) -> np.ndarray:
         """Each rod's first director as an (R, 3) array: finite, nonzero and not along its rod's first edge."""
         dirs = _real("directors", directors)
-        if dirs.shape == (3,) and self.num_rods == 1:
-            dirs = dirs[None, :]
+        if self.num_rods == 1 and dirs.size == 3:
+            dirs = dirs.reshape(1, 3)  # one rod's director, however nested ((3,), or (1, 3) wrapped by ElasticRod)
         if dirs.shape != (self.num_rods, 3):
             raise InputError(
                 f"directors: expected {self.num_rods} vector{'s' if self.num_rods != 1 else ''} (one per rod) of 3 components, got shape {dirs.shape}"
@@ -637,7 +639,8 @@ class ElasticRods:
         """Lumped (diagonal) mass matrix over the variables.
 
         Positions get their vertex mass; each angle gets its edge's
-        rotational inertia ``ρ ∫r²dA L̄``. ``density`` (per edge) replaces the rods' own.
+        rotational inertia ``ρ ∫r²dA L̄``. ``density`` (a scalar or one per edge, positive and
+        finite) replaces the rods' own.
         """
         rho = self.density if density is None else self._per_edge("density", density)
         diag = np.concatenate([np.repeat(self.vertex_masses(rho), 3), rho * self.polar_moment * self.rest_lengths])
@@ -647,7 +650,8 @@ class ElasticRods:
         """Generalized force of gravity on the variables, (num_vars,).
 
         ``g`` is in the input's units (for millimetres and seconds,
-        ``(0, 0, -9810)``); with density in t/mm³ the force is in N.
+        ``(0, 0, -9810)``); with density in t/mm³ the force is in N. A ``g`` that is not three
+        finite real numbers is refused with a ValueError.
         """
         g = _real("gravity g", g)
         if g.shape != (3,):
@@ -700,7 +704,8 @@ class ElasticRods:
         ``bending_stress`` (the largest normal stress, ``E (|Δκ1| c1 + |Δκ2| c2)/ℓ``
         averaged over the incident edges' frames), ``twisting_stress``
         (``G r |Δm| / ℓ`` with ``r = hypot(c1, c2)``) and
-        ``stretching_stress`` (``E |strain|``).
+        ``stretching_stress`` (``E |strain|``). ``young``, ``shear`` and ``fibre`` must be
+        positive and finite (a ValueError names the first edge that is not).
         """
         V = self.num_vertices
         out = {}
