@@ -40,10 +40,16 @@ def register(subparsers) -> None:
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_deploy)
 
-    d = subparsers.add_parser("demo", help="deploy the bundled manta-ray design and write its outputs")
+    d = subparsers.add_parser("demo", help="deploy the bundled manta-ray design and write its outputs",
+                              description="Deploy the bundled manta-ray design (data/examples/manta_ray.obj; mm, MPa) with "
+                                          "a 10 x 7 mm rectangular section (E 20000 MPa, Poisson 0.3), 8 edges per segment, "
+                                          "to an average opening angle of 93 degrees, and write the same outputs as xshells "
+                                          "deploy into --out. No input needed: a quick check that the installation works.")
     d.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    d.add_argument("--steps", type=int, default=40)
-    d.add_argument("--no-progress", action="store_true")
+    d.add_argument("--steps", type=int, default=40, help="deployment increments from the flat to the deployed state "
+                                                          "(1 to 100000, default 40)")
+    d.add_argument("--no-progress", action="store_true", help="no progress bar on the terminal; the warnings are then "
+                                                              "listed with the summary at the end")
     d.set_defaults(func=_demo)
 
 

@@ -16,6 +16,7 @@ Units follow the input: with millimetres and MPa, stiffnesses are in N·mm²
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -44,17 +45,45 @@ class EnergyParts:
         return {"stretch": self.stretch, "bend": self.bend, "twist": self.twist, "total": self.total}
 
 
-def _per_edge(name: str, value, num_edges: int, columns: int | None = None) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    shape = (num_edges,) if columns is None else (num_edges, columns)
+def _real(name: str, value) -> np.ndarray:
+    """``value`` as a float array, or one :class:`InputError` naming ``name``.
+
+    ``np.asarray(value, dtype=float)`` alone drops imaginary parts with only a
+    warning, turns ``None`` into NaN, and answers text, ragged lists and huge
+    Python ints with NumPy's own messages that name no input.
+    """
     try:
-        arr = np.broadcast_to(arr, shape).copy()
-    except ValueError:
-        raise InputError(f"{name}: expected a scalar or an array of shape {shape}, got shape {np.shape(value)}") from None
-    bad = np.flatnonzero(~(np.isfinite(arr) & (arr > 0)).reshape(num_edges, -1).all(axis=1))
-    if len(bad):
-        raise InputError(f"{name} must be positive and finite: edge {bad[0]} has {arr[bad[0]]}")
-    return arr
+        arr = np.asarray(value)
+    except ValueError:  # NumPy refuses ragged nesting outright
+        raise InputError(f"{name}: expected a rectangular array of real numbers, got rows of different lengths") from None
+    except (TypeError, OverflowError) as exc:  # an object NumPy cannot take as an array at all
+        raise InputError(f"{name}: expected real numbers ({exc})") from None
+    kind = arr.dtype.kind
+    if kind == "f" and arr.dtype == np.float64:
+        return arr  # the common case: no copy (set_vars runs at every trial state)
+    if kind in "biuf":
+        return arr.astype(float)
+    if kind == "c":
+        raise InputError(f"{name}: expected real numbers, got complex values ({arr.dtype})")
+    if kind == "O":  # Python objects: None, ints beyond int64, Fractions, or nested lists of different lengths
+        for v in arr.flat:
+            if isinstance(v, bool) or not isinstance(v, numbers.Real):
+                if isinstance(v, (list, tuple, np.ndarray)):
+                    raise InputError(f"{name}: expected a rectangular array of real numbers, got rows of different lengths")
+                raise InputError(f"{name}: expected real numbers, got {type(v).__name__} {v!r:.40}")
+        try:
+            return arr.astype(float)
+        except OverflowError:
+            raise InputError(f"{name}: a value is too large for a float") from None
+    raise InputError(f"{name}: expected real numbers, got {'text' if kind in 'US' else arr.dtype}")
+
+
+# Parallel transport from tangent a to tangent b divides by 1 + a·b; within about 0.008° of b = -a
+# (1 + a·b <= 1e-8) its round-off grows past the square root of the machine epsilon and, worse, the
+# carried frame swings through a full turn for a tiny change of b: refused there, accepted elsewhere.
+_ANTIPARALLEL = 1e-8
+# Coordinates past this would overflow squared lengths (3 (2·1e150)² ≈ 1e301 < 1.8e308) in the checks and kernels.
+_MAX_COORDINATE = 1e150
 
 
 def stretch_kernel(q: np.ndarray, ks: np.ndarray, hessian: bool = True, gradient: bool = True):
@@ -103,7 +132,8 @@ class ElasticRods:
     Parameters
     ----------
     rods : sequence of (n_r + 1, 3) arrays
-        The centerline points of each rod (its current, deformed state).
+        The centerline points of each rod (its current, deformed state):
+        real, finite numbers; no edge of zero length, no 180° fold back.
     stretching : float or (E,) array
         Stretching stiffness ``EA`` per edge (E = total edges of all rods,
         in rod order).
@@ -120,19 +150,38 @@ class ElasticRods:
     polar_moment : float or (E,) array, optional
         ``∫ r² dA`` of the cross-section, the rotational inertia of ``θ``;
         defaults to that of a disc of the given area.
-    rest_lengths : (E,) array, optional
+    rest_lengths : float or (E,) array, optional
         Defaults to the edge lengths of the rest shape.
     rest_shape : sequence of (n_r + 1, 3) arrays, optional
         A curved rest configuration. Its curvature and twist (with
-        ``rest_thetas`` and the initial directors) become the rest curvature
-        and twist. Default: each rod straight, so only lengths come from ``rods``.
-    rest_thetas : (E,) array, optional
-        Material angles of the rest shape (default zero).
+        ``rest_thetas`` and the directors) become the rest curvature and
+        twist. Default: each rod straight, so only lengths come from ``rods``.
+        The current frames are the rest frames carried to the current edges
+        by parallel transport, edge by edge (each from its rest edge to its
+        current edge). A rest shape moved rigidly is therefore *not* an
+        unstrained rod with equal ``thetas``: the transport of each edge
+        turns its frame about a different axis, so the current reference
+        frames differ from the moved rest frames and the rod starts bent
+        and twisted in its material frame. To start unstrained elsewhere,
+        build the rod in its rest shape (``rods`` = ``rest_shape``) and move
+        it (:meth:`set_vars`, a solver). A current edge pointing (within
+        about 0.01°) opposite its rest edge is refused: transport is
+        undefined there.
+    rest_thetas : float or (E,) array, optional
+        Material angles of the rest shape (default zero). Without
+        ``rest_shape`` they apply to the straight default rest shape: a rest
+        twist ``θ̄_{i+1} − θ̄_i`` at each interior vertex and no rest
+        curvature, as a straight ``rest_shape`` with these angles gives.
     directors : sequence of (3,) arrays, optional
-        Director ``d1`` of each rod's first edge; the others follow by
-        parallel transport along the rod, so the reference twist starts at
-        zero. Default: a deterministic perpendicular.
-    thetas : (E,) array, optional
+        Director ``d1`` of each rod's first edge *in the rest shape* (the
+        current points when there is no ``rest_shape``): finite, nonzero and
+        not along that edge (only its part normal to the edge is used). The
+        other rest edges' directors follow by parallel transport along the
+        rod, so the rest shape's reference twist is zero; the current frames
+        follow from the rest frames as described under ``rest_shape`` (so with
+        a ``rest_shape`` the current reference twist is in general not zero).
+        Default: a deterministic perpendicular.
+    thetas : float or (E,) array, optional
         Initial material angles (default zero).
     bending_energy : {"2008", "2010"}
         "2008" averages the curvature energies computed in each incident
@@ -160,7 +209,7 @@ class ElasticRods:
         if bending_energy not in stencils.BENDING_VARIANTS:
             raise InputError(f"bending_energy must be one of {stencils.BENDING_VARIANTS}, got {bending_energy!r}")
         self.bending_energy = bending_energy
-        pts = [np.asarray(r, dtype=float) for r in rods]
+        pts = [_real(f"rod {r} points", p) for r, p in enumerate(rods)]
         if not pts:
             raise InputError("no rods given")
         for r, p in enumerate(pts):
@@ -182,50 +231,65 @@ class ElasticRods:
             [self.edges[inner_edges - 1, 0], self.edges[inner_edges, 0], self.edges[inner_edges, 1]], axis=1
         )
         self.num_stencils = len(inner_edges)
+        # which pairs of consecutive edges (j, j + 1) meet at a vertex of one rod (set_vars' fold check)
+        self._pair_is_stencil = np.zeros(max(E - 1, 0), dtype=bool)
+        self._pair_is_stencil[inner_edges - 1] = True
 
         points = np.concatenate(pts)
         self._check_points(points, "rod points")
         self.points = points
-        self.thetas = np.zeros(E) if thetas is None else self._edge_array("thetas", thetas, allow_any=True)
+        self.thetas = np.zeros(E) if thetas is None else self._edge_array("thetas", thetas)
 
-        self.ks = _per_edge("stretching stiffness", stretching, E)
-        self.bending_stiffness = _per_edge("bending stiffness", bending, E, 2)
-        self.kt_edge = _per_edge("twisting stiffness", twisting, E)
-        self.density = _per_edge("density", density, E)
-        self.area = _per_edge("area", area, E)
+        self.ks = self._per_edge("stretching stiffness", stretching)
+        self.bending_stiffness = self._per_edge("bending stiffness", bending, 2)
+        self.kt_edge = self._per_edge("twisting stiffness", twisting)
+        self.density = self._per_edge("density", density)
+        self.area = self._per_edge("area", area)
         self.polar_moment = (
-            self.area**2 / (2 * np.pi) if polar_moment is None else _per_edge("polar moment", polar_moment, E)
+            self.area**2 / (2 * np.pi) if polar_moment is None else self._per_edge("polar moment", polar_moment)
         )
 
-        rest = pts if rest_shape is None else [np.asarray(r, dtype=float) for r in rest_shape]
-        if len(rest) != len(pts) or any(r.shape != p.shape for r, p in zip(rest, pts)):
-            raise InputError("rest_shape must have the same rods and point counts as rods")
+        if rest_shape is None:
+            rest = pts
+        else:
+            rest = [_real(f"rest_shape of rod {r}", p) for r, p in enumerate(rest_shape)]
+            if len(rest) != len(pts):
+                raise InputError(f"rest_shape: expected {len(pts)} rods (as many as rods), got {len(rest)}")
+            for r, (q, p) in enumerate(zip(rest, pts)):
+                if q.shape != p.shape:
+                    raise InputError(f"rest_shape of rod {r}: expected shape {p.shape} (as its points), got {q.shape}")
         rest_points = np.concatenate(rest)
         self._check_points(rest_points, "rest shape")
         t_rest, len_rest = frames.unit_tangents(rest_points, self.edges)
-        self.rest_lengths = len_rest if rest_lengths is None else _per_edge("rest length", rest_lengths, E)
+        self._check_folds(t_rest, "rest shape" if rest_shape is not None else "rod points")
+        self.rest_lengths = len_rest if rest_lengths is None else self._per_edge("rest length", rest_lengths)
 
-        # Directors: d1 of each rod's first edge, carried along the rod by parallel transport.
+        # Directors: d1 of each rod's first rest edge, carried along the rod by parallel transport.
         first = frames.perpendicular(t_rest[self.edge_offsets[:-1]])
         if directors is not None:
-            dirs = np.asarray(directors, dtype=float).reshape(-1, 3)
-            if len(dirs) != self.num_rods:
-                raise InputError(f"directors: expected {self.num_rods} vectors (one per rod), got {len(dirs)}")
-            first = dirs
+            first = self._check_directors(directors, t_rest[self.edge_offsets[:-1]])
         d1_rest = frames.space_parallel_directors_of_rods(t_rest, self.edge_offsets, first)
         # Rest curvature and twist, measured with straight-rest defaults of zero.
         self.kappa_bar = np.zeros((self.num_stencils, 4))
         self.twist_bar = np.zeros(self.num_stencils)
         self.t_src, self.d1_src = t_rest, d1_rest
         self.ref_twist_src = np.zeros(self.num_stencils)
+        rest_th = None if rest_thetas is None else self._edge_array("rest_thetas", rest_thetas)
         if rest_shape is not None and self.num_stencils:
-            rest_th = np.zeros(E) if rest_thetas is None else self._edge_array("rest_thetas", rest_thetas, allow_any=True)
-            q = self._vertex_q(rest_points, rest_th, self.rest_lengths)
+            q = self._vertex_q(rest_points, np.zeros(E) if rest_th is None else rest_th, self.rest_lengths)
             kappa, twist, _ = stencils.vertex_strains(tuple(q), tuple(self._vertex_params()), bending_energy)
             self.kappa_bar = np.stack([np.asarray(k) for k in kappa], axis=1)
             self.twist_bar = np.asarray(twist)
+        elif rest_th is not None and self.num_stencils:
+            # The straight default rest shape with its directors carried along (zero reference twist):
+            # no rest curvature in any frame, and a rest twist of the angles' differences, as a
+            # straight rest_shape given with these rest_thetas measures it.
+            self.twist_bar = rest_th[self.stencil_edges[:, 1]] - rest_th[self.stencil_edges[:, 0]]
         # The deformed state's source frame: transport the rest directors onto the current tangents.
         t_now, _ = frames.unit_tangents(self.points, self.edges)
+        if rest_shape is not None:
+            self._check_points_into(t_rest, t_now)
+            self._check_folds(t_now, "rod points")
         self.t_src = t_now
         self.d1_src = frames.orthonormalize(frames.transport(t_rest, t_now, d1_rest), t_now)
         self.ref_twist_src = self._reference_twist()
@@ -235,25 +299,100 @@ class ElasticRods:
         self._build_indices()
 
     # ------------------------------------------------------------------ input
-    def _check_points(self, points: np.ndarray, what: str) -> None:
+    def _edge_name(self, j: int) -> str:
+        """``edge k of rod r`` for global edge ``j``: messages number edges within their rod."""
+        r = int(np.searchsorted(self.edge_offsets, j, side="right") - 1)
+        return f"edge {j - self.edge_offsets[r]} of rod {r}"
+
+    def _vertex_name(self, v: int) -> str:
+        """``vertex k of rod r`` for global vertex ``v``."""
+        r = int(np.searchsorted(self.vertex_offsets, v, side="right") - 1)
+        return f"vertex {v - self.vertex_offsets[r]} of rod {r}"
+
+    def _per_edge(self, name: str, value, columns: int | None = None) -> np.ndarray:
+        """A positive, finite value per edge (a scalar, ``columns`` values, or one row per edge) as an array."""
+        arr = _real(name, value)
+        shape = (self.num_edges,) if columns is None else (self.num_edges, columns)
+        try:
+            arr = np.broadcast_to(arr, shape).copy()
+        except ValueError:
+            raise InputError(f"{name}: expected a scalar or an array of shape {shape}, got shape {arr.shape}") from None
+        bad = np.flatnonzero(~(np.isfinite(arr) & (arr > 0)).reshape(self.num_edges, -1).all(axis=1))
+        if len(bad):
+            raise InputError(f"{name} must be positive and finite: {self._edge_name(bad[0])} has {arr[bad[0]]}")
+        return arr
+
+    def _check_points(self, points: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+        """Refuse non-finite, huge or coincident points; return the edge vectors and their squared lengths."""
         if not np.isfinite(points).all():
             bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
-            r = np.searchsorted(self.vertex_offsets, bad[0], side="right") - 1
-            raise InvalidState(f"{what}: vertex {bad[0] - self.vertex_offsets[r]} of rod {r} is not finite: {points[bad[0]]}")
+            raise InvalidState(f"{what}: {self._vertex_name(bad[0])} is not finite: {points[bad[0]]}")
+        scale = float(np.abs(points).max(initial=0.0))
+        if scale > _MAX_COORDINATE:
+            bad = int(np.flatnonzero(np.abs(points).max(axis=1) > _MAX_COORDINATE)[0])
+            raise InvalidState(
+                f"{what}: {self._vertex_name(bad)} has a coordinate beyond {_MAX_COORDINATE:g} ({points[bad]}): "
+                "its squared edge lengths would overflow; use other units or move the origin"
+            )
+        scale = max(scale, 1.0)
         d = points[self.edges[:, 1]] - points[self.edges[:, 0]]
-        scale = max(float(np.abs(points).max(initial=0.0)), 1.0)
         # squared lengths: this runs on every move of the state (a third of set_vars with norms)
-        bad = np.flatnonzero(np.einsum("ij,ij->i", d, d) <= (1e-14 * scale) ** 2)
+        sq = np.einsum("ij,ij->i", d, d)
+        bad = np.flatnonzero(sq <= (1e-14 * scale) ** 2)
         if len(bad):
-            r = np.searchsorted(self.edge_offsets, bad[0], side="right") - 1
-            raise InvalidState(f"{what}: edge {bad[0] - self.edge_offsets[r]} of rod {r} has zero length")
+            raise InvalidState(f"{what}: {self._edge_name(bad[0])} has zero length")
+        return d, sq
 
-    def _edge_array(self, name, value, allow_any=False):
-        arr = np.asarray(value, dtype=float)
+    def _check_points_into(self, t_from: np.ndarray, t_to: np.ndarray) -> None:
+        """Refuse carrying the rest frames onto current edges that point (nearly) opposite their rest edges."""
+        bad = np.flatnonzero(1.0 + np.einsum("ij,ij->i", t_from, t_to) <= _ANTIPARALLEL)
+        if len(bad):
+            raise InputError(
+                f"rod points: {self._edge_name(bad[0])} points (nearly) opposite its rest edge in rest_shape, so its "
+                "frame cannot be carried over from the rest shape by parallel transport; build the rod in its rest "
+                "shape and move it there, or give a rest shape turned to match"
+            )
+
+    def _check_folds(self, t: np.ndarray, what: str) -> None:
+        """Refuse a rod that turns back on itself at a vertex: its curvature is infinite and its frame undefined."""
+        if not self.num_stencils:
+            return
+        e0, e1 = self.stencil_edges[:, 0], self.stencil_edges[:, 1]
+        bad = np.flatnonzero(1.0 + np.einsum("ij,ij->i", t[e0], t[e1]) <= _ANTIPARALLEL)
+        if len(bad):
+            v = int(self.stencil_vertices[bad[0], 1])
+            raise InputError(f"{what}: the rod folds back at {self._vertex_name(v)} (its two edges point opposite ways)")
+
+    def _check_directors(self, directors, t_first: np.ndarray) -> np.ndarray:
+        """Each rod's first director as an (R, 3) array: finite, nonzero and not along its rod's first edge."""
+        dirs = _real("directors", directors)
+        if self.num_rods == 1 and dirs.size == 3:
+            dirs = dirs.reshape(1, 3)  # one rod's director, however nested ((3,), or (1, 3) wrapped by ElasticRod)
+        if dirs.shape != (self.num_rods, 3):
+            raise InputError(
+                f"directors: expected {self.num_rods} vector{'s' if self.num_rods != 1 else ''} (one per rod) of 3 components, got shape {dirs.shape}"
+            )
+        for r, d in enumerate(dirs):
+            if not np.isfinite(d).all():
+                raise InputError(f"directors: the director of rod {r} is not finite: {d}")
+            norm = float(np.linalg.norm(d))
+            if norm == 0.0:
+                raise InputError(f"directors: the director of rod {r} is zero")
+            # only its part normal to the first edge is used: nothing left (to round-off) gives no direction
+            if np.linalg.norm(d - (d @ t_first[r]) * t_first[r]) <= _ANTIPARALLEL * norm:
+                raise InputError(f"directors: the director of rod {r} {d} is along the rod's first edge; give one across it")
+        return dirs
+
+    def _edge_array(self, name: str, value) -> np.ndarray:
+        """A finite value of any sign per edge (a scalar for all edges, or one per edge)."""
+        arr = _real(name, value)
+        if arr.ndim == 0:
+            arr = np.full(self.num_edges, float(arr))
         if arr.shape != (self.num_edges,):
-            raise InputError(f"{name}: expected shape ({self.num_edges},), got {arr.shape}")
+            raise InputError(f"{name}: expected shape ({self.num_edges},) (or a scalar for all edges), got {arr.shape}")
         if not np.isfinite(arr).all():
-            raise InputError(f"{name}: edge {np.flatnonzero(~np.isfinite(arr))[0]} is not finite")
+            j = int(np.flatnonzero(~np.isfinite(arr))[0])
+            raise InputError(f"{name}: {self._edge_name(j)} is not finite: {arr[j]}")
         return arr.copy()
 
     # ------------------------------------------------------------- variables
@@ -266,17 +405,53 @@ class ElasticRods:
         return np.concatenate([self.points.ravel(), self.thetas])
 
     def set_vars(self, x: np.ndarray) -> None:
-        """Set positions and angles; the source frame stays until :meth:`update_source_frame`."""
-        x = np.asarray(x, dtype=float)
+        """Set positions and angles; the source frame stays until :meth:`update_source_frame`.
+
+        Raises
+        ------
+        InvalidState
+            A coordinate or angle that is not finite, a coordinate too large, an edge of zero
+            length, an edge turned (nearly) opposite its direction in the source frame (the
+            frame cannot be carried over), or a rod folding back at a vertex (infinite
+            curvature): a line search answers it by shortening its step.
+        """
+        x = _real("state", x)
         if x.shape != (self.num_vars,):
             raise InputError(f"expected {self.num_vars} variables, got shape {x.shape}")
         points = x[: 3 * self.num_vertices].reshape(-1, 3)
-        self._check_points(points, "state")
+        thetas = x[3 * self.num_vertices :]
+        d, sq = self._check_points(points, "state")
+        if not np.isfinite(thetas).all():
+            j = int(np.flatnonzero(~np.isfinite(thetas))[0])
+            raise InvalidState(f"state: the material angle of {self._edge_name(j)} is not finite: {thetas[j]}")
+        # Time-parallel transport from the source tangent is undefined for a reversed edge, and the curvature
+        # of two edges pointing opposite ways is infinite (see _ANTIPARALLEL). Cosines times lengths: the
+        # lengths are at most ~3.5e150 (_MAX_COORDINATE), so their products cannot overflow.
+        n = np.sqrt(sq)
+        c = np.einsum("ij,ij->i", d, self.t_src)
+        flipped = c <= -(1.0 - _ANTIPARALLEL) * n
+        if flipped.any():
+            bad = np.flatnonzero(flipped)
+            raise InvalidState(
+                f"state: {self._edge_name(bad[0])} points (nearly) opposite its direction at the last source frame "
+                "update, so its frame cannot be carried over; move it in smaller steps"
+            )
+        if self.num_stencils:
+            # consecutive edges as views (no gathers); pairs across two rods are masked out
+            folded = np.einsum("ij,ij->i", d[:-1], d[1:]) <= -(1.0 - _ANTIPARALLEL) * (n[:-1] * n[1:])
+            folded &= self._pair_is_stencil
+            if folded.any():
+                j = int(np.flatnonzero(folded)[0])
+                raise InvalidState(
+                    f"state: the rod folds back at {self._vertex_name(int(self.edges[j, 1]))} (its two edges point "
+                    "opposite ways: infinite curvature)"
+                )
         self.points = points.copy()
-        self.thetas = x[3 * self.num_vertices :].copy()
+        self.thetas = thetas.copy()
 
     def set_rest_lengths(self, lengths) -> None:
-        self.rest_lengths = _per_edge("rest length", lengths, self.num_edges)
+        """Set the rest length of each edge (a scalar for all edges, or one per edge; positive and finite)."""
+        self.rest_lengths = self._per_edge("rest length", lengths)
 
     # ---------------------------------------------------------------- frames
     def reference_directors(self) -> np.ndarray:
@@ -456,7 +631,7 @@ class ElasticRods:
     # ------------------------------------------------------------ mass, loads
     def vertex_masses(self, density=None) -> np.ndarray:
         """Lumped mass of each vertex: half of each incident edge's ``ρ A L̄``, (V,) (``density``: per edge, default the rods')."""
-        rho = self.density if density is None else density
+        rho = self.density if density is None else self._per_edge("density", density)
         m_edge = rho * self.area * self.rest_lengths
         return np.bincount(self.edges.ravel(), weights=np.repeat(0.5 * m_edge, 2), minlength=self.num_vertices)
 
@@ -464,9 +639,10 @@ class ElasticRods:
         """Lumped (diagonal) mass matrix over the variables.
 
         Positions get their vertex mass; each angle gets its edge's
-        rotational inertia ``ρ ∫r²dA L̄``. ``density`` (per edge) replaces the rods' own.
+        rotational inertia ``ρ ∫r²dA L̄``. ``density`` (a scalar or one per edge, positive and
+        finite) replaces the rods' own.
         """
-        rho = self.density if density is None else density
+        rho = self.density if density is None else self._per_edge("density", density)
         diag = np.concatenate([np.repeat(self.vertex_masses(rho), 3), rho * self.polar_moment * self.rest_lengths])
         return sp.diags(diag)
 
@@ -474,10 +650,16 @@ class ElasticRods:
         """Generalized force of gravity on the variables, (num_vars,).
 
         ``g`` is in the input's units (for millimetres and seconds,
-        ``(0, 0, -9810)``); with density in t/mm³ the force is in N.
+        ``(0, 0, -9810)``); with density in t/mm³ the force is in N. A ``g`` that is not three
+        finite real numbers is refused with a ValueError.
         """
+        g = _real("gravity g", g)
+        if g.shape != (3,):
+            raise InputError(f"gravity g: expected a vector of 3 components (x, y, z), got shape {g.shape}")
+        if not np.isfinite(g).all():
+            raise InputError(f"gravity g: not finite: {g}")
         f = np.zeros(self.num_vars)
-        f[: 3 * self.num_vertices] = (self.vertex_masses()[:, None] * np.asarray(g, dtype=float)[None, :]).ravel()
+        f[: 3 * self.num_vertices] = (self.vertex_masses()[:, None] * g[None, :]).ravel()
         return f
 
     # ------------------------------------------------------- visualization
@@ -522,7 +704,8 @@ class ElasticRods:
         ``bending_stress`` (the largest normal stress, ``E (|Δκ1| c1 + |Δκ2| c2)/ℓ``
         averaged over the incident edges' frames), ``twisting_stress``
         (``G r |Δm| / ℓ`` with ``r = hypot(c1, c2)``) and
-        ``stretching_stress`` (``E |strain|``).
+        ``stretching_stress`` (``E |strain|``). ``young``, ``shear`` and ``fibre`` must be
+        positive and finite (a ValueError names the first edge that is not).
         """
         V = self.num_vertices
         out = {}
@@ -535,9 +718,9 @@ class ElasticRods:
         cnt = np.bincount(self.edges.ravel(), minlength=V)
         out["stretching_energy_density"] = np.bincount(self.edges.ravel(), weights=np.repeat(es, 2), minlength=V) / cnt
         if young is not None and shear is not None and fibre is not None:
-            E = np.broadcast_to(np.asarray(young, float), (self.num_edges,))
-            G = np.broadcast_to(np.asarray(shear, float), (self.num_edges,))
-            c = np.broadcast_to(np.asarray(fibre, float), (self.num_edges, 2))
+            E = self._per_edge("young", young)
+            G = self._per_edge("shear", shear)
+            c = self._per_edge("fibre", fibre, 2)
             n = np.linalg.norm(self.points[self.edges[:, 1]] - self.points[self.edges[:, 0]], axis=1)
             strain = np.abs(n / self.rest_lengths - 1.0)
             out["stretching_stress"] = np.bincount(self.edges.ravel(), weights=np.repeat(E * strain, 2), minlength=V) / cnt
