@@ -492,6 +492,22 @@ def test_an_assembly_state_that_folds_a_joint_starts_from_the_central_joint():
     assert np.ptp(z) > 0.05 * np.linalg.norm(np.ptp(L.joint_positions(), axis=0))
 
 
+@needs_data
+def test_where_both_starts_fold_a_joint_a_longer_first_step_carries_it_open(tmp_path):
+    """The swimming ray (Fig. 14's zoo) at the default 40 steps: held at its average angle, joint 118 (6.3° flat)
+    folds on the first step of 1.8°, and held by the central joint it folds as well; the zoo's own 10 steps
+    (7.3° each) deploy it. A first step of 4 increments (7.27°) reaches the 10-step deployment's equilibrium."""
+    path = DATA / "examples" / "florin" / "20181227_203302_meshID_fbfa32b2-3ab2-4722-9678-b577ad1ccfb8.obj"
+    assert main(["deploy", str(path), "--angle", "85", "--out", str(tmp_path), "--no-progress"]) == 0
+    r = json.loads((tmp_path / "result.json").read_text())
+    assert r["reached"] and abs(r["deployed"]["average_angle_deg"] - 85.0) < 1e-9
+    assert "joint 118" in r["start"]["note"] and "first step of 4 increments (7.27°)" in r["start"]["note"]
+    assert r["steps"][0]["step"] == 4 and len(r["steps"]) == 37
+    # the energy of the zoo's own 10-step deployment (measured 2026-12-06): the same equilibrium
+    assert r["deployed"]["energy"] == pytest.approx(1137916.2697664457, rel=1e-8)
+    assert r["deployed"]["min_eigenvalue_at_fixed_angle"] > 0
+
+
 def test_start_option_is_checked():
     with pytest.raises(InputError, match="start must be"):
         deploy(Linkage(warped_grid(3), Material.uniform("rectangle", [4.0, 1.5], E=2000, nu=0.3), subdivision=3), 1.0,

@@ -35,7 +35,8 @@ def register(subparsers) -> None:
                    "(default: the case's direction, else up)")
     p.add_argument("--start", choices=["auto", "average", "central-joint"], default="auto",
                    help="how the assembly state is held while it first relaxes: at its average angle, or by the central "
-                        "joint's angle alone (auto: the average, unless that folds a joint at once)")
+                        "joint's angle alone (auto: the average, unless that folds a joint at once; where both do, "
+                        "the average again with a first step of 2, 4 or 8 increments)")
     p.add_argument("--out", default="deploy_out", help="output folder")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_deploy)

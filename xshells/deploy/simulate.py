@@ -65,7 +65,10 @@ class DeployOptions:
         "auto": "average", unless its first step folds a joint (or stalls
         beside one); then the start is re-done as "central-joint" (a drawn
         state whose equilibrium at its own average angle needs a joint folded
-        through: the Fig. 14 "hole" design folds joint 28 at once).
+        through: the Fig. 14 "hole" design folds joint 28 at once). Where
+        that folds a joint as well, "average" again with a first step of 2,
+        4, then 8 increments (the swimming ray's narrow joint 118 folds on
+        a short first step and stays open on a longer one).
     max_buckling_step_deg : float
         A step longer than this (degrees) that starts flat and ends buckled out
         of plane is redone from its flat start in sub-steps no longer than
@@ -353,8 +356,10 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                     f"{100 * ratio[e]:.3g}% of its rest length")
         return ""
 
-    def run_steps(alpha0: float, why: str) -> bool:
-        """Steps from ``alpha0`` to the target (none if ``why`` says the start is broken); whether the first folded a joint."""
+    def run_steps(alpha0: float, why: str, first: int = 1) -> bool:
+        """Steps from ``alpha0`` to the target (none if ``why`` says the start is broken); whether the first folded a joint.
+
+        The first step goes ``first`` increments of the ``options.steps`` at once (see :func:`start_and_steps`)."""
         last_good, last_angle = snapshot(linkage), float(np.degrees(alpha0))
         kept["state"] = last_good
         result.reached_angle_deg = last_angle  # until a step is taken
@@ -365,7 +370,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         if why:
             result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}° before the first step: {why}"
             return False
-        for i in range(1, options.steps + 1):
+        for i in range(first, options.steps + 1):
             angle = alpha0 + (target_angle - alpha0) * i / options.steps
             opts = step_newton
             if i == options.steps:
@@ -373,7 +378,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             try:
                 used_lead = unstable_lead = False
                 coarse = coarse_flat_step(last_angle, angle)
-                if i > 1:
+                if i > first:
                     previous, used_lead, unstable_lead = _predict(linkage, a, angle, previous if smooth and extrapolate else None, pins,
                                                    edge_vars[active])
                 report = solve(angle, opts)
@@ -405,13 +410,13 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                     # a stall next to a folding joint is usually the inversion itself
                     result.message += (f"; joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) is folding "
                                        f"({np.degrees(alpha[j]):.2f}°): the linkage is about to invert")
-                    return i == 1
+                    return i == first
                 return False
             why = inversion(linkage.get_vars())
             if why:
                 restore(linkage, last_good)
                 result.message = f"stopped at {last_angle:.2f}° of {target_deg:.2f}°: {why} on the way to {np.degrees(angle):.2f}°"
-                return i == 1
+                return i == first
             parts = linkage.energy_parts()
             g = linkage.gradient()
             torque = float(np.mean(g[linkage.angle_indices()[joints]]))
@@ -494,6 +499,33 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             return angle, f"relaxing with joint {j}'s angle held did not converge ({report.message})"
         return angle, inversion(linkage.get_vars())
 
+    def folded_start() -> bool:
+        """Whether the run just ended stopped at its start or first step by folding a joint (not by request)."""
+        return "inverts" in result.message or "about to invert" in result.message
+
+    def longer_first_step(initial, initial_active, initial_angle: float) -> None:
+        """Both starts fold a joint at once: from the assembly state, a first step of 2, 4, then 8 increments.
+
+        A narrow joint of a stressed assembly state can close while the layout starts to open: held at the
+        average angle, the swimming ray's joint 118 (6.3° flat) folds on a first step of 1.8° or 3.6°, and stays
+        open on one of 5.6° or more, from where the deployment goes on in the given increments."""
+        nonlocal active
+        tried, lengths = result.start_note, []
+        for first in (2, 4, 8):
+            if first >= options.steps:
+                return
+            restore(linkage, initial)
+            active = initial_active.copy()
+            result.steps, result.torque, result.refined_steps = [], 0.0, []
+            result.start, result.start_angle_deg = "average", float(np.degrees(initial_angle))
+            lengths.append(f"{first} increments ({np.degrees(target_angle - initial_angle) * first / options.steps:.2f}°)")
+            folded = run_steps(initial_angle, "", first=first)
+            result.start_note = (f"{tried}, which folded a joint as well; " + (
+                f"then held at the average angle again, with a first step of {lengths[-1]}" if not folded
+                else f"first steps of {', '.join(lengths)} folded one too"))
+            if not folded:
+                return
+
     def start_and_steps() -> None:
         """The start (re-done held by the central joint if "auto" asks) and the steps to the target."""
         nonlocal active
@@ -512,7 +544,8 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             result.start_note = (f"held at its average angle {np.degrees(initial_angle):.2f}°, the assembly state cannot relax "
                                  f"({first}); relaxed with only the central joint's angle held"
                                  + ("" if why else f", it settled at {result.start_angle_deg:.2f}°"))
-            run_steps(alpha, why)
+            if run_steps(alpha, why) or (not result.steps and not result.converged and folded_start()):
+                longer_first_step(initial, initial_active, initial_angle)
         if result.start_note:
             result.message += f" (start: {result.start_note})"
 
