@@ -140,7 +140,10 @@ def net_bisector(X: np.ndarray, segments: np.ndarray, deployed_angle: float, sou
     try:
         graph = analyze(design_from_arrays(X, segments, source=source))
     except InputError as exc:
-        raise InputError(f"{source}: not a quad net of beams: {exc}") from None
+        # the graph's message already names the design (its label is ``source``): say the path once
+        why = str(exc)
+        why = why[len(source) + 2:] if why.startswith(f"{source}: ") else why
+        raise InputError(f"{source}: not a quad net of beams: {why}") from None
     nbr = beam_neighbours(graph)
     P = np.asarray(X, float)[np.asarray(graph.joint_vertex)]
     inner, ta, tb = crossing_tangents(nbr, P)
@@ -196,7 +199,10 @@ def net_from_arrays(X, segments, surface, smap, flat_angle: float, source: str, 
     try:
         graph = analyze(design_from_arrays(X, segments, source=source))
     except InputError as exc:
-        raise InputError(f"{source}: not a quad net of beams: {exc}") from None
+        # the graph's message already names the design (its label is ``source``): say the path once
+        why = str(exc)
+        why = why[len(source) + 2:] if why.startswith(f"{source}: ") else why
+        raise InputError(f"{source}: not a quad net of beams: {why}") from None
     start, dist = chart(surface, smap)(X)
     far = dist > 0.05 * surface.diagonal
     if far.any():
