@@ -130,3 +130,61 @@ def test_a_nets_bisector_is_that_of_the_angle_nearest_the_deployed_one():
     assert abs(net_bisector(X, S, np.radians(120))[0]) == pytest.approx(1.0, abs=1e-9)  # opens about x
     assert abs(net_bisector(X, S, np.radians(60))[1]) == pytest.approx(1.0, abs=1e-9)  # the other angle: about y
     assert abs(net_bisector(X[:, [1, 0, 2]], S, np.radians(110))[1]) == pytest.approx(1.0, abs=1e-9)
+
+
+# ---------------------------------------------------------------- recheck34: --net input faults
+def test_a_net_vertex_with_two_coordinates_is_named_by_line(tmp_path):
+    # "v 0 0" made a ragged array: an internal ValueError
+    p = tmp_path / "n2.obj"
+    p.write_text("v 0 0 0\nv 1 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n")
+    with pytest.raises(InputError, match=r"n2.obj:2: a vertex needs three numbers \(x y z\), got 2"):
+        read_net(p)
+
+
+def _quad_grid_obj(n=4):
+    verts = "".join(f"v {100.0 * i} {100.0 * j} 0\n" for i in range(n) for j in range(n))
+    faces = "".join(f"f {i * n + j + 1} {(i + 1) * n + j + 1} {(i + 1) * n + j + 2} {i * n + j + 2}\n"
+                    for i in range(n - 1) for j in range(n - 1))
+    return verts + faces
+
+
+def test_a_net_with_a_diagonal_is_refused_naming_the_triangles_joints(tmp_path):
+    # a quad grid plus one diagonal between two boundary joints ran to a late "stopped"
+    p = tmp_path / "diag.obj"
+    p.write_text(_quad_grid_obj() + "l 2 5\n")
+    ok = tmp_path / "ok.obj"
+    ok.write_text(_quad_grid_obj())
+    V, S = read_net(ok)
+    assert len(V) == 16 and len(S) == 24
+    with pytest.raises(InputError, match=r"diag.obj:26: vertices 1, 2 and 5 form a triangle") as exc:
+        read_net(p)
+    assert "\n" not in str(exc.value)
+    pent = tmp_path / "pent.obj"  # a pentagon given as a face is refused by its side count
+    pent.write_text("v 0 0 0\nv 1 0 0\nv 1.5 1 0\nv 0.5 1.5 0\nv -0.5 1 0\nf 1 2 3 4 5\n")
+    with pytest.raises(InputError, match=r"pent.obj:6: a face with 5 sides"):
+        read_net(pent)
+
+
+def test_estimate_segments_is_a_float_and_does_not_overflow_for_a_tiny_spacing():
+    # spacing 1e-300 raised OverflowError (int(round(inf))) before the "more than 5,000 segments" check
+    from xshells.inverse.net import estimate_segments
+
+    s = check_target(*grid(n=4, size=1000.0))
+    assert estimate_segments(s, 100.0, np.radians(90)) == 200.0
+    n = estimate_segments(s, 1e-300, np.radians(90))
+    assert isinstance(n, float) and n > 5000
+
+
+def test_a_disconnected_net_names_its_file_once(tmp_path):
+    from xshells.inverse.flatten import net_from_file
+
+    s = check_target(*grid(n=7, size=1000.0))
+    m = scissor_map(s, np.radians(90), np.radians(20))
+    one = "v 0 0 0\nv 100 0 0\nv 100 100 0\nv 0 100 0\n"
+    two = "v 300 300 0\nv 400 300 0\nv 400 400 0\nv 300 400 0\n"
+    p = tmp_path / "two.obj"
+    p.write_text(one + two + "f 1 2 3 4\nf 5 6 7 8\n")
+    with pytest.raises(InputError) as exc:
+        net_from_file(p, s, m, np.radians(20))
+    msg = str(exc.value)
+    assert msg.count(str(p)) == 1 and "disconnected" in msg, msg

@@ -59,9 +59,14 @@ class Net:
         return np.linalg.norm(X[self.segments[:, 1]] - X[self.segments[:, 0]], axis=1)
 
 
-def estimate_segments(surface: TargetSurface, spacing: float, angle: float) -> int:
-    """About how many segments a net of this spacing and crossing angle has on the surface."""
-    return int(round(2.0 * surface.area / (spacing**2 * np.sin(angle))))
+def estimate_segments(surface: TargetSurface, spacing: float, angle: float) -> float:
+    """About how many segments a net of this spacing and crossing angle has on the surface (a float:
+    ``inf`` where a tiny spacing overflows it, so the caller's "too many segments" check still applies)."""
+    # divide twice rather than by spacing²: below ~1e-154 the square underflows to 0, and int(round(inf))
+    # raised OverflowError; a float count compares with the limit whatever its size
+    with np.errstate(over="ignore", divide="ignore"):
+        n = 2.0 * float(surface.area) / float(np.sin(angle)) / float(spacing) / float(spacing)
+    return float(round(n)) if np.isfinite(n) else float(n)
 
 
 def _beam_directions(smap: ScissorMap, angle: float):
@@ -205,6 +210,8 @@ def read_net(path) -> tuple[np.ndarray, np.ndarray]:
         if not parts:
             continue
         if parts[0] == "v":
+            if len(parts) < 4:  # a 2D vertex would make a ragged array and an internal error below
+                raise InputError(f"{path}:{ln}: a vertex needs three numbers (x y z), got {len(parts) - 1}")
             try:
                 verts.append([float(x) for x in parts[1:4]])
             except ValueError:
@@ -243,7 +250,27 @@ def read_net(path) -> tuple[np.ndarray, np.ndarray]:
     if deg.max() > 4:
         v = int(np.argmax(deg))
         raise InputError(f"{path}: vertex {v + 1} has {int(deg[v])} segments: a quad net has at most four at a joint")
+    _check_no_triangle(S, path, seg_line)
     used = deg > 0
     remap = -np.ones(len(V), np.int64)
     remap[used] = np.arange(int(used.sum()))
     return V[used], remap[S]
+
+
+def _check_no_triangle(S, path, seg_line) -> None:
+    """A quad net has no 3-cycle: a diagonal across a quad (or any three joints joined in a ring) makes a cell
+    the linkage cannot hold, and it surfaced only as a late "stopped" of the design. Faces are already
+    checked to be quads (``read_net``); every joint has at most four neighbours, so one set intersection per
+    segment is cheap."""
+    nbrs = [set() for _ in range(int(S.max()) + 1)]
+    for a, b in S:
+        nbrs[a].add(int(b))
+        nbrs[b].add(int(a))
+    for a, b in S:
+        common = nbrs[a] & nbrs[b]
+        if common:
+            c = min(common)
+            tri = sorted((int(a), int(b), c))
+            ln = max(seg_line[(tri[0], tri[1])], seg_line[(tri[0], tri[2])], seg_line[(tri[1], tri[2])])
+            raise InputError(f"{path}:{ln}: vertices {tri[0] + 1}, {tri[1] + 1} and {tri[2] + 1} form a triangle: "
+                             f"--net must be a quad net (four segments around each cell, no diagonals)")
