@@ -36,7 +36,7 @@ def test_faces_are_oriented_consistently_and_upward():
 @pytest.mark.parametrize("make, words", [
     (lambda: (np.zeros((0, 3)), np.zeros((0, 3), int)), "empty"),
     (lambda: (np.where(np.arange(36)[:, None] == 7, np.nan, grid()[0]), grid()[1]), "non-finite"),
-    (lambda: (grid()[0], np.r_[grid()[1], [[0, 1, 7]]]), "not manifold"),
+    (lambda: (grid()[0], np.r_[grid()[1], [[0, 7, 20]]]), "not manifold"),  # a fin on the diagonal 0–7
     (lambda: (np.r_[grid()[0], grid()[0] + 5000.0], np.r_[grid()[1], grid()[1] + 36]), "separate pieces"),
     (lambda: (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])), "closed"),
     (lambda: (np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0], [0, 1, 0]]), np.array([[0, 1, 2], [0, 1, 3]])), "zero area"),
@@ -106,3 +106,95 @@ def test_a_curved_developable_surface_is_named_and_a_nearly_flat_or_doubly_curve
     assert "developable" in developable_warning(barrel, 0.01)
     assert developable_warning(cylinder(1e5), 0.01) == ""  # within the bar of its plane
     assert developable_warning(_cap(21), 0.01) == ""
+
+
+# ---------------------------------------------------------------- recheck34: surface input faults
+def _mobius(n=24, w=100.0, R=1000.0):
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    V = []
+    for s in (-w, w):
+        V += [[(R + s * np.cos(a / 2)) * np.cos(a), (R + s * np.cos(a / 2)) * np.sin(a), s * np.sin(a / 2)] for a in t]
+    V = np.array(V)
+    F = []
+    for i in range(n):
+        j = (i + 1) % n
+        a, b, c, d = i, j, n + j, n + i
+        if j == 0:  # the half twist: the strip's edges swap as it closes
+            b, c = n + j, j
+        F += [[a, b, c], [a, c, d]]
+    return V, np.array(F)
+
+
+def test_a_mobius_strip_is_refused_as_one_sided():
+    # it was "the surface has -16 handle(s)": igl.bfs_orient cannot tell, Euler's formula then lies
+    V, F = _mobius()
+    with pytest.raises(InputError) as exc:
+        check_target(V, F, "m.obj")
+    assert str(exc.value) == "m.obj: the surface is one-sided (not orientable, like a Möbius strip): an X-shell is a two-sided sheet"
+    V, F = grid()
+    F = F.copy()
+    F[::2] = F[::2, ::-1]  # a mixed but orientable export is still accepted
+    check_target(V, F, "g.obj")
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_a_duplicate_face_is_named_with_both_face_numbers(flip):
+    # it was "the mesh is not manifold: the edge between vertices 6 and 18 has 3 triangles"
+    V, F = grid()
+    F = np.r_[F, F[10:11, ::-1] if flip else F[10:11]]
+    with pytest.raises(InputError, match=rf"d.obj: triangle {len(F)} duplicates triangle 11 \(the same three vertices\)"):
+        check_target(V, F, "d.obj")
+
+
+def test_an_unwelded_seam_is_named_with_a_coincident_vertex_pair():
+    # two halves of one grid whose seam vertices were exported twice: it was "2 separate pieces"
+    V, F = grid(n=5)  # a grid line at x = 0: vertices 11 to 15
+    left = F[(V[F][:, :, 0] <= 1e-9).all(axis=1)]
+    right = F[(V[F][:, :, 0] >= -1e-9).all(axis=1)] + len(V)
+    with pytest.raises(InputError) as exc:
+        check_target(np.r_[V, V], np.r_[left, right], "s.obj")
+    msg = str(exc.value)
+    assert "touch at coincident vertices that are not merged (vertices 11 and 36): weld them" in msg, msg
+    with pytest.raises(InputError, match="2 separate pieces"):  # apart: still two pieces
+        check_target(np.r_[V, V + [5000.0, 0, 0]], np.r_[left, right], "s.obj")
+
+
+def test_unused_vertices_are_dropped_before_the_finiteness_check():
+    # an unused NaN vertex was refused while an unused 1e20 one was accepted
+    V, F = grid()
+    for extra in (np.nan, 1e20):
+        s = check_target(np.r_[V, [[extra, 0, 0]]], F, "u.obj")
+        assert len(s.V) == len(V)
+    bad = V.copy()
+    bad[7, 2] = np.nan
+    with pytest.raises(InputError, match="u.obj: vertex 8 has a non-finite coordinate"):
+        check_target(bad, F, "u.obj")
+
+
+@pytest.mark.parametrize("name, text, formats", [
+    ("obj_named.stl", "".join("v %g %g %g\n" % tuple(v) for v in grid()[0]) +
+     "".join("f %d %d %d\n" % tuple(f + 1) for f in grid()[1]), "stl"),
+    ("garbage.ply", "ply\nformat nonsense\n", "ply"),
+    ("garbage.msh", "not a mesh at all\n", "ansys or gmsh"),
+])
+def test_a_file_meshio_cannot_read_is_one_input_error_not_an_exit(tmp_path, capsys, name, text, formats):
+    # meshio printed "Error: Couldn't read file ... as stl" and called sys.exit(1): no prefix, exit code 1
+    p = tmp_path / name
+    p.write_text(text)
+    with pytest.raises(InputError) as exc:
+        load_target(p)
+    assert str(exc.value).startswith(f"{p}: cannot read the target surface as {formats}:")
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
+
+
+def test_reading_a_gmsh_file_prints_nothing(tmp_path, capsys):
+    # meshio's gmsh reader printed blank lines on stdout
+    import meshio
+
+    V, F = grid()
+    meshio.write(str(tmp_path / "g.msh"), meshio.Mesh(V, [("triangle", F)]), file_format="gmsh22")
+    capsys.readouterr()
+    assert len(load_target(tmp_path / "g.msh").F) == len(F)
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""

@@ -2,13 +2,16 @@
 
 Every defect a mesh can have for this purpose is reported as one line that
 names the file: unreadable, empty, non-finite coordinates, non-manifold
-edges or vertices, several pieces, a closed surface (no boundary) or one
-with handles. Faces are re-oriented consistently (a mixed orientation is a
-property of how the mesh was exported, not of the surface).
+edges or vertices, duplicate faces, several pieces (or an unwelded seam), a
+one-sided (non-orientable) surface, a closed surface (no boundary) or one
+with handles. Unused vertices are dropped before any check. Faces are
+re-oriented consistently (a mixed orientation is a property of how the
+mesh was exported, not of the surface).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -70,8 +73,32 @@ def load_target(path) -> TargetSurface:
 
     from ..design.fitting import read_surface_noted
 
-    V, F, face, note = read_surface_noted(path)
+    V, F, face, note = _read_quietly(read_surface_noted, path)
     return replace(check_target(V, F, str(path), face=face), note=note)
+
+
+def _read_quietly(read, path):
+    """``read(path)`` with meshio's console output held back, and its ``sys.exit`` made an InputError.
+
+    meshio prints each failed reader's complaint and then calls ``sys.exit(1)`` when no reader for the
+    extension accepts the file (an OBJ named ``.stl``, a corrupt ``.ply``): that printed "Error: Couldn't
+    read file ..." without the command's prefix and exited 1, the code for a missed design. Its gmsh reader
+    also prints blank lines on success. Exceptions are not touched: they are the real errors, and the
+    reader already words them."""
+    import contextlib
+    import io
+    import re
+
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            return read(path)
+    except SystemExit:
+        said = " ".join((out.getvalue() + " " + err.getvalue()).split())
+        m = re.search(r"Couldn't read file .* as (?:either of )?(.+)$", said)
+        formats = " or ".join(f.strip() for f in m.group(1).split(",")) if m else Path(str(path)).suffix.lstrip(".")
+        raise InputError(f"{path}: cannot read the target surface as {formats or 'a mesh'}: the file is not valid "
+                         f"{formats or 'mesh'} data (is its extension right?)") from None
 
 
 def _edges(F: np.ndarray):
@@ -79,6 +106,45 @@ def _edges(F: np.ndarray):
     E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     uniq, count = np.unique(E, axis=0, return_counts=True)
     return uniq, count
+
+
+def _coincident_across(V, labels, diag):
+    """A pair of vertices (i, j) in different pieces at the same point (to 1e-9 of the diagonal), or None."""
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(V).query_pairs(1e-9 * diag, output_type="ndarray")
+    across = pairs[labels[pairs[:, 0]] != labels[pairs[:, 1]]] if len(pairs) else pairs
+    if len(across) == 0:
+        return None
+    across = np.sort(across, axis=1)
+    first = np.lexsort((across[:, 1], across[:, 0]))[0]  # the lowest-numbered pair: a stable message
+    return int(across[first, 0]), int(across[first, 1])
+
+
+def _orientation_conflict(F):
+    """A triangle at which no consistent orientation closes (the surface is non-orientable), or None.
+
+    Two triangles sharing an edge agree when they run along it in opposite directions. On the double cover
+    (each triangle as kept, 2t, and flipped, 2t+1) an agreeing pair links kept–kept and flipped–flipped, a
+    disagreeing pair kept–flipped: the mesh is orientable iff no triangle's two copies are connected.
+    Call on an edge-manifold mesh (at most two triangles per edge)."""
+    m = len(F)
+    half = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    tri = np.tile(np.arange(m), 3)
+    und = np.sort(half, axis=1)
+    _, inv, cnt = np.unique(und, axis=0, return_inverse=True, return_counts=True)
+    inv = np.asarray(inv).ravel()
+    order = np.argsort(inv, kind="stable")
+    inner = cnt[inv[order]] == 2
+    o = order[inner].reshape(-1, 2)  # the two half-edges of each interior edge
+    t, u = tri[o[:, 0]], tri[o[:, 1]]
+    same = half[o[:, 0], 0] == half[o[:, 1], 0]  # both run the same way: one of them must flip
+    rows = np.r_[2 * t, 2 * t + 1]
+    cols = np.r_[2 * u + same, 2 * u + 1 - same]
+    A = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(2 * m, 2 * m))
+    _, lab = connected_components(A, directed=False)
+    bad = np.flatnonzero(lab[0::2] == lab[1::2])
+    return int(bad[0]) if len(bad) else None
 
 
 def check_target(V, F, where: str = "the target surface", face=None) -> TargetSurface:
@@ -101,13 +167,15 @@ def check_target(V, F, where: str = "the target surface", face=None) -> TargetSu
 
     if len(F) == 0 or len(V) < 3:
         raise InputError(f"{where}: the mesh is empty (no triangles)")
-    if not np.isfinite(V).all():
-        bad = int(np.flatnonzero(~np.isfinite(V).all(axis=1))[0])
-        raise InputError(f"{where}: vertex {bad + 1} has a non-finite coordinate")
+    # unused vertices are dropped first, then only the used ones are checked: an unused NaN was refused
+    # while an unused 1e20 was accepted, though neither touches the surface
     used = np.unique(F)
     remap = -np.ones(len(V), np.int64)
     remap[used] = np.arange(len(used))
     V, F = V[used], remap[F]
+    if not np.isfinite(V).all():
+        bad = int(np.flatnonzero(~np.isfinite(V).all(axis=1))[0])
+        raise InputError(f"{where}: vertex {used[bad] + 1} has a non-finite coordinate")
     dup = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
     if dup.any():
         raise InputError(f"{where}: {triangle(int(np.flatnonzero(dup)[0]))} repeats a vertex")
@@ -120,19 +188,34 @@ def check_target(V, F, where: str = "the target surface", face=None) -> TargetSu
         n = int(flat.sum())
         raise InputError(f"{where}: {n} triangle{'s have' if n != 1 else ' has'} zero area (the first is "
                          f"{triangle(int(np.flatnonzero(flat)[0]))})")
+    # a face given twice (either orientation) makes its edges look non-manifold: name it for what it is
+    key, first, inverse = np.unique(np.sort(F, axis=1), axis=0, return_index=True, return_inverse=True)
+    if len(key) < len(F):
+        inverse = np.asarray(inverse).ravel()
+        j = int(np.flatnonzero(first[inverse] != np.arange(len(F)))[0])
+        raise InputError(f"{where}: {triangle(j)} duplicates {triangle(int(first[inverse[j]]))} (the same three "
+                         f"vertices): remove one")
     E, count = _edges(F)
     if (count > 2).any():
         a, b = E[np.flatnonzero(count > 2)[0]]
         raise InputError(f"{where}: the mesh is not manifold: the edge between vertices {used[a] + 1} and {used[b] + 1} "
                          f"has {int(count[count > 2][0])} triangles")
     adj = sp.coo_matrix((np.ones(len(E)), (E[:, 0], E[:, 1])), shape=(len(V), len(V)))
-    pieces, _ = connected_components(adj, directed=False)
+    pieces, labels = connected_components(adj, directed=False)
     if pieces > 1:
+        seam = _coincident_across(V, labels, diag)
+        if seam is not None:  # an unwelded seam: the pieces are one surface whose copies were not merged
+            a, b = (int(used[v]) + 1 for v in seam)
+            raise InputError(f"{where}: the mesh falls into {pieces} pieces that touch at coincident vertices that "
+                             f"are not merged (vertices {a} and {b}): weld them")
         raise InputError(f"{where}: the mesh has {pieces} separate pieces; give one connected surface")
     manifold_vertex = np.asarray(igl.is_vertex_manifold(F)).ravel().astype(bool)
     if not manifold_vertex.all():
         v = int(np.flatnonzero(~manifold_vertex)[0])
         raise InputError(f"{where}: the mesh is not manifold at vertex {used[v] + 1} (two sheets meet there)")
+    if _orientation_conflict(F) is not None:  # igl.bfs_orient cannot tell; Euler's formula then gave "-16 handle(s)"
+        raise InputError(f"{where}: the surface is one-sided (not orientable, like a Möbius strip): an X-shell is a "
+                         f"two-sided sheet")
     F, _ = igl.bfs_orient(F)
     F = np.asarray(F, np.int64)
     loops = (count == 1).any() and len(igl.boundary_loop_all(F)) or 0
