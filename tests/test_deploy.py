@@ -591,6 +591,11 @@ def test_material_option_keeps_a_section_files_own_moduli(tmp_path):
 @pytest.mark.parametrize("option, words", [
     (["--young", "0"], "--young must be a positive Young's modulus"), (["--poisson", "0.7"], "--poisson must lie in"),
     (["--material", "rectangle:1"], "--material rectangle:1: rectangle takes 2 parameters"),
+    # recheck34: these said "profile: unknown cross-section type 'bogus'" and "must be positive, got inf"
+    (["--material", "bogus:1,2"], "--material bogus:1,2: unknown cross-section type 'bogus'"),
+    (["--material", "rectangle:inf,7"], "--material rectangle:inf,7: rectangle dimension width must be a positive finite number, got inf"),
+    (["--material", "ellipse:3,0"], "--material ellipse:3,0: ellipse dimension b must be a positive finite number, got 0"),
+    (["--material", "rectangle:1e-12,7"], "--material rectangle:1e-12,7: rectangle dimension width = 1e-12 is outside"),
 ])
 def test_cli_material_errors_name_the_option(tmp_path, capsys, option, words):
     # they said "rectangle: Young's modulus must be positive", naming no option

@@ -110,11 +110,19 @@ def material_spec_from_option(option: str | None, young: float | None = None, po
         values = [float(v) for v in params.split(",")] if params else []
     except ValueError:
         raise InputError(f"--material {option}: parameters must be numbers, as in rectangle:10,7") from None
-    from ..section.profiles import PARAM_NAMES
+    from ..section.profiles import PARAM_NAMES, _check_params, canonical_type
 
-    count = len(PARAM_NAMES[kind].split(", ")) if kind in PARAM_NAMES else None
-    if count is not None and len(values) != count:
-        raise InputError(f"--material {option}: {kind} takes {count} parameters ({PARAM_NAMES[kind]}), got {len(values)}")
+    # checked here, naming the option: the section's own checks said "profile: unknown cross-section type"
+    # and "must be positive, got inf", naming neither the option nor what a valid value is
+    where = f"--material {option}"
+    canonical = canonical_type(kind, where)
+    names = PARAM_NAMES[canonical].split(", ")
+    if len(values) != len(names):
+        raise InputError(f"{where}: {kind} takes {len(names)} parameters ({PARAM_NAMES[canonical]}), got {len(values)}")
+    for label, value in zip(names, values):
+        if not (np.isfinite(value) and value > 0):
+            raise InputError(f"{where}: {kind} dimension {label} must be a positive finite number, got {value:g}")
+    _check_params(canonical, values, len(names), where)  # the section's range and aspect checks, naming the option
     return {"type": kind, "params": values, "E": E, "nu": nu}
 
 
