@@ -190,8 +190,10 @@ def read_net(path) -> tuple[np.ndarray, np.ndarray]:
     Raises
     ------
     InputError
-        A face that is not a quad, a vertex where more than four segments
-        meet, or no segments at all: one line naming the file and line.
+        A vertex line with fewer than three numbers, a face that is not a
+        quad, a vertex where more than four segments meet, three joints
+        joined in a triangle, or no segments at all: one line naming the
+        file (and line where there is one).
     """
     verts, segs = [], set()
     check_input_file(path, "the net")
