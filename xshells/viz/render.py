@@ -364,7 +364,8 @@ def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.n
     side = 7.5  # inches for the longer side of the drawing
     w, h = (side, side * aspect) if aspect <= 1 else (side / aspect, side)
     wide = aspect < 0.8
-    fig, ax = plt.subplots(figsize=(max(w, 2.5) + (0 if wide else 1.6), max(h, 1.5) + (1.4 if wide else 0.6)))
+    # at least 6.5 in wide, for the title (the saved picture is cropped to the drawing, its labels and title)
+    fig, ax = plt.subplots(figsize=(max(w + (0 if wide else 1.6), 6.5), max(h, 1.5) + (1.4 if wide else 0.6)))
     if vertex_values is None:
         lc = LineCollection(segs, colors="0.2", linewidths=1.4)
     else:
