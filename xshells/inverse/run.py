@@ -1130,15 +1130,16 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
     folded = folded_joint(flat) or folded_joint(deployed)
     overlap = beam_overlaps(flat, width) if width > 0 else ""
     tracked = float(np.sqrt(np.mean(np.sum((Xp - guess) ** 2, axis=1)))) / surface.diagonal
-    from ..deploy.run import bending_field
+    from ..linkage.export import scalar_fields
     from ..viz.render import render_flat
 
     render_fit(os.path.join(out_dir, "fit.png"), surface.V, surface.F, rods, deployed.rods.edges, rod_d,
-               title=f"fit: mean {100 * d.mean():.2f}%, max {100 * d.max():.2f}% of the diagonal",
-               label="distance to the surface (surface units)")
-    render_flat(os.path.join(out_dir, "flat.png"), flat.rods.points, flat.rods.edges, bending_field(flat),
+               title=f"joints' fit: mean {100 * d.mean():.2f}%, max {100 * d.max():.2f}% of the diagonal",
+               unit=surface.unit.strip(), joint_max=float(d.max()) * surface.diagonal)
+    render_flat(os.path.join(out_dir, "flat.png"), flat.rods.points, flat.rods.edges,
+                scalar_fields(flat)["bending_stress"], label="bending stress at the outer fibres (E's unit: MPa for mm)",
                 title=f"flat layout: {flat.num_segments} segments, closed to {np.degrees(flat.average_angle()):.1f}° "
-                      f"on average")
+                      f"on average", unit=surface.unit.strip() or "surface units")
     eig = dep["deployed"].get("min_eigenvalue_at_fixed_angle", float("nan"))
     valid = dep["reached"] and not folded and not overlap and flat_z <= PLANAR and eig >= 0
     reached = d.mean() <= REACH["fit_mean"] and d.max() <= REACH["fit_max"] and cov >= REACH["coverage"]

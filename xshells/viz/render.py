@@ -255,66 +255,138 @@ def plot_convergence(path, curves: dict, title: str = "") -> None:
     plt.close(fig)
 
 
+def _length_label(name: str, unit: str) -> str:
+    """An axis label with its length unit: ``"x (mm)"``; ``unit`` empty: the surface file's own units."""
+    return f"{name} ({unit or 'surface units'})"
+
+
 def render_fit(path, V: np.ndarray, F: np.ndarray, points: np.ndarray, edges: np.ndarray, distances: np.ndarray,
-               title: str = "", label: str = "distance to the surface") -> None:
-    """The deployed beams over the translucent target surface, coloured by their distance to it.
+               title: str = "", unit: str = "", joint_max: float | None = None):
+    """The deployed beams over the target surface, coloured by their centrelines' distance to it.
 
     Parameters
     ----------
+    path : str
+        The PNG to write.
     V, F : (n, 3), (m, 3)
         The target surface.
     points : (k, 3), edges : (e, 2)
-        Rod centerlines (placed in the surface's frame).
+        Rod centrelines (placed in the surface's frame).
     distances : (k,)
-        Per rod vertex; each edge shows the mean of its endpoints.
+        Per rod vertex, in the surface's length unit; each edge shows the mean of its endpoints. The colour
+        scale runs from 0 to their maximum (free ends included), which its label states.
+    title : str
+        E.g. the joints' fit as the result reports it.
+    unit : str
+        The length unit of the axes and the colour bar ("mm"); empty: "surface units".
+    joint_max : float, optional
+        The joints' largest distance, in the same unit: marked on the colour bar, so that the title's
+        figure and the colours compare.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The closed figure, for inspection.
     """
     plt = _pyplot()
+    from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-    fig = plt.figure(figsize=(7.5, 5.8))
+    u = unit or "surface units"
+    fig = plt.figure(figsize=(8.0, 5.0))
     ax = fig.add_subplot(projection="3d")
-    ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=F, color="0.75", alpha=0.25, linewidth=0, shade=True)
+    ax.computed_zorder = False  # the beams over the surface (sorted by depth, the surface hid them)
+    ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=F, color="#9ab8d8", alpha=0.45, linewidth=0.15,
+                    edgecolor="#6f8fb3", shade=True, zorder=1)
+    top = max(float(np.max(distances)), 1e-12)
     vals = 0.5 * (distances[edges[:, 0]] + distances[edges[:, 1]])
-    lc = Line3DCollection(points[edges], array=vals, cmap="plasma", linewidths=1.8)
-    lc.set_clim(0.0, max(float(vals.max()), 1e-12))
+    lc = Line3DCollection(points[edges], array=vals, cmap="plasma", linewidths=2.0, zorder=2)
+    lc.set_clim(0.0, top)
     ax.add_collection3d(lc)
-    _equal_axes(ax, np.vstack([V, points]))
-    fig.colorbar(lc, ax=ax, shrink=0.6, label=label)
+    P = np.vstack([V, points])
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    pad = 0.02 * float(np.max(hi - lo))
+    ax.set(xlim=(lo[0] - pad, hi[0] + pad), ylim=(lo[1] - pad, hi[1] + pad), zlim=(lo[2] - pad, hi[2] + pad))
+    ax.set_box_aspect(np.maximum(hi - lo + 2 * pad, 1e-3 * float(np.max(hi - lo))), zoom=1.2)  # one scale
+    ax.view_init(elev=28, azim=-60)
+    for axis, name in zip((ax.xaxis, ax.yaxis, ax.zaxis), "xyz"):
+        axis.set_major_locator(MaxNLocator(4))  # few ticks: the x and y labels collided at the near corner
+        axis.set_label_text(_length_label(name, unit))
+    ax.tick_params(labelsize=8, pad=1)
+    cb = fig.colorbar(lc, ax=ax, orientation="horizontal", shrink=0.55, pad=0.02, aspect=35,
+                      label=f"distance of the beam centrelines to the surface ({u}): up to {top:.3g}, free ends included")
+    if joint_max is not None:
+        cb.ax.axvline(joint_max, color="black", linewidth=2.0)
+        cb.ax.text(joint_max, 1.15, f"joints' max {joint_max:.3g}", transform=cb.ax.get_xaxis_transform(),
+                   ha="center", va="bottom", fontsize=8)
     ax.set_title(title)
     _save(fig, path)
     plt.close(fig)
+    return fig
 
 
 def render_flat(path, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray | None = None, title: str = "",
-                label: str = "√(bending energy density)", axes: tuple = ("x", "y"), vmax: float | None = None) -> None:
-    """A top view (the first two coordinates, equal scale) of a flat layout's rod centerlines, optionally coloured
-    per edge. ``axes``: the names of those two coordinates (a layout drawn in another plane, projected on it);
-    ``vmax``: the top of the colour scale (default: the field's maximum)."""
+                label: str = "√(bending energy per unit length) (√N for mm and MPa)", axes: tuple = ("x", "y"),
+                vmax: float | None = None, unit: str = ""):
+    """A top view (the first two coordinates, equal scale, tight bounds) of a flat layout's rod centrelines,
+    optionally coloured per edge.
+
+    Parameters
+    ----------
+    path : str
+        The PNG to write.
+    points : (k, 2 or 3), edges : (e, 2)
+        Rod centrelines; only the first two coordinates are drawn.
+    vertex_values : (k,), optional
+        Colour field; each edge shows the mean of its endpoints. None: the beams in dark grey.
+    title, label : str
+        The title and the colour bar's label (what the field is, with its unit).
+    axes : (str, str)
+        The names of the two coordinates (a layout drawn in another plane, projected on it).
+    vmax : float, optional
+        The top of the colour scale (default: the field's maximum).
+    unit : str
+        The length unit of the axes ("mm"), if known: then the axis labels state it.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The closed figure, for inspection.
+    """
     plt = _pyplot()
     from matplotlib.collections import LineCollection
+    from mpl_toolkits.axes_grid1 import make_axes_locatable
 
-    span = np.ptp(points[:, :2], axis=0)
-    aspect = float(span[1] / max(span[0], 1e-300))
-    fig, ax = plt.subplots(figsize=(9.0, float(np.clip(9.0 * aspect, 2.2, 9.0)) + 1.8))
     segs = points[edges][:, :, :2]
+    lo, hi = segs.reshape(-1, 2).min(axis=0), segs.reshape(-1, 2).max(axis=0)
+    span = np.maximum(hi - lo, 1e-12 * max(float(np.max(hi - lo)), 1e-300))
+    aspect = float(span[1] / span[0])
+    side = 7.5  # inches for the longer side of the drawing
+    w, h = (side, side * aspect) if aspect <= 1 else (side / aspect, side)
+    wide = aspect < 0.8
+    # at least 6.5 in wide, for the title (the saved picture is cropped to the drawing, its labels and title)
+    fig, ax = plt.subplots(figsize=(max(w + (0 if wide else 1.6), 6.5), max(h, 1.5) + (1.4 if wide else 0.6)))
     if vertex_values is None:
         lc = LineCollection(segs, colors="0.2", linewidths=1.4)
     else:
         vals = 0.5 * (vertex_values[edges[:, 0]] + vertex_values[edges[:, 1]])
         lc = LineCollection(segs, array=vals, cmap="viridis", linewidths=1.4)
-        if vmax is not None:
-            lc.set_clim(0.0, vmax)
-        fig.colorbar(lc, ax=ax, orientation="horizontal" if aspect < 0.6 else "vertical", shrink=0.6, pad=0.18,
-                     label=label)
+        lc.set_clim(0.0, float(np.max(vertex_values)) if vmax is None else vmax)
     ax.add_collection(lc)
-    ax.autoscale()
+    m = 0.02 * float(np.max(span))
+    ax.set_xlim(lo[0] - m, hi[0] + m)
+    ax.set_ylim(lo[1] - m, hi[1] + m)
     ax.set_aspect("equal")
-    ax.set_xlabel(axes[0])
-    ax.set_ylabel(axes[1])
+    ax.set_xlabel(f"{axes[0]} ({unit})" if unit else axes[0])
+    ax.set_ylabel(f"{axes[1]} ({unit})" if unit else axes[1])
     ax.set_title(title)
-    fig.tight_layout()
+    if vertex_values is not None:  # beside the drawing, whatever its shape (not a fixed figure fraction away)
+        cax = make_axes_locatable(ax).append_axes("bottom" if wide else "right", size="4%" if not wide else "6%",
+                                                  pad=0.6 if wide else 0.15)
+        fig.colorbar(lc, cax=cax, orientation="horizontal" if wide else "vertical", label=label)
     _save(fig, path)
     plt.close(fig)
+    return fig
 
 
 def render_analysis(path, points0: np.ndarray, points: np.ndarray, edges: np.ndarray, vertex_values: np.ndarray,
