@@ -431,3 +431,15 @@ def test_paper_defaults(grid):
     assert 0 < term.value(term.targets) < 0.45 * (0.05 * span) ** 2
     V, F = target_surface(grid, subdivisions=1)
     assert len(FittingTerm.paper_defaults(grid, surface=(V, F)).surface[1]) == len(F)
+
+
+def test_a_file_meshio_cannot_read_is_one_input_error_for_every_command(tmp_path):
+    """meshio answers a corrupt file by printing "Error: Couldn't read file ..." and calling sys.exit(1): `xshells
+    optimize --target-surface` printed that and exited 1 without its prefix."""
+    from xshells.design.fitting import read_surface_noted
+    from xshells.errors import InputError
+
+    bad = tmp_path / "garbage.ply"
+    bad.write_bytes(b"ply\nformat nonsense\n\x00\x01\x02")
+    with pytest.raises(InputError, match="garbage.ply: cannot read the target surface as ply"):
+        read_surface_noted(bad)

@@ -300,6 +300,30 @@ def read_surface_noted(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
     return V, F, face, note
 
 
+def _read_quietly(read, path):
+    """``read(path)`` with meshio's console output held back, and its ``sys.exit`` made an InputError.
+
+    meshio prints each failed reader's complaint and then calls ``sys.exit(1)`` when no reader for the
+    extension accepts the file (an OBJ named ``.stl``, a corrupt ``.ply``): that printed "Error: Couldn't
+    read file ..." without the command's prefix and exited 1, the code for a missed design. Its gmsh reader
+    also prints blank lines on success. Exceptions are not touched: they are the real errors, and the
+    reader already words them."""
+    import contextlib
+    import io
+    import re
+
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            return read(path)
+    except SystemExit:
+        said = " ".join((out.getvalue() + " " + err.getvalue()).split())
+        m = re.search(r"Couldn't read file .* as (?:either of )?(.+)$", said)
+        formats = " or ".join(f.strip() for f in m.group(1).split(",")) if m else Path(str(path)).suffix.lstrip(".")
+        raise InputError(f"{path}: cannot read the target surface as {formats or 'a mesh'}: the file is not valid "
+                         f"{formats or 'mesh'} data (is its extension right?)") from None
+
+
 def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, str | None]:
     """:func:`read_surface_faces` before the size check.
 
@@ -325,7 +349,9 @@ def _read_surface_faces(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None
     try:
         with warnings.catch_warnings():  # meshio warns while guessing at malformed files
             warnings.simplefilter("ignore")
-            mesh = meshio.read(str(path))
+            mesh = _read_quietly(meshio.read, str(path))
+    except InputError:
+        raise
     except Exception as exc:  # meshio raises many kinds for bad files
         msg = " ".join(str(exc).split()) or type(exc).__name__
         raise InputError(f"{path}: cannot read the target surface: {msg}") from None

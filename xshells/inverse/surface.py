@@ -73,32 +73,8 @@ def load_target(path) -> TargetSurface:
 
     from ..design.fitting import read_surface_noted
 
-    V, F, face, note = _read_quietly(read_surface_noted, path)
+    V, F, face, note = read_surface_noted(path)  # meshio's exits and noise handled there
     return replace(check_target(V, F, str(path), face=face), note=note)
-
-
-def _read_quietly(read, path):
-    """``read(path)`` with meshio's console output held back, and its ``sys.exit`` made an InputError.
-
-    meshio prints each failed reader's complaint and then calls ``sys.exit(1)`` when no reader for the
-    extension accepts the file (an OBJ named ``.stl``, a corrupt ``.ply``): that printed "Error: Couldn't
-    read file ..." without the command's prefix and exited 1, the code for a missed design. Its gmsh reader
-    also prints blank lines on success. Exceptions are not touched: they are the real errors, and the
-    reader already words them."""
-    import contextlib
-    import io
-    import re
-
-    out, err = io.StringIO(), io.StringIO()
-    try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            return read(path)
-    except SystemExit:
-        said = " ".join((out.getvalue() + " " + err.getvalue()).split())
-        m = re.search(r"Couldn't read file .* as (?:either of )?(.+)$", said)
-        formats = " or ".join(f.strip() for f in m.group(1).split(",")) if m else Path(str(path)).suffix.lstrip(".")
-        raise InputError(f"{path}: cannot read the target surface as {formats or 'a mesh'}: the file is not valid "
-                         f"{formats or 'mesh'} data (is its extension right?)") from None
 
 
 def _edges(F: np.ndarray):
