@@ -658,6 +658,28 @@ def test_a_finer_net_that_fails_or_is_interrupted_leaves_the_default_design(tmp_
     assert r["fit_mean"] == _NARROW["fit_mean"] and r["refined"]["refined"]["status"] == "interrupted"
 
 
+def test_a_reused_out_folder_loses_the_earlier_runs_working_folders_before_the_run(tmp_path, monkeypatch):
+    """Ctrl-C early in a run read an earlier run's candidates' result.json back and adopted them (recheck 34)."""
+    import xshells.inverse.run as run
+
+    out = tmp_path / "out"
+    for stale in ("candidates/even", "candidates/fanned/tries/1", "refined", "tries/2", "buckling"):
+        (out / stale).mkdir(parents=True)
+        (out / stale / "result.json").write_text(json.dumps({"status": "complete", "fit_mean": 0.001}))
+    (out / "result.json").write_text("{}")
+    (out / "mine.txt").write_text("the designer's own file stays")
+    seen = []
+
+    def interrupted(surface, surface_path, out_dir, material_spec, options, net_path, progress):
+        seen.extend(sorted(p.name for p in out.iterdir()))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run, "_run_at_spacing", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run.run_inverse(str(_write_hypar(tmp_path / "h.obj", n=9)), str(out), {}, progress=False)
+    assert seen == ["mine.txt"]
+
+
 def test_no_refinement_where_the_first_design_is_not_a_narrow_miss(tmp_path, monkeypatch):
     import xshells.inverse.run as run
 

@@ -351,11 +351,26 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         import sys
 
         print(f"xshells inverse: warning: {surface.path}: {warning}", file=sys.stderr)
+    check_options(options, surface)  # bad options get their line before an earlier run's outputs are cleared
+    clear_stale(out_dir)
     first = _run_at_spacing(surface, surface_path, out_dir, material_spec, options, net_path, progress)
     why = refine_reason(first, options, net_path)
     if why is None:
         return first
     return _refined(surface, surface_path, out_dir, material_spec, options, progress, first, why, t0)
+
+
+#: what a run writes in working folders of ``out_dir`` and reads back (on Ctrl-C, or to adopt a candidate, try,
+#: retry or finer net): an earlier run's, left in a reused folder (the default ``inverse_out``), must not pass for
+#: this one's (recheck 34: Ctrl-C early in a run adopted the earlier run's candidates' designs)
+STALE = ("candidates", "refined", "tries", "buckling", "result.json")
+
+
+def clear_stale(out_dir) -> None:
+    """Remove :data:`STALE` from ``out_dir``: the top-level ``result.json`` too, so that after Ctrl-C before any
+    design was written the folder does not report an earlier run's."""
+    if os.path.isdir(out_dir):
+        _remove_outputs(out_dir, STALE)
 
 
 def refine_reason(result: dict, options: InverseOptions, net_path=None) -> str | None:
@@ -507,10 +522,7 @@ def _candidates_in_processes(surface_path, out_dir, material_spec, plan, progres
     """The candidates side by side in ``workers`` processes (:mod:`.processes`), into ``results`` / ``errors``."""
     from .processes import in_processes
 
-    for existing in plan:  # a result left by an earlier run must not pass for this one's on Ctrl-C
-        stale = os.path.join(out_dir, "candidates", existing, "result.json")
-        if os.path.exists(stale):
-            os.remove(stale)
+    # an earlier run's candidates, left in a reused folder, are gone already (:func:`clear_stale`)
     jobs = [(surface_path, os.path.join(out_dir, "candidates", beams), material_spec, opts, beams, progress,
              f"auto: {why}") for beams, opts in plan.items()]
     for _, (beams, ok, value) in in_processes(_candidate, jobs, workers, progress=progress, stop_wait=STOP_WAIT):
