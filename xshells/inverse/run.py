@@ -970,15 +970,17 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
         return fwd
 
     def with_free_ends(flat_L):
-        """The stage's design with those free ends that keep clear of the other beams of their family, settled."""
+        """The stage's design with those free ends that keep clear of the other beams, settled."""
         from ..linkage.clearance import crowded_segments
+        from .free_ends import crossing_ends
 
         use, n = ends, len(design.edges)
         for _ in range(4):
             Pf, edges, p = _stage_design(flat_L, design.edges, use)
             fwd = settled_flat(Pf, edges, p)
             crowded = crowded_segments(fwd, width) if width > 0 else np.zeros(0, np.int64)
-            bad = crowded[crowded >= n] - n  # free ends too close to a neighbouring beam: left off
+            # free ends too close to a neighbouring beam, or across another beam without a joint: left off
+            bad = np.union1d(crowded[crowded >= n] - n, crossing_ends(Pf, edges, n))
             if not len(bad) or not len(use):
                 return (Pf, edges, p), fwd, use
             use = use.subset(~np.isin(np.arange(len(use)), bad))
