@@ -550,6 +550,47 @@ def test_tries_that_end_out_of_order_or_are_interrupted_keep_the_best(tmp_path):
     assert json.loads((tmp_path / "result.json").read_text()) == r
 
 
+def test_ctrl_c_in_a_try_one_after_the_other_keeps_the_best_so_far(tmp_path, monkeypatch):
+    """recheck 34: with --workers 1 the tries loop did not settle on Ctrl-C; OUT kept no try's design."""
+    import xshells.inverse.run as run
+
+    calls = []
+
+    def fake(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason=None, stop=None):
+        os.makedirs(out_dir, exist_ok=True)
+        calls.append(out_dir)
+        (open(os.path.join(out_dir, "flat_design.obj"), "w")).write(f"design {len(calls)}\n")
+        r = {"status": "missed" if len(calls) == 1 else "interrupted", "fit_mean": 0.02, "time_s": 1.0}
+        with open(os.path.join(out_dir, "result.json"), "w") as fh:
+            json.dump(r, fh)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return r
+
+    monkeypatch.setattr(run, "_run_once", fake)
+    with pytest.raises(KeyboardInterrupt):
+        run._run_net("s.obj", str(tmp_path), {}, run.InverseOptions(tries=3), None, False, workers=1)
+    r = json.loads((tmp_path / "result.json").read_text())
+    assert r["tries"]["kept"] == 1 and [d["status"] for d in r["tries"]["designs"]] == ["missed", "interrupted"]
+    assert (tmp_path / "flat_design.obj").read_text() == "design 1\n"
+
+
+def test_ctrl_c_during_the_verification_writes_the_design_as_interrupted(tmp_path):
+    import xshells.inverse.run as run
+
+    def verify():
+        raise KeyboardInterrupt
+
+    result = {"segments": 10}
+    with pytest.raises(KeyboardInterrupt):
+        run._verify_or_note(str(tmp_path), result, {}, 0.0, verify)
+    r = json.loads((tmp_path / "result.json").read_text())
+    assert r["status"] == "interrupted" and "not verified" in r["message"] and r["segments"] == 10
+    done = {}
+    run._verify_or_note(str(tmp_path), done, {}, 0.0, lambda: {"status": "complete"})
+    assert done == {"status": "complete"}
+
+
 def test_the_command_says_which_try_it_kept(tmp_path, monkeypatch, capsys):
     import xshells.inverse.run as run
 

@@ -664,19 +664,23 @@ def _run_net(surface_path, out_dir, material_spec: dict, options: InverseOptions
             tries.settle_from_disk()  # the tries' designs so far
             raise
         return tries.result()
-    for k in range(options.tries):
-        if progress is True:
-            import sys
+    try:
+        for k in range(options.tries):
+            if progress is True:
+                import sys
 
-            print(f"xshells inverse: try {k + 1} of {options.tries}: fit weight {tries.beta(k):g}", file=sys.stderr)
-        try:
-            r = _run_once(surface_path, tries.where(k), material_spec, replace(options, beta=tries.beta(k)), net_path,
-                          progress, **extra)
-        except InputError as exc:  # this try's first layout does not get through: the others stand
-            r = exc
-        tries.settle(k, r)
-        if isinstance(r, dict) and r.get("status") == "interrupted":
-            break
+                print(f"xshells inverse: try {k + 1} of {options.tries}: fit weight {tries.beta(k):g}", file=sys.stderr)
+            try:
+                r = _run_once(surface_path, tries.where(k), material_spec, replace(options, beta=tries.beta(k)),
+                              net_path, progress, **extra)
+            except InputError as exc:  # this try's first layout does not get through: the others stand
+                r = exc
+            tries.settle(k, r)
+            if isinstance(r, dict) and r.get("status") == "interrupted":
+                break
+    except KeyboardInterrupt:  # as side by side: the interrupted try's design so far counts, the best is kept
+        tries.settle_from_disk()
+        raise
     return tries.result()
 
 
@@ -1066,7 +1070,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
 
     # 6. verify: deploy the case as `xshells deploy case.json` does --------------------------------
     t = time.perf_counter()
-    result.update(_verify(out_dir, surface, net, material, options, spacing, width, best["tracked"], progress))
+    _verify_or_note(out_dir, result, times, t_start, lambda: _verify(out_dir, surface, net, material, options, spacing,
+                                                                     width, best["tracked"], progress))
     times["verify_s"] = time.perf_counter() - t
     from .surface import developable_warning, total_curvature
 
@@ -1079,6 +1084,21 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     result["time_s"], result["stage_times_s"] = times["total_s"], times
     atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
     return result
+
+
+def _verify_or_note(out_dir, result: dict, times: dict, t_start: float, verify) -> None:
+    """``result`` updated with ``verify()``'s figures; on Ctrl-C during it, ``result.json`` is written first with
+    status "interrupted" (the design is written, not verified), so that Ctrl-C keeps it: without it, an
+    interrupted candidate or try left no result.json and nothing was adopted (recheck 34)."""
+    try:
+        result.update(verify())
+    except KeyboardInterrupt:
+        result.update(status="interrupted", message="interrupted by the user during the verification: the design "
+                                                    "is written, not verified")
+        times["total_s"] = time.perf_counter() - t_start
+        result["time_s"], result["stage_times_s"] = times["total_s"], times
+        atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(result, indent=1))
+        raise
 
 
 def stage_rank(fit_mean: float, fit_max: float) -> tuple:
