@@ -607,6 +607,40 @@ def test_the_command_says_which_try_it_kept(tmp_path, monkeypatch, capsys):
     assert "tries: kept try 2 of 2 (fit weight 1000: failed, 2000: 0.40%)" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("written, words", [
+    ({"status": "missed", "fit_mean": 0.0108, "fit_max": 0.0294}, "holds the best design so far (missed, fit mean "
+                                                                   "1.08%, max 2.94% of the diagonal; verified"),
+    ({"status": "interrupted", "segments": 10}, "holds the best design so far (interrupted; written, not verified"),
+    (None, "no design was finished"),
+])
+def test_ctrl_c_says_what_the_out_folder_holds(tmp_path, monkeypatch, capsys, written, words):
+    import xshells.inverse.run as run
+
+    out = tmp_path / "o"
+
+    def fake(surface, out_dir, spec, opts, net_path=None, progress=True):
+        if written is not None:
+            os.makedirs(out_dir, exist_ok=True)
+            (out / "result.json").write_text(json.dumps(written))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run, "run_inverse", fake)
+    assert main(["inverse", str(CAP), "--out", str(out), "--no-progress"]) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("xshells inverse: interrupted; ") and words in err
+
+
+@pytest.mark.parametrize("status, verified", [("missed", True), ("stopped", False)])
+def test_the_deploy_line_is_printed_only_for_a_verified_design(tmp_path, monkeypatch, capsys, status, verified):
+    import xshells.inverse.run as run
+
+    monkeypatch.setattr(run, "run_inverse", lambda *a, **k: {
+        "status": status, "message": "m", "segments": 10, "joints": 9, "fit_mean": 0.02, "fit_max": 0.04,
+        "coverage": 0.95, "time_s": 3.0})
+    main(["inverse", str(CAP), "--out", str(tmp_path / "o"), "--no-progress"])
+    assert ("case.json reproduces the deployment" in capsys.readouterr().out) == verified
+
+
 _NARROW = {"status": "missed", "fit_mean": 0.0108, "fit_max": 0.0294, "coverage": 1.0, "spacing": 240.0,
            "developable": False}
 
