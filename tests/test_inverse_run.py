@@ -114,6 +114,29 @@ def _strip(path, length=6000.0, width=400.0, rise=800.0, n=40):
     return path
 
 
+@pytest.mark.parametrize("spacing, words", [
+    ("1e-100", "gives about 6.3e+206 segments, more than 5000: give a larger spacing, or --force"),
+    ("1e-300", "gives too many to count segments, more than 5000: give a larger spacing, or --force"),
+])
+def test_a_tiny_spacing_gets_one_line_with_a_readable_count(tmp_path, capsys, spacing, words):
+    assert main(["inverse", str(CAP), "--spacing", spacing, "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err and len(err) < 200
+
+
+def test_the_spacing_limit_stated_is_the_one_applied(tmp_path, capsys):
+    """recheck 34: "use at most 250" while 270 to 480 were accepted (the limit is half the width)."""
+    from xshells.inverse.run import InverseOptions, check_options, surface_extent
+    from xshells.errors import InputError
+    from xshells.inverse.surface import load_target
+
+    surface = load_target(_strip(tmp_path / "strip.obj"))
+    half = 0.5 * surface_extent(surface)[1]
+    assert check_options(InverseOptions(spacing=0.99 * half), surface) == pytest.approx(0.99 * half)
+    with pytest.raises(InputError, match=f"must stay below half its width, {half:.4g}"):
+        check_options(InverseOptions(spacing=half), surface)
+
+
 def test_a_long_strip_gets_four_spacings_across_by_default_and_a_wider_spacing_is_refused(tmp_path, capsys):
     # the default of 1/12 of the diagonal (506) was refused by the check itself on this strip, and the
     # check measured the width by the bounding box, whose second extent is the arch's rise

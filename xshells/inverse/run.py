@@ -187,17 +187,33 @@ def check_options(options: InverseOptions, surface) -> float:
     spacing = options.spacing if options.spacing is not None else default_spacing(surface)
     if not (np.isfinite(spacing) and spacing > 0):
         raise InputError(f"--spacing {spacing:g}: the spacing must be a positive length")
-    from .net import estimate_segments
-
-    if spacing >= 0.5 * width or estimate_segments(surface, spacing, np.radians(options.angle)) < 8:
-        u = surface.unit  # a .3dm is read in mm, whatever its own units: say so
+    n = segment_count(surface, spacing, options.angle)
+    u = surface.unit  # a .3dm is read in mm, whatever its own units: say so
+    if spacing >= 0.5 * width:  # the real limit (recheck 34: the message said 0.25 of the width, 0.48 was accepted)
         raise InputError(f"--spacing {spacing:.4g}{u} is larger than the surface allows (it is {length:.4g}{u} long and "
-                         f"about {width:.4g}{u} wide): use at most {0.25 * width:.4g}{u}")
-    n = estimate_segments(surface, spacing, np.radians(options.angle))
+                         f"about {width:.4g}{u} wide): the spacing must stay below half its width, {0.5 * width:.4g}{u} "
+                         f"(the default is {default_spacing(surface):.4g}{u})")
+    if n < 8:
+        raise InputError(f"--spacing {spacing:.4g}{u} is larger than the surface allows: it gives {count_text(n)} "
+                         f"segments, fewer than 8; use a smaller spacing (the default is {default_spacing(surface):.4g}{u})")
     if n > MAX_SEGMENTS and not options.force:
-        raise InputError(f"--spacing {spacing:.4g}{surface.unit} gives about {n} segments, more than {MAX_SEGMENTS}: "
+        raise InputError(f"--spacing {spacing:.4g}{u} gives {count_text(n)} segments, more than {MAX_SEGMENTS}: "
                          f"give a larger spacing, or --force")
     return float(spacing)
+
+
+def segment_count(surface, spacing: float, angle_deg: float) -> float:
+    """:func:`.net.estimate_segments` as a float that cannot overflow: ``inf`` for a spacing so small that its
+    square underflows (``--spacing 1e-300``), where the int of the estimate raised OverflowError."""
+    with np.errstate(over="ignore", divide="ignore", under="ignore"):
+        return float(2.0 * surface.area / (spacing * spacing * np.sin(np.radians(angle_deg))))
+
+
+def count_text(n: float) -> str:
+    """A segment count for a message: "about 1234", "about 1.2e+198" (not 199 digits), or "too many to count"."""
+    if not np.isfinite(n):
+        return "too many to count"
+    return f"about {n:.0f}" if n < 1e7 else f"about {n:.2g}"
 
 
 def units_text(surface) -> str:
@@ -401,14 +417,13 @@ def _refined(surface, surface_path, out_dir, material_spec, options, progress, f
     """The design on a net :data:`REFINE_FACTOR` times as fine as ``first``'s, into ``out_dir/refined``; the
     better of the two (by status, then the bar's figures missed, then mean fit) ends in ``out_dir``, its ``result.json`` naming both
     under ``refined``. Ctrl-C during it keeps ``first``."""
-    from .net import estimate_segments
 
     spacing = REFINE_FACTOR * first["spacing"]
     summary = {"why": why, "default_spacing": first["spacing"], "spacing": spacing, "factor": REFINE_FACTOR}
-    n = estimate_segments(surface, spacing, np.radians(options.angle))
+    n = segment_count(surface, spacing, options.angle)
     if n > MAX_SEGMENTS and not options.force:
         return _note_refined(out_dir, first, {**summary, "kept": "default", "refined": {
-            "status": "skipped", "message": f"about {n} segments, more than {MAX_SEGMENTS}"}}, t0)
+            "status": "skipped", "message": f"{count_text(n)} segments, more than {MAX_SEGMENTS}"}}, t0)
     if progress:
         import sys
 
