@@ -33,8 +33,10 @@ def test_the_result_is_a_valid_physical_state(cap_run):
                  "flat_layout.dxf", "cutlist.csv", "joints.csv", "beams.svg", "assembly.svg", "bom.json", "inverse.3dm"):
         assert (out / name).is_file(), name
     for key in ("fit_mean", "fit_max", "coverage", "placement", "segments", "joints", "energy_flat", "energy_deployed",
-                "min_flat_angle_deg", "time_s", "stage_times_s"):
+                "min_flat_angle_deg", "flat_angle_mean_deg", "time_s", "stage_times_s"):
         assert key in r, key
+    # the option's α₀ stays in flat_angle_deg; the settled flat state's own mean is measured beside it
+    assert r["flat_angle_deg"] == 20.0 and r["min_flat_angle_deg"] <= r["flat_angle_mean_deg"] < 90.0
 
 
 def test_it_rises_and_fits_the_cap_roughly_even_at_coarse_spacing(cap_run):
@@ -219,6 +221,24 @@ def test_the_better_candidate_is_adopted_by_status_then_fit(tmp_path):
     r = _adopt(str(tmp_path), results, {"x": "failed"}, "why", 0.0)
     assert (tmp_path / "case.json").read_text() == "geodesic case"  # both complete: the closer fit
     assert r["candidates"]["x"]["status"] == "failed"
+
+
+def test_an_auto_run_times_its_screen_and_every_candidate(tmp_path):
+    """recheck 34: stage_times_s of an auto run covered the kept candidate only."""
+    import time
+
+    from xshells.inverse.run import _adopt
+
+    for beams in ("even", "fanned"):
+        (tmp_path / "candidates" / beams).mkdir(parents=True)
+    times = {"net_s": 1.0, "verify_s": 2.0, "total_s": 5.0}
+    results = {"even": {"status": "missed", "fit_mean": 0.02, "time_s": 5.0, "stage_times_s": times},
+               "fanned": {"status": "missed", "fit_mean": 0.03, "time_s": 7.0, "stage_times_s": {"total_s": 7.0}}}
+    r = _adopt(str(tmp_path), results, {}, "why", time.perf_counter() - 20.0, None, {"screen_s": 3.0, "plan_s": 1.0})
+    st = r["stage_times_s"]
+    assert st["screen_s"] == 3.0 and st["plan_s"] == 1.0 and st["net_s"] == 1.0 and st["design_total_s"] == 5.0
+    assert st["total_s"] >= 20.0  # the whole run, not the kept design's 5 s
+    assert r["candidates"]["fanned"]["stage_times_s"] == {"total_s": 7.0}
 
 
 def test_auto_on_a_saddle_runs_both_nets_and_its_case_reproduces_the_result(tmp_path):

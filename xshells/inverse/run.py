@@ -478,14 +478,17 @@ def _run_at_spacing(surface, surface_path, out_dir, material_spec: dict, options
     from dataclasses import replace
     spacing = check_options(options, surface)
     screened, fan_options, fan_why = _screen(surface, material_spec, options, spacing, progress)
+    run_times = {"screen_s": time.perf_counter() - t0}  # the whole run's stages, not only the kept design's
     if options.beams == "fanned":
         if fan_options is None:
             raise InputError(f"{surface.path}: {fan_why}")
         r = _run_net(surface_path, out_dir, material_spec, fan_options, None, progress, beams_reason=fan_why,
                      workers=_workers(options))
         r["fan_screen"] = screened
+        r["stage_times_s"] = _run_times(r, run_times, t0)
         atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
         return r
+    t = time.perf_counter()
     worth, why = geodesic_closure(surface, options, spacing, progress)
     plan = {"geodesic": replace(options, beams="geodesic")} if worth else {}
     even_orientation, even_why = even_bisector(surface, options)
@@ -499,6 +502,7 @@ def _run_at_spacing(surface, surface_path, out_dir, material_spec: dict, options
 
         print(f"xshells inverse: trying the {', '.join(plan)} nets, keeping the best ({why})", file=sys.stderr)
     workers = _workers(options)
+    run_times["plan_s"] = time.perf_counter() - t  # the geodesic net's closure and the even net's bisector
     results, errors = {}, {}
     try:
         if workers > 1 and len(plan) > 1:
@@ -517,11 +521,11 @@ def _run_at_spacing(surface, surface_path, out_dir, material_spec: dict, options
                 with open(current) as fh:
                     results[beams] = json.load(fh)
         if results:
-            _adopt(out_dir, results, errors, why, t0, screened)
+            _adopt(out_dir, results, errors, why, t0, screened, run_times)
         raise
     if not results:
         raise InputError(errors.get("even", next(iter(errors.values()))))
-    return _adopt(out_dir, results, errors, why, t0, screened)
+    return _adopt(out_dir, results, errors, why, t0, screened, run_times)
 
 
 def _workers(options: InverseOptions) -> int:
@@ -597,13 +601,24 @@ def _screen(surface, material_spec, options, spacing, progress):
     return screened, replace(options, beams="fanned", fan=best.kappa, orientation=best.orientation), why
 
 
-def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float, screened=None) -> dict:
-    """Copy the best candidate's files into ``out_dir``; its result, with every candidate's figures."""
+def _run_times(r: dict, run_times: dict, t0: float) -> dict:
+    """``stage_times_s`` of a run that screened fans (and laid out candidates): the kept design's stages, with the
+    run's own (``screen_s``, ``plan_s``) and its whole time as ``total_s`` (it was the kept design's alone)."""
+    times = dict(r.get("stage_times_s") or {})
+    times["design_total_s"] = times.pop("total_s", r.get("time_s"))
+    return {**times, **run_times, "total_s": time.perf_counter() - t0}
+
+
+def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float, screened=None, run_times=None) -> dict:
+    """Copy the best candidate's files into ``out_dir``; its result, with every candidate's figures and times."""
     best = min(results, key=lambda b: _rank(results[b]))
     _copy_outputs(os.path.join(out_dir, "candidates", best), out_dir)
     r = dict(results[best])
-    r["candidates"] = {b: {k: v.get(k) for k in ("status", "fit_mean", "fit_max", "coverage", "segments", "time_s")}
+    r["candidates"] = {b: {k: v.get(k) for k in ("status", "fit_mean", "fit_max", "coverage", "segments", "time_s",
+                                                 "stage_times_s")}
                        for b, v in results.items()}
+    if run_times is not None:
+        r["stage_times_s"] = _run_times(r, run_times, t0)
     r["candidates"].update({b: {"status": "failed", "message": m} for b, m in errors.items()})
     r["beams_reason"] = f"auto: {why}; kept the {best} net's design, the best of {len(r['candidates'])} (by status, then the bar's figures missed, then mean fit)"
     if screened is not None:
@@ -1244,6 +1259,8 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
         "tracked_rms": tracked,
         "energy_flat": float(flat.energy()), "energy_deployed": float(deployed.energy()),
         "min_flat_angle_deg": float(np.degrees(flat.joint_angles().min())),
+        # measured: the flat state settles with its angles free, away from the option's α₀ (recheck 34: 32.6° for 20°)
+        "flat_angle_mean_deg": float(np.degrees(flat.joint_angles().mean())),
         "flat_planarity": flat_z, "deployed_rise": rise, "folded": folded, "overlap": overlap,
         "min_eigenvalue_at_fixed_angle": eig,
         "deploy": {"reached": dep["reached"], "message": dep["message"], "time_s": dep["timings_s"]["total"]},
