@@ -400,7 +400,8 @@ def refine_reason(result: dict, options: InverseOptions, net_path=None) -> str |
         return None
     if result.get("status") != "missed" or result.get("developable"):
         return None
-    if result.get("deployed_rise", 1.0) <= PLANAR:  # a finer net of a design that never buckled stayed planar too
+    rise = result.get("deployed_rise")
+    if isinstance(rise, (int, float)) and rise <= PLANAR:  # a finer net of a design that never buckled stayed planar too
         return None  # (measured on 2 of 2 surfaces, recheck 34): it would only cost the time of a second design
     mean, top, cov = (result.get(k) for k in ("fit_mean", "fit_max", "coverage"))
     if mean is None or top is None or cov is None:
