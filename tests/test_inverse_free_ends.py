@@ -81,3 +81,18 @@ def test_attach_continues_each_last_segment_by_its_length_in_the_beams_direction
     assert np.allclose(Q[3], [7.5, 10.0]) and np.allclose(Q[4], [-0.6, -0.8])
     assert S.tolist() == [[0, 1], [1, 2], [2, 3], [4, 0]]  # both run along the beam, 4 → 0 → 1 → 2 → 3
     assert p.tolist() == [5.0, 5.0, 2.5, 1.0]
+
+
+def test_free_ends_that_cross_another_beam_without_a_joint_are_named():
+    """recheck 34: free ends crossing a beam of the other family in the flat layout were kept, the result valid."""
+    from xshells.inverse.free_ends import crossing_ends
+
+    P = np.array([[0, 0], [2, 0], [1, 1], [1, 2], [1, 3], [1, -1], [3, 0], [3, -0.5]], float)
+    beams = [[0, 1], [2, 3]]
+    ends = [[3, 4],  # runs on along its beam: clear
+            [2, 5],  # across beam 0 at (1, 0), no joint there
+            [1, 6],  # on from beam 0's end: shares its node
+            [0, 7]]  # across the free end [2, 5]: the later of the two is named
+    assert crossing_ends(P, np.array(beams + ends), 2).tolist() == [1, 3]
+    assert crossing_ends(P, np.array(beams + ends[:1]), 2).tolist() == []
+    assert crossing_ends(P, np.array(beams), 2).tolist() == []

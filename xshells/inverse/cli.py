@@ -61,8 +61,10 @@ def register(subparsers) -> None:
                         "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
     p.add_argument("--workers", type=int, help="processes for the fan screen, the tries of one net and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments")
-    p.add_argument("--out", default="inverse_out", help="output folder")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", default="inverse_out",
+                   help="output folder (default inverse_out; a reused one loses an earlier run's candidates/, refined/, "
+                        "tries/, buckling/ and result.json at the start)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars or notes on stderr")
     p.set_defaults(func=_inverse)
 
 
@@ -89,7 +91,11 @@ def _inverse(args) -> int:
         from dataclasses import replace
 
         opts = replace(opts, guide=replace(opts.guide, polish=args.polish))
-    r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
+    try:
+        r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
+    except KeyboardInterrupt as exc:  # the generic handler prints "interrupted" and exits 130; with it, what DIR holds
+        exc.kept = kept_on_interrupt(args.out)
+        raise
     if r["status"] in ("complete", "missed", "invalid"):
         print(f"{r['segments']} segments, {r['joints']} joints: fit mean {100 * r['fit_mean']:.2f}%, "
               f"max {100 * r['fit_max']:.2f}% of the diagonal; coverage {100 * r['coverage']:.1f}% "
@@ -111,5 +117,25 @@ def _inverse(args) -> int:
             f"the finer net (spacing {f['spacing']:.4g}) did better and is kept; the default's: {figures}"
             if f["kept"] == "refined" else f"the finer net (spacing {f['spacing']:.4g}) did not do better "
                                            f"({figures}); the default's design is kept"))
-    print(f"  outputs in {args.out}/ (xshells deploy {args.out}/case.json reproduces the deployment)")
+    verified = r["status"] in ("complete", "missed", "invalid")  # "stopped", "interrupted": written, not deployed
+    print(f"  outputs in {args.out}/" + (f" (xshells deploy {args.out}/case.json reproduces the deployment)"
+                                         if verified else " (the design was not verified)"))
     return 0 if r["status"] == "complete" else 1
+
+
+def kept_on_interrupt(out: str) -> str:
+    """What ``out`` holds after Ctrl-C, in a few words: the kept design's status and fit, or that none was finished
+    (a run clears an earlier run's result.json first, so one that is there is this run's)."""
+    import json
+    import os
+
+    try:
+        with open(os.path.join(out, "result.json")) as fh:
+            r = json.load(fh)
+    except (OSError, ValueError):
+        return f"no design was finished: {out}/ holds none of this run"
+    status = r.get("status", "?")
+    fit = (f", fit mean {100 * r['fit_mean']:.2f}%, max {100 * r['fit_max']:.2f}% of the diagonal"
+           if isinstance(r.get("fit_mean"), (int, float)) and isinstance(r.get("fit_max"), (int, float)) else "")
+    what = "verified" if status in ("complete", "missed", "invalid") else "written, not verified"
+    return f"{out}/ holds the best design so far ({status}{fit}; {what}: see {out}/result.json)"
