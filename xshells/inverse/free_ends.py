@@ -202,32 +202,14 @@ def crossing_ends(points: np.ndarray, segments: np.ndarray, first_end: int) -> n
     module's docstring holds for an even net, but a fan or a curved flat beam can bend a free end across a
     beam of the other family (recheck 34: omsh's flat design, kept as valid with no word). A proper crossing (each
     segment's ends strictly on both sides of the other's line, beyond round-off) of two segments that share no
-    node, as :func:`xshells.linkage.graph._crossings` finds them in a design file; of two crossing free ends the
+    node, found by :func:`xshells.linkage.graph.segment_crossings` as the design reader finds them; of two crossing free ends the
     later one is named, so that leaving it off clears the pair.
     """
     E = np.asarray(segments, np.int64)
     if first_end >= len(E):
         return np.zeros(0, np.int64)
-    P = np.asarray(points, float)[:, :2]
-    a, b = P[E[:, 0]], P[E[:, 1]]
-    length = np.linalg.norm(b - a, axis=1)
-    from scipy.spatial import cKDTree
+    from ..linkage.graph import segment_crossings
 
-    # candidates: segments whose midpoints lie within the longest segment of each other
-    pairs = cKDTree(0.5 * (a + b)).query_pairs(float(length.max()), output_type="ndarray")
-    if not len(pairs):
-        return np.zeros(0, np.int64)
-    s, t = pairs.min(axis=1), pairs.max(axis=1)
-    keep = (t >= first_end) & ~((E[s, 0] == E[t, 0]) | (E[s, 0] == E[t, 1]) | (E[s, 1] == E[t, 0]) |
-                                (E[s, 1] == E[t, 1]))
-    s, t = s[keep], t[keep]
-
-    def side(p, q, r):  # twice the signed area of (p, q, r)
-        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
-
-    eps = 1e-9 * length[s] * length[t]
-    d1, d2 = side(a[s], b[s], a[t]), side(a[s], b[s], b[t])
-    d3, d4 = side(a[t], b[t], a[s]), side(a[t], b[t], b[s])
-    cross = (((d1 > eps) & (d2 < -eps)) | ((d1 < -eps) & (d2 > eps))) & \
-            (((d3 > eps) & (d4 < -eps)) | ((d3 < -eps) & (d4 > eps)))
+    s, t, cross, _ = segment_crossings(np.asarray(points, float)[:, :2], E)
+    cross &= t >= first_end
     return np.unique(t[cross]) - first_end

@@ -348,30 +348,38 @@ def _check_connected(design: Design, valence: np.ndarray) -> None:
                      + "; ".join(parts) + more)
 
 
-def _crossings(design: Design, normal: np.ndarray) -> str:
-    """A one-line warning naming segments of a flat layout that cross away from a shared node ('' if none).
+def segment_crossings(P: np.ndarray, E: np.ndarray):
+    """Which pairs of segments of a flat drawing cross properly, away from a shared node.
 
-    The simulation models no contact: segments crossing without a joint pass through each other.
-    That is what a layered design means (the paper's two-layer two-bump design crosses 107 times,
-    its layers stacked), and a mistake anywhere else (a diagonal drawn across a grid deployed with
-    "reached the target angle" and no word), so it is said, not refused. Candidates are the pairs of
-    segments whose midpoints lie within the longest segment of each other; a crossing is proper
-    (each segment's ends strictly on both sides of the other's line, beyond round-off).
+    Parameters
+    ----------
+    P : (k, 2) float
+        Node positions in the drawing's plane.
+    E : (s, 2) int
+        Segments as node pairs.
+
+    Returns
+    -------
+    s, t : (m,) int
+        Candidate pairs (s < t) that share no node: segments whose midpoints lie within the longest
+        segment of each other.
+    cross : (m,) bool
+        Whether the pair crosses properly: each segment's ends strictly on both sides of the other's
+        line, beyond round-off.
+    length : (s,) float
+        Each segment's length.
     """
     from scipy.spatial import cKDTree
 
-    V, E = design.vertices, design.edges
-    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    w = np.cross(normal, u)
-    P = np.stack([V @ u, V @ w], axis=1)
-    P = P - P.mean(axis=0)
     a, b = P[E[:, 0]], P[E[:, 1]]
     length = np.linalg.norm(b - a, axis=1)
+    none = np.zeros(0, np.int64)
+    if not len(E):
+        return none, none, np.zeros(0, bool), length
     pairs = cKDTree(0.5 * (a + b)).query_pairs(float(length.max()), output_type="ndarray")
     if not len(pairs):
-        return ""
-    s, t = pairs[:, 0], pairs[:, 1]
+        return none, none, np.zeros(0, bool), length
+    s, t = pairs.min(axis=1), pairs.max(axis=1)
     shared = (E[s, 0] == E[t, 0]) | (E[s, 0] == E[t, 1]) | (E[s, 1] == E[t, 0]) | (E[s, 1] == E[t, 1])
     s, t = s[~shared], t[~shared]
 
@@ -383,6 +391,28 @@ def _crossings(design: Design, normal: np.ndarray) -> str:
     d3, d4 = side(a[t], b[t], a[s]), side(a[t], b[t], b[s])
     cross = (((d1 > eps) & (d2 < -eps)) | ((d1 < -eps) & (d2 > eps))) & \
             (((d3 > eps) & (d4 < -eps)) | ((d3 < -eps) & (d4 > eps)))
+    return s, t, cross, length
+
+
+def _crossings(design: Design, normal: np.ndarray) -> str:
+    """A one-line warning naming segments of a flat layout that cross away from a shared node ('' if none).
+
+    The simulation models no contact: segments crossing without a joint pass through each other.
+    That is what a layered design means (the paper's two-layer two-bump design crosses 107 times,
+    its layers stacked), and a mistake anywhere else (a diagonal drawn across a grid deployed with
+    "reached the target angle" and no word), so it is said, not refused. Candidates are the pairs of
+    segments whose midpoints lie within the longest segment of each other; a crossing is proper
+    (each segment's ends strictly on both sides of the other's line, beyond round-off).
+    """
+    V, E = design.vertices, design.edges
+    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(normal, u)
+    P = np.stack([V @ u, V @ w], axis=1)
+    P = P - P.mean(axis=0)
+    s, t, cross, length = segment_crossings(P, E)
+    if not len(s):
+        return ""
     if not cross.any():
         return _touching(design, P, s, t, length)
     k = np.flatnonzero(cross)
