@@ -858,3 +858,40 @@ def test_every_checked_stage_design_is_reported(cap_run):
     assert len(checked) >= 2 and all(set(c) == {"load_factor", "fit_mean", "fit_max"} for c in checked)
     assert all(0 <= c["fit_mean"] <= c["fit_max"] for c in checked)
     assert r["chosen_stage_fit_mean"] in [c["fit_mean"] for c in checked]
+
+
+@pytest.mark.parametrize("spacing", ["0.001", "1e-300"])
+def test_force_does_not_accept_a_net_beyond_the_machines_memory(tmp_path, capsys, spacing):
+    """recheck of #18: ``--force --spacing 0.001`` set out to lay billions of segments."""
+    assert main(["inverse", str(CAP), "--spacing", spacing, "--force", "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "more than this machine can design even with --force" in err and "GB of memory" in err
+    assert "\n" not in err and not (tmp_path / "o").exists()
+
+
+def test_force_allows_a_net_that_fits_in_memory():
+    from xshells.inverse.run import JACOBIAN_BYTES_PER_SEGMENT2, MAX_SEGMENTS, forced_segment_limit
+
+    limit = forced_segment_limit()
+    assert limit >= MAX_SEGMENTS
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    assert JACOBIAN_BYTES_PER_SEGMENT2 * limit ** 2 <= max(memory, JACOBIAN_BYTES_PER_SEGMENT2 * MAX_SEGMENTS ** 2)
+
+
+def test_a_net_with_a_five_sided_cell_gets_one_line(tmp_path, capsys):
+    """recheck of #18: an odd cell longer than a triangle, drawn with ``l`` lines, was taken for a quad net."""
+    ang = np.pi / 2 + 2 * np.pi * np.arange(5) / 5
+    C = 500.0 * np.c_[np.cos(ang), np.sin(ang)]
+    P, beams = [*C], []
+    for i in range(5):
+        a, b = C[i], C[(i + 1) % 5]
+        P += [a - 0.3 * (b - a), b + 0.3 * (b - a)]
+        beams.append([5 + 2 * i, i, (i + 1) % 5, 6 + 2 * i])
+    P = np.array(P)
+    z = np.sqrt(2000.0 ** 2 - (P ** 2).sum(1)) - 2000.0 * np.cos(np.radians(30))  # on the cap
+    net = tmp_path / "pentagon.obj"
+    net.write_text("".join(f"v {x!r} {y!r} {h!r}\n" for (x, y), h in zip(P.tolist(), z.tolist()))
+                   + "".join("l " + " ".join(str(i + 1) for i in b) + "\n" for b in beams))
+    assert main(["inverse", str(CAP), "--net", str(net), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "cannot be split into two families" in err and "odd number of sides" in err and "\n" not in err

@@ -435,3 +435,45 @@ def test_dof_matches_paper_table_1():
         g = sizes.get((row["segments"], row["joints"]))
         assert g is not None, f"{row['figure']}: no case with {row['segments']} segments, {row['joints']} joints"
         assert g.dof(10) == row["dof"], row["figure"]
+
+
+def _pentagon_beams(r: float = 500.0):
+    """Five beams along a pentagon's sides, each past its two corners: a five-sided cell, no triangle."""
+    ang = np.pi / 2 + 2 * np.pi * np.arange(5) / 5
+    C = r * np.c_[np.cos(ang), np.sin(ang)]
+    P, E = [*C], []
+    for i in range(5):
+        a, b = C[i], C[(i + 1) % 5]
+        P += [a - 0.3 * (b - a), b + 0.3 * (b - a)]
+        E += [(5 + 2 * i, i), (i, (i + 1) % 5), ((i + 1) % 5, 6 + 2 * i)]
+    return np.c_[np.array(P), np.zeros(len(P))], np.array(E)
+
+
+def test_beam_families_split_a_grid_and_refuse_an_odd_cell():
+    from xshells.linkage.graph import beam_families
+
+    P, E = _pentagon_beams()
+    g = analyze(design_from_arrays(P, E, source="pentagon"))
+    family, conflict = beam_families(g)
+    assert conflict in range(5)  # every joint of the pentagon is one
+    # a 3 x 4 grid of beams: two families, each joint's beams in different ones
+    xs, ys = np.arange(4) * 100.0, np.arange(3) * 100.0
+    pts = [(x, y) for x in xs for y in ys]
+    idx = {p: i for i, p in enumerate(pts)}
+    E = [(idx[(x, y)], idx[(x, y + 100.0)]) for x in xs for y in ys[:-1]] + \
+        [(idx[(x, y)], idx[(x + 100.0, y)]) for x in xs[:-1] for y in ys]
+    g = analyze(design_from_arrays(np.c_[np.array(pts), np.zeros(len(pts))], np.array(E), source="grid"))
+    family, conflict = beam_families(g)
+    assert conflict == -1 and sorted(np.bincount(family)) == [3, 4]
+    for j in range(len(g.joint_vertex)):
+        a, b = g.joint_segments[j, 0], g.joint_segments[j, 1]
+        if (a >= 0).any() and (b >= 0).any():
+            assert family[g.beam_of_segment[a[a >= 0][0]]] != family[g.beam_of_segment[b[b >= 0][0]]]
+
+
+@needs_data
+@pytest.mark.parametrize("path", _linkage_files(), ids=lambda p: p.name)
+def test_every_bundled_design_splits_into_two_families(path):
+    from xshells.linkage.graph import beam_families
+
+    assert beam_families(analyze(read_design(path)))[1] == -1

@@ -127,15 +127,12 @@ def flat_beam_gaps(net: Net) -> np.ndarray:
     return 0.5 * np.minimum(np.linalg.norm(ta, axis=1), np.linalg.norm(tb, axis=1)) * np.sin(np.minimum(a, np.pi - a))
 
 
-def net_bisector(X: np.ndarray, segments: np.ndarray, deployed_angle: float, source: str = "the net") -> np.ndarray:
-    """The mean direction (3,) in which a 3D quad net opens: at each joint where both beams pass through, the
-    bisector of whichever of its two supplementary crossing angles is nearer ``deployed_angle`` (radians).
-
-    The scissor map of a designer's net starts from this axis, so that it closes the net's own opening angle
-    (the surface's longest axis can be the other bisector: on the pointy wings' own net, 1.95 m off).
-    """
+def net_graph(X, segments, source: str):
+    """The linkage graph of a 3D quad net (vertices (k, 3), segments (s, 2)), or one line saying why it is not one:
+    the graph's own checks, and beams that cannot be split into two families (a cell with an odd number of
+    sides, which no scissor opening can open)."""
     from ..io.design import design_from_arrays
-    from ..linkage.graph import analyze
+    from ..linkage.graph import analyze, beam_families
 
     try:
         graph = analyze(design_from_arrays(X, segments, source=source))
@@ -144,6 +141,22 @@ def net_bisector(X: np.ndarray, segments: np.ndarray, deployed_angle: float, sou
         why = str(exc)
         why = why[len(source) + 2:] if why.startswith(f"{source}: ") else why
         raise InputError(f"{source}: not a quad net of beams: {why}") from None
+    _, conflict = beam_families(graph)
+    if conflict >= 0:
+        v = int(np.asarray(graph.joint_vertex)[conflict])
+        raise InputError(f"{source}: not a quad net of beams: its beams cannot be split into two families (the two "
+                         f"at vertex {v + 1} would be in the same one): a cell has an odd number of sides")
+    return graph
+
+
+def net_bisector(X: np.ndarray, segments: np.ndarray, deployed_angle: float, source: str = "the net") -> np.ndarray:
+    """The mean direction (3,) in which a 3D quad net opens: at each joint where both beams pass through, the
+    bisector of whichever of its two supplementary crossing angles is nearer ``deployed_angle`` (radians).
+
+    The scissor map of a designer's net starts from this axis, so that it closes the net's own opening angle
+    (the surface's longest axis can be the other bisector: on the pointy wings' own net, 1.95 m off).
+    """
+    graph = net_graph(X, segments, source)
     nbr = beam_neighbours(graph)
     P = np.asarray(X, float)[np.asarray(graph.joint_vertex)]
     inner, ta, tb = crossing_tangents(nbr, P)
@@ -193,16 +206,7 @@ def net_from_arrays(X, segments, surface, smap, flat_angle: float, source: str, 
     cap's 0.37 %; closed as their scissor map closes, the graded cap cannot be held and the geodesic
     net on the cap closes where it did not), so they keep it until they are re-measured.
     """
-    from ..io.design import design_from_arrays
-    from ..linkage.graph import analyze
-
-    try:
-        graph = analyze(design_from_arrays(X, segments, source=source))
-    except InputError as exc:
-        # the graph's message already names the design (its label is ``source``): say the path once
-        why = str(exc)
-        why = why[len(source) + 2:] if why.startswith(f"{source}: ") else why
-        raise InputError(f"{source}: not a quad net of beams: {why}") from None
+    graph = net_graph(X, segments, source)
     start, dist = chart(surface, smap)(X)
     far = dist > 0.05 * surface.diagonal
     if far.any():

@@ -28,6 +28,9 @@ from ..io.export import atomic_write_text, finite_json
 from .guide import GuideOptions
 
 MAX_SEGMENTS = 5000
+#: bytes per squared segment of the design optimization's two dense state Jacobians (about 26 degrees of freedom
+#: per segment at subdivision 8, times one design variable per segment, 8 bytes each): what bounds ``--force``
+JACOBIAN_BYTES_PER_SEGMENT2 = 2 * 26 * 8
 #: the most designs per net (``--tries``): each one costs a whole design's time
 MAX_TRIES = 4
 # Within this share of its span of the layout's plane a state is planar: the issue's bar for the flat
@@ -199,7 +202,28 @@ def check_options(options: InverseOptions, surface) -> float:
     if n > MAX_SEGMENTS and not options.force:
         raise InputError(f"--spacing {spacing:.4g}{u} gives {count_text(n)} segments, more than {MAX_SEGMENTS}: "
                          f"give a larger spacing, or --force")
+    if n > MAX_SEGMENTS:
+        _check_forced_size(n, f"--spacing {spacing:.4g}{u} gives {count_text(n)} segments")
     return float(spacing)
+
+
+def forced_segment_limit() -> int:
+    """The most segments ``--force`` allows: the design optimization's dense Jacobians
+    (:data:`JACOBIAN_BYTES_PER_SEGMENT2` × segments²) within this machine's memory."""
+    try:
+        memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not reported: assume 16 GB
+        memory = 16 * 2 ** 30
+    return max(MAX_SEGMENTS, int(np.sqrt(memory / JACOBIAN_BYTES_PER_SEGMENT2)))
+
+
+def _check_forced_size(n: float, what: str) -> None:
+    """Refuse, even with --force, a net whose design would not fit in memory (an absurd spacing ran out of it)."""
+    limit = forced_segment_limit()
+    if not n <= limit:
+        need = JACOBIAN_BYTES_PER_SEGMENT2 * min(n, 1e30) ** 2 / 2 ** 30
+        raise InputError(f"{what}, more than this machine can design even with --force ({limit}: the design "
+                         f"optimization would need about {need:.3g} GB of memory); give a larger spacing")
 
 
 def segment_count(surface, spacing: float, angle_deg: float) -> float:
@@ -422,7 +446,7 @@ def _refined(surface, surface_path, out_dir, material_spec, options, progress, f
     spacing = REFINE_FACTOR * first["spacing"]
     summary = {"why": why, "default_spacing": first["spacing"], "spacing": spacing, "factor": REFINE_FACTOR}
     n = segment_count(surface, spacing, options.angle)
-    if n > MAX_SEGMENTS and not options.force:
+    if n > (forced_segment_limit() if options.force else MAX_SEGMENTS):
         return _note_refined(out_dir, first, {**summary, "kept": "default", "refined": {
             "status": "skipped", "message": f"{count_text(n)} segments, more than {MAX_SEGMENTS}"}}, t0)
     if progress:
@@ -902,6 +926,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     times["net_s"] = time.perf_counter() - t
     if net.num_segments > MAX_SEGMENTS and not options.force:
         raise InputError(f"the net has {net.num_segments} segments, more than {MAX_SEGMENTS}: give a larger spacing, or --force")
+    if net.num_segments > MAX_SEGMENTS:
+        _check_forced_size(net.num_segments, f"the net has {net.num_segments} segments")
     width = float(np.ptp(material.outline[0], axis=0).max()) if material.outline else 0.0
     gap = _min_beam_gap(net, alpha0)
     if width > 0 and gap < width:

@@ -394,6 +394,47 @@ def segment_crossings(P: np.ndarray, E: np.ndarray):
     return s, t, cross, length
 
 
+def beam_families(graph: "LinkageGraph") -> tuple[np.ndarray, int]:
+    """Split the beams into two families, the two beams through every joint in different ones.
+
+    An X-shell's scissor deployment opens the angle between its two families at every joint; that needs
+    the beams' crossing graph to be bipartite. A cell bounded by an odd number of beams (a pentagon drawn
+    into a quad net) makes it odd, and no labelling opens every joint.
+
+    Returns
+    -------
+    family : (nb,) int
+        0 or 1 per beam (``graph.beams``); where the split fails, as far as it got.
+    conflict : int
+        A joint whose two beams fell into the same family, or -1 if the split holds.
+    """
+    bos = np.asarray(graph.beam_of_segment)
+    js = np.asarray(graph.joint_segments)
+    nb = len(graph.beams)
+    adjacent: list[list[tuple[int, int]]] = [[] for _ in range(nb)]
+    for j in range(js.shape[0]):
+        a, b = js[j, 0][js[j, 0] >= 0], js[j, 1][js[j, 1] >= 0]
+        if len(a) and len(b):
+            ba, bb = int(bos[a[0]]), int(bos[b[0]])
+            adjacent[ba].append((bb, j))
+            adjacent[bb].append((ba, j))
+    family = np.full(nb, -1, np.int64)
+    for first in range(nb):
+        if family[first] >= 0:
+            continue
+        family[first] = 0
+        queue = deque([first])
+        while queue:
+            u = queue.popleft()
+            for v, j in adjacent[u]:
+                if family[v] < 0:
+                    family[v] = 1 - family[u]
+                    queue.append(v)
+                elif family[v] == family[u]:
+                    return family, j
+    return family, -1
+
+
 def _crossings(design: Design, normal: np.ndarray) -> str:
     """A one-line warning naming segments of a flat layout that cross away from a shared node ('' if none).
 
