@@ -20,6 +20,9 @@ from ..linkage.linkage import Linkage
 from ..solve import NewtonOptions, minimize, smallest_eigenvalues
 from ..solve.newton import STOPPED_BY_CALLBACK, _constrained_tangent
 
+#: the words of a stop by a folding joint or a collapsing edge (the start's fallbacks look for them)
+INVERTS = "the linkage inverts"
+ABOUT_TO_INVERT = "the linkage is about to invert"
 
 @dataclass(frozen=True)
 class DeployOptions:
@@ -352,7 +355,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         ratio = np.linalg.norm(rods.points[rods.edges[:, 1]] - rods.points[rods.edges[:, 0]], axis=1) / rods.rest_lengths
         e = int(np.argmin(ratio))
         if ratio[e] <= options.collapse_ratio:
-            return (f"the linkage inverts: an edge of segment {e // linkage.subdivision} collapses to "
+            return (f"{INVERTS}: an edge of segment {e // linkage.subdivision} collapses to "
                     f"{100 * ratio[e]:.3g}% of its rest length")
         return ""
 
@@ -409,7 +412,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
                 if min(alpha[j], np.pi - alpha[j]) < np.radians(5.0):
                     # a stall next to a folding joint is usually the inversion itself
                     result.message += (f"; joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) is folding "
-                                       f"({np.degrees(alpha[j]):.2f}°): the linkage is about to invert")
+                                       f"({np.degrees(alpha[j]):.2f}°): {ABOUT_TO_INVERT}")
                     return i == first
                 return False
             why = inversion(linkage.get_vars())
@@ -501,7 +504,7 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
 
     def folded_start() -> bool:
         """Whether the run just ended stopped at its start or first step by folding a joint (not by request)."""
-        return "inverts" in result.message or "about to invert" in result.message
+        return INVERTS in result.message or ABOUT_TO_INVERT in result.message
 
     def longer_first_step(initial, initial_active, initial_angle: float) -> None:
         """Both starts fold a joint at once: from the assembly state, a first step of 2, 4, then 8 increments.
@@ -612,7 +615,7 @@ def folded_joint(linkage: Linkage, x=None, margin: float = 0.0) -> str:
     alpha = (linkage.get_vars() if x is None else x)[linkage.angle_indices()]
     j = int(np.argmin(np.minimum(alpha, np.pi - alpha)))
     if min(alpha[j], np.pi - alpha[j]) <= margin:
-        return (f"the linkage inverts: joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) reaches an opening angle of "
+        return (f"{INVERTS}: joint {j} (vertex {int(linkage.graph.joint_vertex[j])}) reaches an opening angle of "
                 f"{np.degrees(alpha[j]):.2f}° (a joint must stay strictly between 0° and 180°)")
     return ""
 

@@ -142,9 +142,9 @@ MIN_START_KS = np.radians(0.25)
 
 def _flat_state_problem(E, ks_sharpness: float) -> str:
     """Why the flat equilibrium ``E`` cannot start a design optimization ("" if it can)."""
-    from ..deploy.simulate import folded_joint
+    from ..deploy.simulate import INVERTS, folded_joint
 
-    folded = folded_joint(E).replace("the linkage inverts: ", "")
+    folded = folded_joint(E).replace(f"{INVERTS}: ", "")
     if folded:
         return folded
     ks = ks_min(E.joint_angles(), ks_sharpness)[0]
