@@ -119,3 +119,22 @@ def test_the_cli_refuses_a_fan_without_fanned_beams(capsys, tmp_path):
     assert len(err) == 1 and "--fan" in err[0]
     assert main(["inverse", str(CAP), "--beams", "fanned", "--fan", "0.7", "--out", str(tmp_path / "b")]) == 2
     assert "between -0.5 and 0.5" in capsys.readouterr().err
+
+
+def test_the_screen_ranks_buckled_first_deployments_before_flat_ones_on_a_curved_surface():
+    from xshells.inverse.fanned import FLAT_RISE, FanCandidate, screen_rank
+    from xshells.inverse.surface import TargetSurface, load_target, plane_deviation
+
+    cap = load_target(EXAMPLES / "targets" / "spherical_cap_R2000_30deg.obj")
+    assert plane_deviation(cap) > FLAT_RISE
+    h = FLAT_RISE * cap.diagonal
+    cands = [FanCandidate(0.1, 0.0, 100, 0.015, 0.0),  # flat, the closest first fit
+             FanCandidate(-0.2, 0.0, 90, 0.020, 2.0 * h),  # buckled
+             FanCandidate(0.2, 90.0, message="stopped"),  # failed
+             FanCandidate(-0.1, 90.0, 95, 0.018, 0.5 * h)]  # rose less than FLAT_RISE: flat
+    assert [c.kappa for c in sorted(cands, key=screen_rank(cap))] == [-0.2, 0.1, -0.1, 0.2]
+    # on a flat surface the first fit alone ranks them
+    V = np.array([[0, 0, 0], [1000, 0, 0], [1000, 1000, 0], [0, 1000, 0]], float)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    square = TargetSurface(V, F, "square", float(np.hypot(1000, 1000)), 1e6)
+    assert [c.kappa for c in sorted(cands, key=screen_rank(square))] == [0.1, -0.1, -0.2, 0.2]

@@ -96,3 +96,18 @@ def test_free_ends_that_cross_another_beam_without_a_joint_are_named():
     assert crossing_ends(P, np.array(beams + ends), 2).tolist() == [1, 3]
     assert crossing_ends(P, np.array(beams + ends[:1]), 2).tolist() == []
     assert crossing_ends(P, np.array(beams), 2).tolist() == []
+
+
+def test_the_length_cap_holds_on_the_surface_where_the_chart_shortens_lengths():
+    """The chart is the square shrunk four times along x: a chart length of 0.9 spacings along x is 3.6 on the
+    surface (a fanned net's free ends on the barrel vault ran 3.7 spacings). The cap is on the surface."""
+    S, smap = _square(size=40.0)
+    smap.flat[:, 0] *= 0.25
+    spacing = 3.0
+    net = _grid([1.0, 4.0, 7.0], [10.0, 13.0, 16.0])  # the x-beams end at x = 7, 33 from the boundary
+    out = add_free_ends(net, S, smap, spacing)
+    k = net.num_joints
+    L = np.linalg.norm(out.joints[k:] - out.joints[out.segments[len(net.segments):, 0]], axis=1)
+    assert len(L) and L.max() <= MAX_LENGTH * spacing * (1 + 1e-9)
+    right = out.joints[k:, 0] > 7.0
+    assert right.sum() == 3 and out.joints[k:][right, 0] == pytest.approx(7.0 + MAX_LENGTH * spacing, rel=1e-6)

@@ -46,6 +46,8 @@ MIN_LENGTH = 0.25
 SAMPLES = 36
 #: bisections of the sample interval where a continuation leaves the surface (2⁻²⁰ of it)
 BISECTIONS = 20
+#: rescalings of a continuation whose length on the surface exceeds the cap (the chart is smooth along it)
+CAP_ITERATIONS = 4
 
 
 def beam_ends(net: Net) -> np.ndarray:
@@ -140,9 +142,17 @@ def continuations(net: Net, surface: TargetSurface, smap: ScissorMap, spacing: f
         _, out = lift.faces(base + mid[:, None] * dk)
         ok = out <= inside_tol
         lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
-    X_end, _ = lift(base + lo[:, None] * dk)
     j, o, fam = j[keep], o[keep], fam[keep]
-    length = np.linalg.norm(X_end - net.joints[j], axis=1)
+    # the cap is on the surface: along a beam that is not one of the chart's families, the closed chart
+    # shortens lengths (a fanned net's free ends on the barrel vault ran 3.7 spacings for a chart length of 0.9)
+    cap = max_length * spacing
+    for it in range(CAP_ITERATIONS + 1):
+        X_end, _ = lift(base + lo[:, None] * dk)
+        length = np.linalg.norm(X_end - net.joints[j], axis=1)
+        over = length > cap
+        if not over.any() or it == CAP_ITERATIONS:
+            break
+        lo = np.where(over, lo * cap / np.maximum(length, 1e-300), lo)
     ok = length >= min_length * spacing
     # the segment before the end runs into it (o → j) or out of it
     into = {(int(a), int(b), int(f)) for (a, b), f in zip(net.segments, net.family)}
