@@ -417,12 +417,12 @@ def refine_reason(result: dict, options: InverseOptions, net_path=None) -> str |
     """Why the design ``result`` is worth designing again on a finer net, or None.
 
     Only a design of the automatic net at the default spacing, that missed the bar (:data:`REACH`) by at
-    most :data:`REFINE_NARROW` on each figure and whose deployment left the plane, on a surface that is not developable (a finer net cannot
-    bring an X-shell onto one: docs/inverse.md, Limits).
+    most :data:`REFINE_NARROW` on each figure and whose deployment left the plane (a developable surface too:
+    since 2026-12-06 a fanned net reaches the barrel vault within the bar; docs/inverse.md, Limits).
     """
     if not options.refine or options.spacing is not None or net_path is not None:
         return None
-    if result.get("status") != "missed" or result.get("developable"):
+    if result.get("status") != "missed":
         return None
     rise = result.get("deployed_rise")
     if isinstance(rise, (int, float)) and rise <= PLANAR:  # a finer net of a design that never buckled stayed planar too

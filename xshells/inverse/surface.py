@@ -253,13 +253,14 @@ def developable_warning(surface: TargetSurface, fit_bar: float, curvature: float
 
     A net on a developable surface unrolls into the plane with the same lengths, angles and
     in-plane bending and without the out-of-plane bending, so a planar state of lower energy
-    always exists at the same opening angle: an X-shell deploys off such a surface (docs/inverse.md,
-    Limits). A nearly flat one is still within the bar of a plane.
+    always exists at the same opening angle: the beams of an X-shell cannot lie on such a surface,
+    only near it, in a slightly doubly curved shell (docs/inverse.md, Limits). A nearly flat one is
+    still within the bar of a plane.
     """
     k = total_curvature(surface) if curvature is None else curvature
     dev = plane_deviation(surface)
     if k >= DEVELOPABLE_CURVATURE or dev <= fit_bar:
         return ""
     return (f"the surface is developable (total Gaussian curvature {k:.2g} rad) and curved "
-            f"({100 * dev:.1f}% of its diagonal off its plane, on average): an X-shell deploys off such a surface "
-            f"(it has a flat state of lower energy); expect a miss, and see docs/inverse.md, Limits")
+            f"({100 * dev:.1f}% of its diagonal off its plane, on average): an X-shell's beams cannot lie on it (a "
+            f"flat state has less energy), only near it, in a slightly doubly curved shell; see docs/inverse.md, Limits")
