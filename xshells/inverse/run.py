@@ -446,9 +446,10 @@ def _refined(surface, surface_path, out_dir, material_spec, options, progress, f
     spacing = REFINE_FACTOR * first["spacing"]
     summary = {"why": why, "default_spacing": first["spacing"], "spacing": spacing, "factor": REFINE_FACTOR}
     n = segment_count(surface, spacing, options.angle)
-    if n > (forced_segment_limit() if options.force else MAX_SEGMENTS):
+    limit = forced_segment_limit() if options.force else MAX_SEGMENTS
+    if n > limit:
         return _note_refined(out_dir, first, {**summary, "kept": "default", "refined": {
-            "status": "skipped", "message": f"{count_text(n)} segments, more than {MAX_SEGMENTS}"}}, t0)
+            "status": "skipped", "message": f"{count_text(n)} segments, more than {limit}"}}, t0)
     if progress:
         import sys
 
