@@ -64,7 +64,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", default="inverse_out",
                    help="output folder (default inverse_out; a reused one loses an earlier run's candidates/, refined/, "
                         "tries/, buckling/ and result.json at the start)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars or notes on stderr")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars or notes on stderr (warnings and errors still print)")
     p.set_defaults(func=_inverse)
 
 

@@ -387,7 +387,7 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
 
         print(f"xshells inverse: note: {surface.note}", file=sys.stderr)
     warning = developable_warning(surface, REACH["fit_mean"])
-    if warning and progress:
+    if warning:  # a warning, not a progress note: --no-progress keeps it (recheck 50)
         import sys
 
         print(f"xshells inverse: warning: {surface.path}: {warning}", file=sys.stderr)
