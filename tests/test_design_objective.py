@@ -215,3 +215,35 @@ def test_ks_minimum_is_overflow_safe_and_conservative():
 def test_bad_weights(kw, match):
     with pytest.raises(InputError, match=match):
         DesignWeights(**kw)
+
+
+
+def test_a_predicted_start_that_goes_non_finite_falls_back_quietly(banana, monkeypatch):
+    """A long prediction can turn a joint half a turn from its source frame, where the frame transport
+    divides by zero (seen in ``xshells inverse`` on the manta ray). The solve stops on the non-finite
+    state, the design is re-solved from where it was, and NumPy's warnings on the way do not reach the
+    user. The solve is stood in for here: its first call divides by zero in NumPy and fails as the real
+    one does; the second is the real re-solve."""
+    import warnings
+
+    from xshells.errors import InvalidState
+
+    eq = banana.equilibria[-1]
+    real, calls = eq.solve, []
+
+    def solve(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            np.array([1.0]) / np.array([0.0])  # what the transport's 1 / (1 + ts·te) does at a half turn
+            raise InvalidState("state: the material angle of edge 3 of rod 100 is not finite: nan")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(eq, "solve", solve)
+    q = banana._q.copy()
+    q[0] *= 1.0 + 1e-4
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        banana.objective(q)
+    assert len(calls) == 2  # the predicted start, then the re-solve from the last state
+    assert not [w for w in seen if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in seen]
+    assert np.isfinite(eq.L.get_vars()).all()

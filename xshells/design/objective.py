@@ -111,8 +111,12 @@ def _move_equilibrium(eq, dp, p) -> None:
     eq.L.set_rest_lengths(p)
     if np.isfinite(x_pred).all():
         try:
-            eq.L.set_vars(x_pred)
-            eq.solve()
+            # A long prediction can turn a joint half a turn from its source frame, where the frame transport
+            # divides by zero. The solve then stops on the non-finite state (InvalidState) and the state is
+            # re-solved from where it was, so NumPy's warnings on the way are noise to the user.
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                eq.L.set_vars(x_pred)
+                eq.solve()
             return
         except (ArithmeticError, InputError):
             restore(eq.L, start)
