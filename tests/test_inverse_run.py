@@ -869,13 +869,25 @@ def test_force_does_not_accept_a_net_beyond_the_machines_memory(tmp_path, capsys
     assert "\n" not in err and not (tmp_path / "o").exists()
 
 
-def test_force_allows_a_net_that_fits_in_memory():
-    from xshells.inverse.run import JACOBIAN_BYTES_PER_SEGMENT2, MAX_SEGMENTS, forced_segment_limit
+def test_force_allows_a_net_that_fits_in_memory(monkeypatch):
+    """Hand-computed limits: 416 bytes per segment² of dense Jacobians, so 64 GiB allows
+    sqrt(64 · 2³⁰ / 416) = 12,852 segments; 1 GiB allows 1,606, less than the 5,000 allowed without
+    --force, which then stands. A net under the limit passes; one over it gets the memory it would need."""
+    import xshells.inverse.run as run
+    from xshells.errors import InputError
 
-    limit = forced_segment_limit()
-    assert limit >= MAX_SEGMENTS
-    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    assert JACOBIAN_BYTES_PER_SEGMENT2 * limit ** 2 <= max(memory, JACOBIAN_BYTES_PER_SEGMENT2 * MAX_SEGMENTS ** 2)
+    assert run.JACOBIAN_BYTES_PER_SEGMENT2 == 416 and run.MAX_SEGMENTS == 5000
+    memory = {"SC_PAGE_SIZE": 4096, "SC_PHYS_PAGES": 64 * 2 ** 30 // 4096}
+    monkeypatch.setattr(run.os, "sysconf", lambda name: memory[name])
+    assert run.forced_segment_limit() == 12852
+    run._check_forced_size(12852, "12,852 segments")
+    with pytest.raises(InputError, match=r"12,853 segments, more than this machine can design even with --force "
+                                         r"\(12852: the design optimization would need about 64 GB of memory\)"):
+        run._check_forced_size(12853, "12,853 segments")
+    memory["SC_PHYS_PAGES"] = 2 ** 30 // 4096
+    assert run.forced_segment_limit() == 5000
+    monkeypatch.setattr(run.os, "sysconf", lambda name: (_ for _ in ()).throw(ValueError(name)))
+    assert run.forced_segment_limit() == int(np.sqrt(16 * 2 ** 30 / 416))  # not reported: 16 GiB assumed
 
 
 def test_a_net_with_a_five_sided_cell_gets_one_line(tmp_path, capsys):
