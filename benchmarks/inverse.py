@@ -22,8 +22,9 @@ command: Darth Vader's figures then differed, 0.41 % against 0.53 % mean fit).
 Three more analytic targets are generated here rather than shared (``ellpar``, ``bump``, ``hyparxy``; see
 GENERATED): surfaces the method was not shaped on.
 
-Besides the bundled designs (Darth Vader among them since 2026-12-05), two more of the paper's own (``boat``,
-``legged_pavilion``) are realizable targets where ../shared holds them (cases.json's settings).
+Besides the bundled designs (Darth Vader among them since 2026-12-05), more of the paper's own (``boat``,
+``legged_pavilion``, and since 2026-12-06 ``simple_two_bumps``, ``asymm_clapper`` and ``swimming_ray``) are
+realizable targets where ../shared holds them (cases.json's settings, its rest lengths where it names them).
 """
 from __future__ import annotations
 
@@ -61,12 +62,14 @@ REALIZABLE = {
 }
 # the paper's own designs (../shared, cases.json), where present: realizable targets the method has not been shaped on
 CASES = os.path.join(HERE, "..", "..", "shared", "data", "elasticrods", "cases.json")
-PAPER = ("boat", "legged_pavilion")
+# (simple_two_bumps, asymm_clapper and swimming_ray added 2026-12-06: first measured then)
+PAPER = ("boat", "legged_pavilion", "simple_two_bumps", "asymm_clapper", "swimming_ray")
 if os.path.exists(CASES):
     with open(CASES) as _fh:
         for _c in json.load(_fh)["cases"]:
             if _c["name"] in PAPER:
-                REALIZABLE[_c["name"]] = {**_c, "file": os.path.join(os.path.dirname(CASES), _c["file"])}
+                REALIZABLE[_c["name"]] = {**_c, **{k: os.path.join(os.path.dirname(CASES), _c[k])
+                                                   for k in ("file", "rest_lengths", "flat_file") if k in _c}}
 BARS = {"analytic": (0.01, 0.03, 0.90), "realizable": (0.005, 0.02, 0.90)}
 
 
