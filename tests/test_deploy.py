@@ -709,7 +709,7 @@ def test_one_coarse_step_that_buckles_the_flat_layout_is_redone_and_lands_on_the
     assert any("buckled the flat layout in one step" in w for w in r["warnings"]), r["warnings"]
 
 
-def test_units_are_stated_and_the_flat_layout_is_drawn_along_its_normal(tmp_path, capsys):
+def test_units_are_stated_and_the_flat_layout_is_drawn_along_its_normal(tmp_path, capsys, monkeypatch):
     """flat.png was a 3D view at 28° elevation (the manta ray's nearly closed 2317 × 204 layout a sliver); the
     energy axis, result.json and the stress line gave no unit (units follow the input, never converted)."""
     from xshells.deploy.run import _flat_view
@@ -726,6 +726,16 @@ def test_units_are_stated_and_the_flat_layout_is_drawn_along_its_normal(tmp_path
     out = tmp_path / "out"
     assert main(["deploy", str(design), "--angle", "60", "--steps", "3", "--subdivision", "4", "--strength", "100",
                  "--out", str(out), "--no-progress"]) in (0, 1)
+    # flat.png's axes name their unit (they had none, where inverse's flat.png said "mm")
+    import xshells.viz.render as render
+    from xshells.deploy.run import _write_flat_outputs
+
+    drawn, render_flat = [], render.render_flat
+    monkeypatch.setattr(render, "render_flat", lambda *a, **k: drawn.append(render_flat(*a, **k)))
+    (tmp_path / "again").mkdir()
+    _write_flat_outputs(str(tmp_path / "again"), L, upright)
+    (ax,) = [a for a in drawn[0].axes if a.get_title()]
+    assert {ax.get_xlabel(), ax.get_ylabel()} == {"x (design units)", "z (design units)"}, (ax.get_xlabel(), ax.get_ylabel())
     stress = [x for x in capsys.readouterr().out.splitlines() if "largest von Mises" in x]
     assert stress and "MPa for mm and MPa" in stress[0], stress
     assert "never converted" in json.loads((out / "result.json").read_text())["units"]

@@ -94,7 +94,7 @@ def _write_flat_outputs(out_dir: str, linkage: Linkage, design) -> None:
     xy, axes = _flat_view(linkage)
     render_flat(os.path.join(out_dir, "flat.png"), xy, linkage.rods.edges, bending_field(linkage),
                 f"flat: average angle {np.degrees(linkage.average_angle()):.1f}°, seen along the layout normal",
-                axes=axes)
+                axes=axes, unit="design units")  # lengths follow the design file, never converted
     if linkage.graph.is_planar:  # fabrication drawings of the flat layout with its rest lengths
         from ..io.fabrication import write_drawings
 
