@@ -56,13 +56,16 @@ def register(subparsers) -> None:
     p.add_argument("--no-refine", action="store_true",
                    help="at the default spacing, keep the first design even where it misses the bar narrowly "
                         "(default: such a design is designed again on a net 3/4 as fine, and the better kept)")
+    p.add_argument("--no-heavier", action="store_true",
+                   help="keep the design even where it misses the bar (default: its net is designed again with the "
+                        "fit weight x4 and x16, side by side, and the best kept)")
     p.add_argument("--polish", type=float, default=None,
                    help="after the last stage, 20 more iterations with the fit weight times this, from the design "
                         "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
     p.add_argument("--workers", type=int, help="processes for the fan screen, the tries of one net and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments, up to what fits in memory")
     p.add_argument("--out", default="inverse_out",
-                   help="output folder (default inverse_out; a reused one loses an earlier run's candidates/, refined/, "
+                   help="output folder (default inverse_out; a reused one loses an earlier run's candidates/, refined/, heavier/, "
                         "tries/, buckling/ and result.json at the start)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars or notes on stderr (warnings and errors still print)")
     p.set_defaults(func=_inverse)
@@ -84,7 +87,7 @@ def _inverse(args) -> int:
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
                           force=args.force, grading=args.grading, beams=args.beams, fan=args.fan,
                           free_ends=not args.no_free_ends, workers=args.workers, tries=args.tries,
-                          refine=not args.no_refine,
+                          refine=not args.no_refine, heavier=not args.no_heavier,
                           **({} if args.max_iters is None else {"max_iters": args.max_iters}),
                           **({} if args.buckling is None else {"buckling": args.buckling}))
     if args.polish is not None:
@@ -117,6 +120,13 @@ def _inverse(args) -> int:
             f"the finer net (spacing {f['spacing']:.4g}) did better and is kept; the default's: {figures}"
             if f["kept"] == "refined" else f"the finer net (spacing {f['spacing']:.4g}) did not do better "
                                            f"({figures}); the default's design is kept"))
+    if r.get("heavier"):
+        h = r["heavier"]
+        figures = ", ".join(f"x{d['factor']:g}: " + (f"{100 * d['fit_mean']:.2f}%" if d.get("fit_mean") is not None
+                                                     else d.get("status", "")) for d in h["designs"])
+        print(f"  heavier fit weight: {h['why']}; " + (f"kept x{h['kept']} (fit mean: {figures}; x1: "
+                                                       f"{100 * h['default']['fit_mean']:.2f}%)" if h["kept"] != "default"
+                                                       else f"none did better ({figures}); the first design is kept"))
     verified = r["status"] in ("complete", "missed", "invalid")  # "stopped", "interrupted": written, not deployed
     print(f"  outputs in {args.out}/" + (f" (xshells deploy {args.out}/case.json reproduces the deployment)"
                                          if verified else " (the design was not verified)"))
