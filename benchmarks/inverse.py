@@ -164,6 +164,7 @@ def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto", max_iter
             "valid": r.get("valid", False), "tracked_rms": r.get("tracked_rms", float("nan")),
             "beams": r.get("beams", ""), "fan": (r.get("beams_reason") or "").split("fanned net of fan ")[-1].split(" ")[0]
             if r.get("beams") == "fanned" else "", "all_s": r.get("time_s", float("nan")),
+            "heavier": (r.get("heavier") or {}).get("kept", ""),
             "times": r["stage_times_s"], "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
@@ -203,7 +204,9 @@ def main() -> int:
             continue
         r = json.loads(p.stdout.strip().splitlines()[-1])
         t = r["times"]
-        beams = r["beams"] + (f" {r['fan']}" if r["fan"] else "")
+        # the fit weight's factor where a heavier one was kept (step 11 of docs/inverse.md's method)
+        beams = r["beams"] + (f" {r['fan']}" if r["fan"] else "") + \
+            (f" x{r['heavier']}" if r.get("heavier") not in ("", "default", None) else "")
         # the mean to three decimals: the realizable bar is 0.5 %, and 0.505 % is not within it
         print(f"{r['target']:10} {r['kind']:10} {beams:12} {r['segments']:5d} {100 * r['fit_mean']:8.3f}% {100 * r['fit_max']:7.2f}% "
               f"{100 * r['coverage']:5.1f}% {'yes' if r['meets_bar'] else 'no':>4} {'yes' if r['valid'] else 'no':>5} "
