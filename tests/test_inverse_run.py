@@ -967,7 +967,7 @@ def _fake_designs(first, heavier):
     def fake_first(surface, surface_path, out_dir, material_spec, options, net_path, progress):
         write(out_dir, first, "first")
         os.makedirs(os.path.join(out_dir, "candidates", "even"), exist_ok=True)
-        return dict(first)
+        return {**first, "candidates": {"even": {"fit_mean": first["fit_mean"]}}}
 
     def fake_once(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason=None, stop=None):
         calls.append((options.beta, options.beams, options.orientation, options.spacing))
@@ -1014,6 +1014,7 @@ def test_heavier_fit_weights_design_the_kept_net_again_and_the_best_is_kept(tmp_
     assert [d["fit_mean"] for d in h["designs"]] == [d["fit_mean"] for d in results]
     assert h["default"]["fit_mean"] == _MISSED["fit_mean"]
     assert r["fit_mean"] == (_MISSED if kept == "default" else results[HEAVIER_INDEX[kept]])["fit_mean"]
+    assert r["candidates"] == {"even": {"fit_mean": _MISSED["fit_mean"]}}  # how the first was chosen stays on record
 
 
 HEAVIER_INDEX = {"4": 0, "16": 1}
@@ -1042,6 +1043,18 @@ def test_a_heavier_design_that_fails_or_is_interrupted_leaves_the_first(tmp_path
     r = json.loads((tmp_path / "b" / "result.json").read_text())
     assert r["fit_mean"] == _MISSED["fit_mean"] and r["heavier"]["kept"] == "default"
     assert [d["status"] for d in r["heavier"]["designs"]] == ["interrupted", "interrupted"]
+
+    # interrupted in the second: the first one's figures are on record, the first design stays
+    fake_first, fake_once, _ = _fake_designs(_MISSED, [{**_MISSED, "fit_mean": 0.009, "status": "complete"},
+                                                       KeyboardInterrupt()])
+    monkeypatch.setattr(run, "_run_at_spacing", fake_first)
+    monkeypatch.setattr(run, "_run_once", fake_once)
+    with pytest.raises(KeyboardInterrupt):
+        run.run_inverse(surface, str(tmp_path / "c"), {}, run.InverseOptions(workers=1), progress=False)
+    r = json.loads((tmp_path / "c" / "result.json").read_text())
+    assert r["fit_mean"] == _MISSED["fit_mean"] and (tmp_path / "c" / "flat_design.obj").read_text() == "design first\n"
+    assert [(d["status"], d.get("fit_mean")) for d in r["heavier"]["designs"]] == [("complete", 0.009),
+                                                                                  ("interrupted", None)]
 
 
 def test_the_command_says_whether_a_heavier_fit_weight_was_kept(tmp_path, monkeypatch, capsys):

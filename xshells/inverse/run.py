@@ -571,29 +571,41 @@ def _heavier(surface_path, out_dir, material_spec, options, net_path, progress, 
                 except InputError as exc:  # this weight's first layout does not get through: the others stand
                     done[k] = exc
     except KeyboardInterrupt:
-        designs = [{"factor": f, "status": "interrupted"} for k, f in enumerate(HEAVIER) if k not in done]
-        _note_heavier(out_dir, first, {**summary, "kept": "default", "designs": designs}, t0)
+        _note_heavier(out_dir, first, first, {**summary, "kept": "default", "designs": _heavier_designs(done, options.beta)},
+                      t0)
         raise
-    designs, best = [], None
-    for k, f in enumerate(HEAVIER):
-        r = done.get(k)
-        if isinstance(r, dict):
-            designs.append({"factor": f, "beta": options.beta * f, **{key: r.get(key) for key in _SUMMARY_KEYS}})
-            if _rank(r) < _rank(first if best is None else best[1]):
-                best = (k, r)
-        else:
-            designs.append({"factor": f, "beta": options.beta * f, "status": "failed", "message": str(r)})
+    designs, best = _heavier_designs(done, options.beta), None
+    for k, r in sorted(done.items()):
+        if isinstance(r, dict) and _rank(r) < _rank(first if best is None else best[1]):
+            best = (k, r)
     if best is None:
-        return _note_heavier(out_dir, first, {**summary, "kept": "default", "designs": designs}, t0)
+        return _note_heavier(out_dir, first, first, {**summary, "kept": "default", "designs": designs}, t0)
     k, r = best
     # what only the first design wrote (its buckling retry, say) goes; its candidates and finer net stay on record
     _remove_outputs(out_dir, set(os.listdir(out_dir)) - set(os.listdir(where[k])) -
                     {"heavier", "candidates", "refined", "result.json"})
     _copy_outputs(where[k], out_dir)
-    return _note_heavier(out_dir, r, {**summary, "kept": f"{HEAVIER[k]:g}", "designs": designs}, t0)
+    return _note_heavier(out_dir, r, first, {**summary, "kept": f"{HEAVIER[k]:g}", "designs": designs}, t0)
 
 
-def _note_heavier(out_dir, kept: dict, heavier: dict, t0) -> dict:
+def _heavier_designs(done: dict, beta: float) -> list:
+    """Each heavier design's figures (:data:`HEAVIER` order): failed with why, or interrupted where it had not ended."""
+    designs = []
+    for k, f in enumerate(HEAVIER):
+        r, head = done.get(k), {"factor": f, "beta": beta * f}
+        designs.append({**head, **{key: r.get(key) for key in _SUMMARY_KEYS}} if isinstance(r, dict) else
+                       {**head, "status": "interrupted"} if r is None else
+                       {**head, "status": "failed", "message": str(r)})
+    return designs
+
+
+#: what a run's first design records of how it was reached (auto's candidates and screen, a finer net): kept in
+#: ``result.json`` when a heavier design of its net is kept instead
+RUN_RECORDS = ("candidates", "fan_screen", "refined")
+
+
+def _note_heavier(out_dir, kept: dict, first: dict, heavier: dict, t0) -> dict:
+    kept = {**kept, **{key: first[key] for key in RUN_RECORDS if key in first and key not in kept}}
     return _note_second(out_dir, kept, "heavier", heavier, t0)
 
 
