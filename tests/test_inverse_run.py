@@ -1013,11 +1013,9 @@ def test_heavier_fit_weights_design_the_kept_net_again_and_the_best_is_kept(tmp_
     assert h["kept"] == kept and h["factors"] == [4.0, 16.0] and h["beta"] == 1000.0
     assert [d["fit_mean"] for d in h["designs"]] == [d["fit_mean"] for d in results]
     assert h["default"]["fit_mean"] == _MISSED["fit_mean"]
-    assert r["fit_mean"] == (_MISSED if kept == "default" else results[HEAVIER_INDEX[kept]])["fit_mean"]
+    assert r["fit_mean"] == (_MISSED if kept == "default" else results[{"4": 0, "16": 1}[kept]])["fit_mean"]
     assert r["candidates"] == {"even": {"fit_mean": _MISSED["fit_mean"]}}  # how the first was chosen stays on record
 
-
-HEAVIER_INDEX = {"4": 0, "16": 1}
 
 
 def test_a_heavier_design_that_fails_or_is_interrupted_leaves_the_first(tmp_path, monkeypatch):

@@ -451,9 +451,13 @@ def refine_reason(result: dict, options: InverseOptions, net_path=None) -> str |
     if mean > REFINE_NARROW * REACH["fit_mean"] or top > REFINE_NARROW * REACH["fit_max"] or \
             1.0 - cov > REFINE_NARROW * (1.0 - REACH["coverage"]):
         return None
-    return (f"missed narrowly at the default spacing ({result['spacing']:.4g}: fit mean {100 * mean:.2f}%, "
-            f"max {100 * top:.2f}%, coverage {100 * cov:.1f}%; the bar is {100 * REACH['fit_mean']:g}%, "
-            f"{100 * REACH['fit_max']:g}%, {100 * REACH['coverage']:g}%)")
+    return f"missed narrowly at the default spacing ({result['spacing']:.4g}: {_against_the_bar(mean, top, cov)})"
+
+
+def _against_the_bar(mean: float, top: float, cov: float) -> str:
+    """A design's three figures beside the bar's (:data:`REACH`), for a message."""
+    return (f"fit mean {100 * mean:.2f}%, max {100 * top:.2f}%, coverage {100 * cov:.1f}%; the bar is "
+            f"{100 * REACH['fit_mean']:g}%, {100 * REACH['fit_max']:g}%, {100 * REACH['coverage']:g}%")
 
 
 def _refined(surface, surface_path, out_dir, material_spec, options, progress, first: dict, why: str, t0) -> dict:
@@ -519,8 +523,7 @@ def heavier_reason(result: dict, options: InverseOptions) -> str | None:
     mean, top, cov = (result.get(k) for k in ("fit_mean", "fit_max", "coverage"))
     if mean is None or top is None or cov is None:
         return None
-    return (f"missed the bar (fit mean {100 * mean:.2f}%, max {100 * top:.2f}%, coverage {100 * cov:.1f}%; the bar "
-            f"is {100 * REACH['fit_mean']:g}%, {100 * REACH['fit_max']:g}%, {100 * REACH['coverage']:g}%)")
+    return f"missed the bar ({_against_the_bar(mean, top, cov)})"
 
 
 def kept_net_options(options: InverseOptions, result: dict) -> InverseOptions:
