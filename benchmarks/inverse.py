@@ -62,8 +62,10 @@ REALIZABLE = {
 }
 # the paper's own designs (../shared, cases.json), where present: realizable targets the method has not been shaped on
 CASES = os.path.join(HERE, "..", "..", "shared", "data", "elasticrods", "cases.json")
-# (simple_two_bumps, asymm_clapper and swimming_ray added 2026-12-06: first measured then)
-PAPER = ("boat", "legged_pavilion", "simple_two_bumps", "asymm_clapper", "swimming_ray")
+# (simple_two_bumps, asymm_clapper and swimming_ray added 2026-12-06, forward_design_fig10 and
+# wiggly_banana_preopt 2026-12-06 later: first measured then)
+PAPER = ("boat", "legged_pavilion", "simple_two_bumps", "asymm_clapper", "swimming_ray", "forward_design_fig10",
+         "wiggly_banana_preopt")
 if os.path.exists(CASES):
     with open(CASES) as _fh:
         for _c in json.load(_fh)["cases"]:

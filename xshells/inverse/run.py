@@ -550,8 +550,9 @@ def _heavier(surface_path, out_dir, material_spec, options, net_path, progress, 
     Ctrl-C during them keeps ``first``."""
     base = kept_net_options(options, first)
     where = [os.path.join(out_dir, "heavier", f"{f:g}") for f in HEAVIER]
-    jobs = [(surface_path, where[k], material_spec, replace(base, beta=options.beta * f), net_path, progress,
-             first.get("beams_reason"), k) for k, f in enumerate(HEAVIER)]
+    weighted = [replace(base, beta=options.beta * f) for f in HEAVIER]
+    jobs = [(surface_path, where[k], material_spec, weighted[k], net_path, progress, first.get("beams_reason"), k)
+            for k in range(len(HEAVIER))]
     if progress:
         import sys
 
@@ -568,9 +569,10 @@ def _heavier(surface_path, out_dir, material_spec, options, net_path, progress, 
             for _, (k, ok, value) in in_processes(_heavier_job, jobs, workers, progress=progress, stop_wait=STOP_WAIT):
                 done[k] = value if ok else InputError(value)
         else:
-            for k, job in enumerate(jobs):
+            for k in range(len(HEAVIER)):
                 try:
-                    done[k] = _run_once(*job[:7])
+                    done[k] = _run_once(surface_path, where[k], material_spec, weighted[k], net_path, progress,
+                                        first.get("beams_reason"))
                 except InputError as exc:  # this weight's first layout does not get through: the others stand
                     done[k] = exc
     except KeyboardInterrupt:
