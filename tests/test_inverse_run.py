@@ -39,6 +39,21 @@ def test_the_result_is_a_valid_physical_state(cap_run):
     assert r["flat_angle_deg"] == 20.0 and r["min_flat_angle_deg"] <= r["flat_angle_mean_deg"] < 90.0
 
 
+def test_the_joints_opening_range_is_reported_as_the_cut_list_gives_it(cap_run):
+    import csv
+
+    _, out, r = cap_run
+    with open(out / "joints.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    deployed = [float(row["deployed_angle_deg"]) for row in rows]
+    flat = [float(row["flat_angle_deg"]) for row in rows]
+    assert r["deployed_angle_min_deg"] == pytest.approx(min(deployed), abs=1e-3)
+    assert r["deployed_angle_max_deg"] == pytest.approx(max(deployed), abs=1e-3)
+    assert r["flat_angle_max_deg"] == pytest.approx(max(flat), abs=1e-3)
+    assert r["min_flat_angle_deg"] == pytest.approx(min(flat), abs=1e-3)
+    assert r["deployed_angle_min_deg"] < r["angle_deg"] < r["deployed_angle_max_deg"]  # the average is the option
+
+
 def test_it_rises_and_fits_the_cap_roughly_even_at_coarse_spacing(cap_run):
     _, _, r = cap_run
     P = np.array(r["deployed_joints"])
@@ -1059,7 +1074,9 @@ def test_the_command_says_whether_a_heavier_fit_weight_was_kept(tmp_path, monkey
     import xshells.inverse.run as run
 
     kept = {**_MISSED, "status": "complete", "fit_mean": 0.0037, "fit_max": 0.0101, "coverage": 1.0, "segments": 233,
-            "joints": 120, "time_s": 300.0, "message": "deployed onto the surface"}
+            "joints": 120, "time_s": 300.0, "message": "deployed onto the surface", "angle_deg": 90.0,
+            "deployed_angle_min_deg": 61.25, "deployed_angle_max_deg": 121.5, "min_flat_angle_deg": 17.04,
+            "flat_angle_max_deg": 29.96}
     fake_first, fake_once, _ = _fake_designs({**_MISSED, "segments": 236, "joints": 121, "time_s": 100.0,
                                               "message": "missed"}, [{**_MISSED, "fit_mean": 0.0061}, kept])
     monkeypatch.setattr(run, "_run_at_spacing", fake_first)
@@ -1069,6 +1086,7 @@ def test_the_command_says_whether_a_heavier_fit_weight_was_kept(tmp_path, monkey
     out = capsys.readouterr().out
     assert "heavier fit weight: missed the bar (fit mean 1.04%" in out
     assert "kept x16 (fit mean: x4: 0.61%, x16: 0.37%; x1: 1.04%)" in out
+    assert "joints open to 61.2–121.5° deployed (average 90°), 17.0–30.0° flat" in out  # the kept design's
     assert "--no-heavier" in _help(capsys)
 
 

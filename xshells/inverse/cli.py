@@ -104,6 +104,9 @@ def _inverse(args) -> int:
               f"max {100 * r['fit_max']:.2f}% of the diagonal; coverage {100 * r['coverage']:.1f}% "
               f"({r['time_s']:.0f} s)")
     print(f"  {r['status']}: {r['message']}")
+    if r.get("deployed_angle_min_deg") is not None:
+        print(f"  joints open to {r['deployed_angle_min_deg']:.1f}–{r['deployed_angle_max_deg']:.1f}° deployed "
+              f"(average {r.get('angle_deg', 0.0):g}°), {r['min_flat_angle_deg']:.1f}–{r['flat_angle_max_deg']:.1f}° flat")
     if r.get("beams"):
         print(f"  beams: {r['beams']} ({r.get('beams_reason', '')})")
     if r.get("tries"):

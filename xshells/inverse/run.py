@@ -1421,6 +1421,10 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
         "min_flat_angle_deg": float(np.degrees(flat.joint_angles().min())),
         # measured: the flat state settles with its angles free, away from the option's α₀ (recheck 34: 32.6° for 20°)
         "flat_angle_mean_deg": float(np.degrees(flat.joint_angles().mean())),
+        "flat_angle_max_deg": float(np.degrees(flat.joint_angles().max())),
+        # the range the joints open to (the average is --angle): what a designer sizes the joint hardware for
+        "deployed_angle_min_deg": float(np.degrees(deployed.joint_angles().min())),
+        "deployed_angle_max_deg": float(np.degrees(deployed.joint_angles().max())),
         "flat_planarity": flat_z, "deployed_rise": rise, "folded": folded, "overlap": overlap,
         "min_eigenvalue_at_fixed_angle": eig,
         "deploy": {"reached": dep["reached"], "message": dep["message"], "time_s": dep["timings_s"]["total"]},
