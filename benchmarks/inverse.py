@@ -19,11 +19,13 @@ command: Darth Vader's figures then differed, 0.41 % against 0.53 % mean fit).
 
     python benchmarks/inverse.py [--targets cap,hypar,barrel,wings,arch,breather,darth_vader] [--grading DEG] [--max-iters N]
 
-Three more analytic targets are generated here rather than shared (``ellpar``, ``bump``, ``hyparxy``; see
-GENERATED): surfaces the method was not shaped on.
+More analytic targets are generated here rather than shared (``ellpar``, ``bump``, ``hyparxy``, and since
+2026-12-06 ``torus_outer``, ``monkey_saddle``, ``pillow``, ``hex_dome``, ``hypar_rect``; see GENERATED):
+surfaces the method was not shaped on.
 
 Besides the bundled designs (Darth Vader among them since 2026-12-05), more of the paper's own (``boat``,
-``legged_pavilion``, and since 2026-12-06 ``simple_two_bumps``, ``asymm_clapper`` and ``swimming_ray``) are
+``legged_pavilion``, and since 2026-12-06 ``simple_two_bumps``, ``asymm_clapper``, ``swimming_ray``,
+``forward_design_fig10`` and ``wiggly_banana_preopt``) are
 realizable targets where ../shared holds them (cases.json's settings, its rest lengths where it names them).
 """
 from __future__ import annotations
@@ -88,11 +90,35 @@ GENERATED = {
 }
 
 
+# Five more, first run on 2026-12-06 (docs/inverse.md, "Targets first run on 2026-12-06"). The torus patch is
+# given by its parameters (u around the axis, w around the tube; the grid is over them), the others as above.
+GENERATED.update({
+    # outer torus patch, radii 4000 and 1000 (positive curvature)
+    "torus_outer": (lambda u, w: ((3000 + 1000 * np.cos(w)) * np.sin(u), 1000 * np.sin(w),
+                                  (3000 + 1000 * np.cos(w)) * np.cos(u) - 4000), (-0.35, 0.35, 51), (-0.7, 0.7, 31),
+                    "parametric"),
+    # monkey saddle, rise 250 over a disc of radius 1000 (flat in the middle, three lobes at the rim)
+    "monkey_saddle": (lambda x, y: 250 * (x ** 3 - 3 * x * y ** 2) / 1000 ** 3, (-1000, 1000, 51), (-1000, 1000, 51),
+                      lambda x, y: x * x + y * y <= 1000 ** 2 + 1),
+    # cosine pillow, 350 high over 3000 x 2000, its edges flat
+    "pillow": (lambda x, y: 350 * np.cos(np.pi * x / 3000) * np.cos(np.pi * y / 2000), (-1500, 1500, 61),
+               (-1000, 1000, 41), None),
+    # paraboloid dome over a hexagon of circumradius 1200, 300 high
+    "hex_dome": (lambda x, y: 300 * (1 - (x * x + y * y) / 1200 ** 2), (-1200, 1200, 49), (-1100, 1100, 45),
+                 lambda x, y: (np.abs(y) <= 1039.3) & (np.abs(np.sqrt(3) * x) + np.abs(y) <= 2078.5 + 1e-6)),
+    # hypar along its axes over a 2400 x 1600 rectangle, 300 rise at the corners
+    "hypar_rect": (lambda x, y: 300 * ((x / 1200) ** 2 - (y / 800) ** 2), (-1200, 1200, 49), (-800, 800, 33), None),
+})
+
+
 def generated_surface(name: str, out_obj: str) -> None:
     """Write the generated analytic target ``name`` (GENERATED) as a triangulated grid."""
     f, (x0, x1, nx), (y0, y1, ny), inside = GENERATED[name]
     X, Y = np.meshgrid(np.linspace(x0, x1, nx), np.linspace(y0, y1, ny), indexing="ij")
-    V = np.c_[X.ravel(), Y.ravel(), f(X, Y).ravel()]
+    if inside == "parametric":  # f maps the grid's parameters to a point
+        V, inside = np.stack(f(X, Y), axis=-1).reshape(-1, 3), None
+    else:
+        V = np.c_[X.ravel(), Y.ravel(), f(X, Y).ravel()]
     idx = np.arange(nx * ny).reshape(nx, ny)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
     F = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
