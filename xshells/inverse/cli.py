@@ -106,7 +106,7 @@ def _inverse(args) -> int:
     print(f"  {r['status']}: {r['message']}")
     if r.get("deployed_angle_min_deg") is not None:
         print(f"  joints open to {r['deployed_angle_min_deg']:.1f}–{r['deployed_angle_max_deg']:.1f}° deployed "
-              f"(average {r.get('angle_deg', 0.0):g}°), {r['min_flat_angle_deg']:.1f}–{r['flat_angle_max_deg']:.1f}° flat")
+              f"(average {r['angle_deg']:g}°), {r['min_flat_angle_deg']:.1f}–{r['flat_angle_max_deg']:.1f}° flat")
     if r.get("beams"):
         print(f"  beams: {r['beams']} ({r.get('beams_reason', '')})")
     if r.get("tries"):
