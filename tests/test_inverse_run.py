@@ -54,6 +54,19 @@ def test_the_joints_opening_range_is_reported_as_the_cut_list_gives_it(cap_run):
     assert r["deployed_angle_min_deg"] < r["angle_deg"] < r["deployed_angle_max_deg"]  # the average is the option
 
 
+def test_the_farthest_joint_is_reported_where_it_lies(cap_run):
+    from xshells.inverse.metrics import surface_distances
+    from xshells.inverse.surface import load_target
+
+    _, _, r = cap_run
+    P = np.array(r["deployed_joints"])
+    d = surface_distances(load_target(CAP), P)
+    k = r["fit_max_joint"]
+    assert k == int(np.argmax(d)) and r["fit_max_at"] == P[k].tolist()
+    assert r["fit_max_distance"] == pytest.approx(d[k], rel=1e-9)
+    assert r["fit_max_distance"] == pytest.approx(r["fit_max"] * DIAG, rel=1e-3)
+
+
 def test_it_rises_and_fits_the_cap_roughly_even_at_coarse_spacing(cap_run):
     _, _, r = cap_run
     P = np.array(r["deployed_joints"])
@@ -1118,3 +1131,17 @@ def test_a_miss_is_designed_again_with_heavier_weights_side_by_side_and_the_kept
     Y = np.array(json.loads((tmp_path / "d" / "result.json").read_text())["deployed"]["joint_positions"])
     T = np.array(r["placement"])
     assert np.abs(Y @ T[:3, :3].T + T[:3, 3] - np.array(r["deployed_joints"])).max() <= 1e-6 * DIAG
+
+
+def test_a_miss_names_its_farthest_joint_and_a_met_design_does_not(tmp_path, monkeypatch, capsys):
+    import xshells.inverse.run as run
+
+    missed = {**_MISSED, "segments": 101, "joints": 53, "time_s": 325.0, "message": "the deployment does not reach",
+              "fit_max_joint": 17, "fit_max_distance": 135.2, "fit_max_at": [-812.5, 402.25, 188.0]}
+    monkeypatch.setattr(run, "run_inverse", lambda *a, **k: missed)
+    surface = str(_write_hypar(tmp_path / "h.obj", n=9))
+    assert main(["inverse", surface, "--out", str(tmp_path / "o"), "--no-progress"]) == 1
+    assert "farthest: joint 17, 135.2 off the surface at (-812.5, 402.2, 188) in its frame" in capsys.readouterr().out
+    monkeypatch.setattr(run, "run_inverse", lambda *a, **k: {**missed, "status": "complete"})
+    assert main(["inverse", surface, "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    assert "farthest: joint" not in capsys.readouterr().out

@@ -104,6 +104,10 @@ def _inverse(args) -> int:
               f"max {100 * r['fit_max']:.2f}% of the diagonal; coverage {100 * r['coverage']:.1f}% "
               f"({r['time_s']:.0f} s)")
     print(f"  {r['status']}: {r['message']}")
+    if r["status"] == "missed" and r.get("fit_max_at") is not None:
+        x, y, z = r["fit_max_at"]
+        print(f"  farthest: joint {r['fit_max_joint']}, {r['fit_max_distance']:.4g} off the surface at "
+              f"({x:.4g}, {y:.4g}, {z:.4g}) in its frame (fit.png, inverse.3dm)")
     if r.get("deployed_angle_min_deg") is not None:
         print(f"  joints open to {r['deployed_angle_min_deg']:.1f}–{r['deployed_angle_max_deg']:.1f}° deployed "
               f"(average {r['angle_deg']:g}°), {r['min_flat_angle_deg']:.1f}–{r['flat_angle_max_deg']:.1f}° flat")

@@ -1414,6 +1414,9 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
     return {
         "status": status, "valid": bool(valid), "reached": bool(reached), "message": message,
         "fit_mean": float(d.mean()), "fit_max": float(d.max()), "coverage": cov,
+        # where the fit is worst, in the surface's frame and units: on a miss, the part of the surface not reached
+        "fit_max_joint": int(np.argmax(d)), "fit_max_distance": float(d.max()) * surface.diagonal,
+        "fit_max_at": Xp[int(np.argmax(d))].tolist(),
         "placement": T.tolist(),
         "deployed_joints": Xp.tolist(),
         "tracked_rms": tracked,
