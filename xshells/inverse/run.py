@@ -1411,23 +1411,22 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
     status, valid, reached, message = judge(
         dep["reached"], dep["message"], folded, overlap, flat_z, eig, rise, float(d.mean()), float(d.max()), cov,
         plane_deviation(surface), options.angle)
+    worst = int(np.argmax(d))  # the joint farthest from the surface
+    flat_deg, deployed_deg = np.degrees(flat.joint_angles()), np.degrees(deployed.joint_angles())
     return {
         "status": status, "valid": bool(valid), "reached": bool(reached), "message": message,
         "fit_mean": float(d.mean()), "fit_max": float(d.max()), "coverage": cov,
         # where the fit is worst, in the surface's frame and units: on a miss, the part of the surface not reached
-        "fit_max_joint": int(np.argmax(d)), "fit_max_distance": float(d.max()) * surface.diagonal,
-        "fit_max_at": Xp[int(np.argmax(d))].tolist(),
+        "fit_max_joint": worst, "fit_max_distance": float(d[worst]) * surface.diagonal, "fit_max_at": Xp[worst].tolist(),
         "placement": T.tolist(),
         "deployed_joints": Xp.tolist(),
         "tracked_rms": tracked,
         "energy_flat": float(flat.energy()), "energy_deployed": float(deployed.energy()),
-        "min_flat_angle_deg": float(np.degrees(flat.joint_angles().min())),
+        "min_flat_angle_deg": float(flat_deg.min()),
         # measured: the flat state settles with its angles free, away from the option's α₀ (recheck 34: 32.6° for 20°)
-        "flat_angle_mean_deg": float(np.degrees(flat.joint_angles().mean())),
-        "flat_angle_max_deg": float(np.degrees(flat.joint_angles().max())),
+        "flat_angle_mean_deg": float(flat_deg.mean()), "flat_angle_max_deg": float(flat_deg.max()),
         # the range the joints open to (the average is --angle): what a designer sizes the joint hardware for
-        "deployed_angle_min_deg": float(np.degrees(deployed.joint_angles().min())),
-        "deployed_angle_max_deg": float(np.degrees(deployed.joint_angles().max())),
+        "deployed_angle_min_deg": float(deployed_deg.min()), "deployed_angle_max_deg": float(deployed_deg.max()),
         "flat_planarity": flat_z, "deployed_rise": rise, "folded": folded, "overlap": overlap,
         "min_eigenvalue_at_fixed_angle": eig,
         "deploy": {"reached": dep["reached"], "message": dep["message"], "time_s": dep["timings_s"]["total"]},
