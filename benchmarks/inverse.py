@@ -133,32 +133,12 @@ def generated_surface(name: str, out_obj: str) -> None:
         fh.writelines(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in F)
 
 
-def realizable_surface(case_path: str, out_obj: str) -> dict:
-    """Deploy a case and write its deployed joint-quad surface; returns the spacing and angle to use."""
-    from xshells.deploy.case import load_case, material_from_spec, target_angle
-    from xshells.deploy.simulate import DeployOptions, deploy, rest_length_solve
-    from xshells.design.fitting import target_surface
-    from xshells.io import read_design, read_rest_lengths
-    from xshells.linkage.linkage import Linkage
+def realizable_surface(case_path, out_obj: str) -> dict:
+    """Deploy a case and write its deployed joint-quad surface; returns the spacing and angle to use
+    (:func:`xshells.inverse.realizable.realizable_target`)."""
+    from xshells.inverse.realizable import realizable_target
 
-    if isinstance(case_path, dict):  # a case given by its settings: written beside the target
-        spec, case_path = case_path, os.path.splitext(out_obj)[0] + "_case.json"
-        with open(case_path, "w") as fh:
-            json.dump(spec, fh)
-    case = load_case(case_path)
-    d = read_design(case.design_path)
-    p = read_rest_lengths(case.rest_lengths_path, d.num_segments) if case.rest_lengths_path else None
-    L = Linkage(d, material_from_spec(case.material), subdivision=case.subdivision, rest_lengths=p)
-    if p is None:
-        rest_length_solve(L)
-    angle = target_angle(case, L)
-    deploy(L, angle, DeployOptions(steps=case.steps))
-    V, F = target_surface(L)
-    with open(out_obj, "w") as fh:
-        fh.writelines(f"v {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in V)
-        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F)
-    seg = float(np.median(np.linalg.norm(d.vertices[d.edges[:, 0]] - d.vertices[d.edges[:, 1]], axis=1)))
-    return {"spacing": seg, "angle": float(np.degrees(angle)), "material": case.material}
+    return realizable_target(case_path, out_obj)
 
 
 def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto", max_iters: int | None = None,

@@ -1,0 +1,43 @@
+"""Issue 18's check on a realizable target, run whole with the default command.
+
+Darth Vader (bundled) is deployed, its deployed joint quads triangulated and Loop-subdivided
+(:mod:`xshells.inverse.realizable`), and designed with its own median segment length as the spacing and its own
+angle, as ``benchmarks/inverse.py`` runs it. The bar is the issue's for realizable targets: fit mean ≤ 0.5 % and
+max ≤ 2 % of the surface's diagonal, coverage ≥ 90 %, and the design complete and valid (flat state planar, no
+joint folded, no beams overlapping, stable at its angle).
+
+It takes minutes (the fan screen, the candidates side by side, a deployment from flat after every stage), so the
+other targets, the analytic ones among them, are measured by the benchmark (the bundled cap is designed whole,
+at a coarser spacing, in ``test_inverse_run.py``). Measured on 2026-12-06 with NumPy 2.4.6 and SciPy 1.17.1:
+0.354 % / 1.32 %, coverage 99.9 %. The method's outcome can move with rounding-level changes (docs/inverse.md,
+Results): the pointy wings, within the bar at 0.363 % with the packages of the morning of 2026-12-06, ended at
+0.795 % with these.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from data_paths import EXAMPLES
+from xshells.inverse.realizable import realizable_target
+from xshells.inverse.run import InverseOptions, run_inverse
+
+DARTH_VADER = EXAMPLES / "darth_vader" / "case.json"
+
+
+def _figures(r: dict) -> str:
+    return (f"{r.get('status')}: fit mean {100 * r.get('fit_mean', np.nan):.3f} %, max "
+            f"{100 * r.get('fit_max', np.nan):.2f} %, coverage {100 * r.get('coverage', np.nan):.1f} %")
+
+
+def _within(r: dict, mean: float, top: float, coverage: float) -> None:
+    assert r["status"] == "complete" and r["valid"] and r["reached"], _figures(r)
+    assert r["fit_mean"] <= mean and r["fit_max"] <= top and r["coverage"] >= coverage, _figures(r)
+    assert r["flat_planarity"] <= 1e-6 and not r["folded"] and not r["overlap"], _figures(r)
+    assert r["min_eigenvalue_at_fixed_angle"] >= 0.0, _figures(r)
+
+
+def test_darth_vaders_deployed_surface_is_reached_within_the_realizable_bar(tmp_path):
+    info = realizable_target(str(DARTH_VADER), str(tmp_path / "target.obj"))
+    r = run_inverse(str(tmp_path / "target.obj"), str(tmp_path / "out"), info["material"],
+                    InverseOptions(spacing=info["spacing"], angle=info["angle"]), progress=False)
+    _within(r, 0.005, 0.02, 0.90)
