@@ -49,6 +49,31 @@ def test_fit_without_a_unit_says_surface_units(tmp_path):
     assert fig.axes[0].get_xlabel() == "x (surface units)"
 
 
+def test_the_colour_bar_keeps_clear_of_a_deep_shells_axis_labels(tmp_path):
+    # a shell as deep as Darth Vader's realizable target (1,400 x 1,800 x 650, far from the origin): its x label
+    # and ticks ran into the colour bar and the joints' marker
+    u, v = np.meshgrid(np.linspace(-1, 1, 9), np.linspace(-1, 1, 11))
+    V = np.stack([-6200 + 700 * u.ravel(), -12900 + 900 * v.ravel(), -650 * (u.ravel() ** 2 + v.ravel() ** 2) / 2],
+                 axis=1)
+    F = []
+    for i in range(10):
+        for j in range(8):
+            a = 9 * i + j
+            F += [[a, a + 1, a + 10], [a, a + 10, a + 9]]
+    points = V[[0, 40, 98, 8, 90]]
+    edges = np.array([[0, 1], [1, 2], [3, 1], [1, 4]])
+    fig = render_fit(tmp_path / "fit.png", V, np.array(F), points, edges, np.linspace(0, 50, 5), joint_max=33.3)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)  # the closed figure's, drawn again as it was saved
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    to_fig = fig.transFigure.inverted()
+    ax, cbar = fig.axes
+    bar_top = max(a.get_window_extent(renderer).transformed(to_fig).y1 for a in [cbar, *cbar.texts])
+    assert ax.get_tightbbox(renderer).transformed(to_fig).y0 >= bar_top
+
+
 def test_flat_axes_carry_the_unit_and_hug_the_layout(tmp_path):
     points = np.array([[0.0, 0, 0], [100, 800, 0], [100, 0, 0], [0, 800, 0]])
     edges = np.array([[0, 1], [2, 3]])

@@ -260,6 +260,23 @@ def _length_label(name: str, unit: str) -> str:
     return f"{name} ({unit or 'surface units'})"
 
 
+def _clear_of(fig, ax, below: list, gap: float = 0.01, tries: int = 3) -> None:
+    """Raise and shorten ``ax`` until everything it draws (tick and axis labels included) stays above the artists
+    ``below`` (a colour bar and its texts), in figure coordinates. A 3D view's labels fall where its projection puts
+    them: on a deep shell (Darth Vader's realizable target) the x label and ticks ran into the colour bar."""
+    inverse = fig.transFigure.inverted()
+    for _ in range(tries):
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        floor = max(a.get_window_extent(renderer).transformed(inverse).y1 for a in below) + gap
+        low = ax.get_tightbbox(renderer).transformed(inverse).y0
+        if low >= floor:
+            return
+        box = ax.get_position()
+        rise = min(floor - low, 0.5 * box.height)
+        ax.set_position((box.x0, box.y0 + rise, box.width, box.height - rise))
+
+
 def render_fit(path, V: np.ndarray, F: np.ndarray, points: np.ndarray, edges: np.ndarray, distances: np.ndarray,
                title: str = "", unit: str = "", joint_max: float | None = None):
     """The deployed beams over the target surface, coloured by their centrelines' distance to it.
@@ -294,7 +311,7 @@ def render_fit(path, V: np.ndarray, F: np.ndarray, points: np.ndarray, edges: np
 
     u = unit or "surface units"
     fig = plt.figure(figsize=(8.0, 5.0))
-    ax = fig.add_subplot(projection="3d")
+    ax = fig.add_axes((0.0, 0.16, 1.0, 0.78), projection="3d")
     ax.computed_zorder = False  # the beams over the surface (sorted by depth, the surface hid them)
     ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=F, color="#9ab8d8", alpha=0.45, linewidth=0.15,
                     edgecolor="#6f8fb3", shade=True, zorder=1)
@@ -313,13 +330,16 @@ def render_fit(path, V: np.ndarray, F: np.ndarray, points: np.ndarray, edges: np
         axis.set_major_locator(MaxNLocator(4))  # few ticks: the x and y labels collided at the near corner
         axis.set_label_text(_length_label(name, unit))
     ax.tick_params(labelsize=8, pad=1)
-    cb = fig.colorbar(lc, ax=ax, orientation="horizontal", shrink=0.55, pad=0.02, aspect=35,
+    ax.set_title(title)
+    cax = fig.add_axes((0.225, 0.1, 0.55, 0.03))
+    cb = fig.colorbar(lc, cax=cax, orientation="horizontal",
                       label=f"distance of the beam centrelines to the surface ({u}): up to {top:.3g}, free ends included")
+    marker = None
     if joint_max is not None:
         cb.ax.axvline(joint_max, color="black", linewidth=2.0)
-        cb.ax.text(joint_max, 1.15, f"joints' max {joint_max:.3g}", transform=cb.ax.get_xaxis_transform(),
-                   ha="center", va="bottom", fontsize=8)
-    ax.set_title(title)
+        marker = cb.ax.text(joint_max, 1.15, f"joints' max {joint_max:.3g}", transform=cb.ax.get_xaxis_transform(),
+                            ha="center", va="bottom", fontsize=8)
+    _clear_of(fig, ax, [cax] + ([marker] if marker is not None else []))
     _save(fig, path)
     plt.close(fig)
     return fig
