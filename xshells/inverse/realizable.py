@@ -6,7 +6,8 @@ fits by default, :func:`xshells.design.fitting.target_surface`). An X-shell
 reaches that surface by construction, so inverse design run on it, with the
 design's own median segment length as the spacing and its own deployed angle,
 measures the method rather than the physics. ``benchmarks/inverse.py`` and
-``tests/test_inverse_realizable.py`` build their targets here.
+the tests (``test_inverse_realizable.py``, ``test_inverse_targets.py``) build
+their targets here.
 """
 from __future__ import annotations
 

@@ -313,13 +313,10 @@ def render_fit(path, V: np.ndarray, F: np.ndarray, points: np.ndarray, edges: np
     fig = plt.figure(figsize=(8.0, 5.0))
     ax = fig.add_axes((0.0, 0.16, 1.0, 0.78), projection="3d")
     ax.computed_zorder = False  # the beams over the surface (sorted by depth, the surface hid them)
-    ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=F, color="#9ab8d8", alpha=0.45, linewidth=0.15,
-                    edgecolor="#6f8fb3", shade=True, zorder=1)
     top = max(float(np.max(distances)), 1e-12)
     vals = 0.5 * (distances[edges[:, 0]] + distances[edges[:, 1]])
     lc = Line3DCollection(points[edges], array=vals, cmap="plasma", linewidths=2.0, zorder=2)
     lc.set_clim(0.0, top)
-    ax.add_collection3d(lc)
     P = np.vstack([V, points])
     lo, hi = P.min(axis=0), P.max(axis=0)
     pad = 0.02 * float(np.max(hi - lo))
@@ -339,7 +336,12 @@ def render_fit(path, V: np.ndarray, F: np.ndarray, points: np.ndarray, edges: np
         cb.ax.axvline(joint_max, color="black", linewidth=2.0)
         marker = cb.ax.text(joint_max, 1.15, f"joints' max {joint_max:.3g}", transform=cb.ax.get_xaxis_transform(),
                             ha="center", va="bottom", fontsize=8)
+    # the layout is settled on the empty view: the surface and the beams are most of a draw's cost (their limits
+    # are set above, so adding them after changes nothing else)
     _clear_of(fig, ax, [cax] + ([marker] if marker is not None else []))
+    ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=F, color="#9ab8d8", alpha=0.45, linewidth=0.15,
+                    edgecolor="#6f8fb3", shade=True, zorder=1)
+    ax.add_collection3d(lc)
     _save(fig, path)
     plt.close(fig)
     return fig
