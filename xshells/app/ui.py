@@ -463,13 +463,15 @@ class App:
             cam = client.camera
             P, labels = self._hover_targets()
             k = hover.pick_on_screen(P, pointer, w, h, {"position": cam.position, "wxyz": cam.wxyz, "fov": cam.fov})
+        # the label first, then the record of it: whoever sees a joint recorded as hovered finds its label (a test
+        # read the two between the assignments and found no label)
         if k is None:
-            self._hovered = None
             self._remove("/hover")
+            self._hovered = None
             return
         if self._hovered != (k, labels[k]):
-            self._hovered = (k, labels[k])
             self._extras["/hover"] = self.server.scene.add_label("/hover", labels[k], position=tuple(P[k] + [0, 0, 0.03]))
+            self._hovered = (k, labels[k])
 
     def _mirror(self):
         axis = SYMMETRY.get(self.symmetry.value)
