@@ -198,3 +198,47 @@ def test_reading_a_gmsh_file_prints_nothing(tmp_path, capsys):
     assert len(load_target(tmp_path / "g.msh").F) == len(F)
     out = capsys.readouterr()
     assert out.out == "" and out.err == ""
+
+
+def _dome(n=101):
+    """A paraboloid dome over a 2000 × 2000 square, 2 (n − 1)² triangles."""
+    return grid(n, 2000.0, height=lambda x, y: 400.0 - 2e-4 * (x**2 + y**2))
+
+
+def test_a_fine_mesh_is_simplified_within_the_tolerance_and_a_coarse_one_is_left_alone():
+    from xshells.inverse.surface import simplified
+
+    fine = check_target(*_dome(), "dome.obj")  # 20,000 triangles
+    s = simplified(fine, max_triangles=2000, tolerance=1e-3)
+    assert len(s.F) <= 2000 and s.boundary_loops == 1 and s.path == "dome.obj"
+    before, kept, gap = s.simplified
+    assert (before, kept) == (20000, len(s.F)) and 0 < gap <= 1e-3
+    # the recorded distance is what it says: the fine mesh's vertices lie that close to the simplified one
+    from xshells.inverse.surface import _largest_distance
+
+    assert _largest_distance(fine.V, s) <= gap * fine.diagonal * (1 + 1e-9)
+    assert s.area == pytest.approx(fine.area, rel=1e-3) and s.diagonal == pytest.approx(fine.diagonal, rel=1e-3)
+    assert simplified(fine, max_triangles=20000) is fine  # not finer than the limit: the file's own mesh
+    coarse = check_target(*_dome(11))  # 200 triangles
+    assert simplified(coarse, max_triangles=200) is coarse
+
+
+def test_a_simplification_that_cannot_stay_within_the_tolerance_keeps_the_files_mesh():
+    from xshells.inverse.surface import simplified
+
+    fine = check_target(*_dome(41))
+    assert simplified(fine, max_triangles=500, tolerance=1e-12) is fine
+
+
+def test_load_target_simplifies_a_mesh_finer_than_the_limit(tmp_path, monkeypatch):
+    import xshells.inverse.surface as surface
+
+    V, F = _dome(31)  # 1,800 triangles
+    path = tmp_path / "dome.obj"
+    path.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in V) + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in F))
+    monkeypatch.setattr(surface, "MAX_TRIANGLES", 1000)
+    monkeypatch.setattr(surface, "SIMPLIFY_TOLERANCE", 1e-3)
+    monkeypatch.setattr(surface.simplified, "__defaults__", (1000, 1e-3))
+    s = load_target(str(path))
+    assert s.simplified is not None and len(s.F) <= 1000 and s.path == str(path)
+    assert load_target(str(path), simplify=False).simplified is None

@@ -252,6 +252,26 @@ def count_text(n: float) -> str:
     return f"about {n:.0f}" if n < 1e7 else f"about {n:.2g}"
 
 
+def simplification(surface) -> dict | None:
+    """What result.json says of a surface simplified for the design (:func:`.surface.simplified`), or None.
+    The fit figures are measured on the simplified mesh, within ``max_distance`` of the file's."""
+    if surface.simplified is None:
+        return None
+    before, after, gap = surface.simplified
+    return {"triangles": before, "triangles_kept": after, "max_distance": gap * surface.diagonal,
+            "max_distance_of_diagonal": gap}
+
+
+def simplification_note(surface) -> str | None:
+    """The one-line note of a simplified surface, or None."""
+    if surface.simplified is None:
+        return None
+    before, after, gap = surface.simplified
+    return (f"{surface.path}: its {before:,} triangles are simplified to {after:,} for the design (the two meshes lie "
+            f"within {gap * surface.diagonal:.3g}{surface.unit} of each other, {100 * gap:.2g} % of the diagonal; the fit "
+            f"is measured on the simplified one)")
+
+
 def units_text(surface) -> str:
     """What result.json says of the units: a .3dm surface is read in mm (its note says from which units)."""
     if surface.note:
@@ -401,6 +421,11 @@ def run_inverse(surface_path, out_dir, material_spec: dict, options: InverseOpti
         import sys
 
         print(f"xshells inverse: note: {surface.note}", file=sys.stderr)
+    note = simplification_note(surface)
+    if note:  # a note, like a .3dm's: printed with or without progress
+        import sys
+
+        print(f"xshells inverse: note: {note}", file=sys.stderr)
     warning = developable_warning(surface, REACH["fit_mean"])
     if warning:  # a warning, not a progress note: --no-progress keeps it (recheck 50)
         import sys
@@ -1234,7 +1259,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     atomic_write_text(os.path.join(out_dir, "case.json"), json.dumps(case, indent=1) + "\n")
     write_drawings(out_dir, "flat_layout", final_design, p)
 
-    result = {"surface": str(surface_path), "input": surface.note, "units": units_text(surface), "spacing": spacing, "angle_deg": options.angle,
+    result = {"surface": str(surface_path), "input": surface.note, "units": units_text(surface),
+              "surface_simplified": simplification(surface), "spacing": spacing, "angle_deg": options.angle,
               "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "grading_deg": options.grading, "beams": beams, "fan": options.fan if beams == "fanned" else None,
               "beta": options.beta, "beams_reason": beams_reason,
               "direction": options.direction,
