@@ -75,7 +75,7 @@ class TargetSurface:
 # 3,562 triangles and 117 s Loop-subdivided three times (227,968), and the fan screen maps it several times.
 # Every bundled and shared target has fewer than 5,000.
 MAX_TRIANGLES = 20_000
-# How close the simplified mesh must stay to the file's, relative to the diagonal: a fortieth of the
+# How close the simplified mesh must stay to the file's, relative to the diagonal: a fiftieth of the
 # realizable bar's mean fit (0.5 %), so that the fit measured on it is the fit to the file's surface
 SIMPLIFY_TOLERANCE = 1e-4
 
