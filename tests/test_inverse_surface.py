@@ -242,3 +242,18 @@ def test_load_target_simplifies_a_mesh_finer_than_the_limit(tmp_path, monkeypatc
     s = load_target(str(path))
     assert s.simplified is not None and len(s.F) <= 1000 and s.path == str(path)
     assert load_target(str(path), simplify=False).simplified is None
+
+
+def test_the_simplification_note_names_the_file_the_triangles_and_the_distance():
+    from xshells.inverse.run import simplification, simplification_note
+    from xshells.inverse.surface import simplified
+
+    fine = check_target(*_dome(), "dome.obj")
+    assert simplification_note(fine) is None and simplification(fine) is None
+    s = simplified(fine, max_triangles=2000, tolerance=1e-3)
+    note = simplification_note(s)
+    assert note.startswith("dome.obj: its 20,000 triangles are simplified to ") and "surface units" in note
+    assert "\n" not in note
+    info = simplification(s)
+    assert info["triangles"] == 20000 and info["triangles_kept"] == len(s.F)
+    assert info["max_distance"] == pytest.approx(info["max_distance_of_diagonal"] * fine.diagonal, rel=1e-3)

@@ -267,8 +267,9 @@ def simplification_note(surface) -> str | None:
     if surface.simplified is None:
         return None
     before, after, gap = surface.simplified
+    unit = surface.unit.strip() or "surface units"
     return (f"{surface.path}: its {before:,} triangles are simplified to {after:,} for the design (the two meshes lie "
-            f"within {gap * surface.diagonal:.3g}{surface.unit} of each other, {100 * gap:.2g} % of the diagonal; the fit "
+            f"within {gap * surface.diagonal:.3g} {unit} of each other, {100 * gap:.2g} % of the diagonal; the fit "
             f"is measured on the simplified one)")
 
 
