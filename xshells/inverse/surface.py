@@ -73,7 +73,7 @@ class TargetSurface:
 # A finer mesh than this is simplified before inverse design works on it (:func:`simplified`). The method's
 # surface work grows faster than the triangles: the scissor map of the shared spherical cap took 1.25 s at its
 # 3,562 triangles and 117 s Loop-subdivided three times (227,968), and the fan screen maps it several times.
-# Every bundled and shared target has fewer than 5,000.
+# The shared targets have fewer than 5,000, a realizable target about 15 per segment of its design.
 MAX_TRIANGLES = 20_000
 # How close the simplified mesh must stay to the file's, relative to the diagonal: a fiftieth of the
 # realizable bar's mean fit (0.5 %), so that the fit measured on it is the fit to the file's surface
