@@ -257,3 +257,20 @@ def test_the_simplification_note_names_the_file_the_triangles_and_the_distance()
     info = simplification(s)
     assert info["triangles"] == 20000 and info["triangles_kept"] == len(s.F)
     assert info["max_distance"] == pytest.approx(info["max_distance_of_diagonal"] * fine.diagonal, rel=1e-3)
+
+
+def test_a_simplification_that_fails_keeps_more_triangles_then_the_files_mesh(monkeypatch):
+    import igl
+
+    from xshells.inverse.surface import simplified
+
+    fine = check_target(*_dome(41))  # 3,200 triangles
+    calls = []
+
+    def broken(V, F, m):
+        calls.append(m)
+        raise RuntimeError("qslim failed")
+
+    monkeypatch.setattr(igl, "qslim", broken)
+    assert simplified(fine, max_triangles=500) is fine
+    assert calls == [500, 1000, 2000]

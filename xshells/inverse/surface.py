@@ -111,10 +111,10 @@ def simplified(surface: TargetSurface, max_triangles: int = MAX_TRIANGLES,
     V = np.asfortranarray(surface.V, dtype=float)
     F = np.asfortranarray(surface.F, dtype=np.int32)
     while m < m0:
-        U, G, _, _ = igl.qslim(V, F, m)
         try:
+            U, G, _, _ = igl.qslim(V, F, m)
             s = check_target(U, G, surface.path)
-        except InputError:  # a collapse that broke the mesh: keep more triangles
+        except (InputError, RuntimeError, ValueError):  # a collapse that broke the mesh: keep more triangles
             s = None
         if s is not None and s.boundary_loops == surface.boundary_loops:
             gap = max(_largest_distance(surface.V, s), _largest_distance(s.V, surface)) / surface.diagonal
