@@ -11,8 +11,9 @@ overlapping, stable at its angle).
 It takes about four minutes (a deployment from flat after every stage), so the other targets, the analytic ones
 among them, are measured by the benchmark (the bundled cap is designed whole, at a coarser spacing, in
 ``test_inverse_run.py``). Measured on 2026-12-06 with NumPy 2.4.6 and SciPy 1.17.1: 0.354 % / 1.32 %, coverage
-99.9 %. The method's outcome can move with rounding-level changes (docs/inverse.md, Results): the pointy wings,
-within the bar at 0.363 % with the packages of the morning of 2026-12-06, ended at 0.795 % with these.
+99.9 %. The method's outcome can move with rounding-level changes (docs/inverse.md, Results): with these packages
+the pointy wings' fanned net no longer buckles at its first design, which reached 0.363 % with the earlier ones,
+and meets the bar only with the planar-buckling penalty's second design (0.398 %, 492 s).
 """
 from __future__ import annotations
 
