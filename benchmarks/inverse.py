@@ -133,14 +133,6 @@ def generated_surface(name: str, out_obj: str) -> None:
         fh.writelines(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in F)
 
 
-def realizable_surface(case_path, out_obj: str) -> dict:
-    """Deploy a case and write its deployed joint-quad surface; returns the spacing and angle to use
-    (:func:`xshells.inverse.realizable.realizable_target`)."""
-    from xshells.inverse.realizable import realizable_target
-
-    return realizable_target(case_path, out_obj)
-
-
 def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto", max_iters: int | None = None,
         buckling: float | None = None, tries: int = 1) -> dict:
     """Runs in a child process."""
@@ -155,7 +147,9 @@ def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto", max_iter
         kind, opts, material = "analytic", InverseOptions(grading=grading, beams=beams), dict(DEFAULT_MATERIAL)
     else:
         surface = os.path.join(tmp, f"{name}_target.obj")
-        info = realizable_surface(REALIZABLE[name], surface)
+        from xshells.inverse.realizable import realizable_target
+
+        info = realizable_target(REALIZABLE[name], surface)
         kind, material = "realizable", info["material"]
         opts = InverseOptions(spacing=info["spacing"], angle=info["angle"], grading=grading, beams=beams)
     if max_iters is not None:

@@ -258,8 +258,8 @@ def simplification(surface) -> dict | None:
     if surface.simplified is None:
         return None
     before, after, gap = surface.simplified
-    return {"triangles": before, "triangles_kept": after, "max_distance": gap * surface.diagonal,
-            "max_distance_of_diagonal": gap}
+    return {"triangles": before, "triangles_kept": after, "max_distance": gap,
+            "max_distance_of_diagonal": gap / surface.diagonal}
 
 
 def simplification_note(surface) -> str | None:
@@ -269,7 +269,7 @@ def simplification_note(surface) -> str | None:
     before, after, gap = surface.simplified
     unit = surface.unit.strip() or "surface units"
     return (f"{surface.path}: its {before:,} triangles are simplified to {after:,} for the design (the two meshes lie "
-            f"within {gap * surface.diagonal:.3g} {unit} of each other, {100 * gap:.2g} % of the diagonal; the fit "
+            f"within {gap:.3g} {unit} of each other, {100 * gap / surface.diagonal:.2g} % of the diagonal; the fit "
             f"is measured on the simplified one)")
 
 

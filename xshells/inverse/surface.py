@@ -41,7 +41,7 @@ class TargetSurface:
         conversion to mm (then the lengths here are mm).
     simplified : (int, int, float) or None
         Where the file's mesh was finer than inverse design needs (:func:`simplified`): its triangles, the
-        triangles kept, and the largest distance between the two meshes relative to the diagonal.
+        triangles kept, and the largest distance between the two meshes (design units).
     """
 
     V: np.ndarray = field(repr=False)
@@ -117,9 +117,9 @@ def simplified(surface: TargetSurface, max_triangles: int = MAX_TRIANGLES,
         except (InputError, RuntimeError, ValueError):  # a collapse that broke the mesh: keep more triangles
             s = None
         if s is not None and s.boundary_loops == surface.boundary_loops:
-            gap = max(_largest_distance(surface.V, s), _largest_distance(s.V, surface)) / surface.diagonal
-            if gap <= tolerance:
-                return replace(s, path=surface.path, note=surface.note, simplified=(m0, len(s.F), float(gap)))
+            gap = max(_largest_distance(surface.V, s), _largest_distance(s.V, surface))
+            if gap <= tolerance * surface.diagonal:
+                return replace(s, note=surface.note, simplified=(m0, len(s.F), gap))
         m *= 2
     return surface
 
