@@ -237,8 +237,10 @@ def test_app_in_chromium(tmp_path):
                 _wait(lambda: app.session.name == "quad", 20, "the uploaded design to open")
                 upload.set_input_files(files=[{"name": "bad.obj", "mimeType": "text/plain", "buffer": b"v 0 0 0\nl 1 9\n"}])
                 # the message names the line; read it on the page (the status line is later
-                # overwritten by the quad's background deployment finishing)
-                page.get_by_text(re.compile(r"upload refused: bad\.obj.*line 2")).first.wait_for(timeout=20000)
+                # overwritten by the quad's background deployment finishing). 60 s, as for the deployment below: a
+                # clean-clone CI on 2026-12-06 waited 20 s in vain while the other worker and the quad's deployment
+                # held both cores, and the same test passed alone in 35 s
+                page.get_by_text(re.compile(r"upload refused: bad\.obj.*line 2")).first.wait_for(timeout=60000)
                 assert app.session.name == "quad"
                 assert app.session.worker.wait_idle(60)  # the quad's deployment, whose status replaces the message there
                 page.wait_for_timeout(500)
