@@ -362,7 +362,8 @@ def test_no_stage_whose_flat_state_overlaps_is_kept(tmp_path, monkeypatch):
     monkeypatch.setattr(guide, "guided_optimization", lambda problem, hold, options, **kw: real(
         problem, hold, dataclasses.replace(options, schedule=(0.0,), final_iterations=2, polish=0.0), **kw))
     monkeypatch.setattr(clearance, "beam_overlaps", lambda L, width: "beams 1 and 2 come within 1 of each other")
-    main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--out", str(tmp_path), "--no-progress"])
+    main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--workers", "1", "--out", str(tmp_path),
+          "--no-progress"])  # (--workers 1: the stage checks run here, with the stand-in above)
     with open(tmp_path / "result.json") as fh:
         r = json.load(fh)
     assert not r["load_released"] and r["status"] == "stopped" and r["chosen_stage_load"] is None
@@ -436,8 +437,9 @@ def test_a_free_end_that_crowds_a_neighbouring_beam_is_left_off(tmp_path, monkey
 
     monkeypatch.setattr(clearance, "crowded_segments", crowded)
     spacing = f"{DIAG / 6:.3f}"
-    main(["inverse", str(CAP), "--spacing", spacing, "--beams", "even", "--no-heavier", "--out", str(tmp_path),
-          "--no-progress"])  # (--no-heavier: heavier designs run in workers, without the stand-ins above)
+    main(["inverse", str(CAP), "--spacing", spacing, "--beams", "even", "--no-heavier", "--workers", "1", "--out",
+          str(tmp_path), "--no-progress"])  # (--no-heavier, --workers 1: the heavier designs and the stage checks
+    # would run in processes of their own, without the stand-ins above)
     r = json.loads((tmp_path / "result.json").read_text())
     # every free end the net has, less the one
     S = load_target(CAP)

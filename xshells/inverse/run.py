@@ -1097,7 +1097,7 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     # 3. rest lengths and a first deployment ----------------------------------------------------
     from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
     from ..linkage.linkage import Linkage
-    from .metrics import apply, kabsch, place, surface_distances
+    from .metrics import apply, kabsch
 
     t = time.perf_counter()
     mirror = False
@@ -1172,64 +1172,18 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
         return False
 
     # After each stage, deploy the design as it stands from its flat state, without any hold, as the
-    # verification will (with its free ends, less those that come closer to a neighbouring beam than a
-    # beam's width: on the two bumps they did): the design whose own deployment fits best is kept (a held
-    # state can end on a branch that a deployment from flat never reaches).
-    best = {"fit": np.inf, "rank": (True, np.inf), "checked": []}
+    # verification will (:mod:`.checks`); the design whose own deployment fits best is kept. The checks run
+    # in a process beside this one where the design may use a second core (:func:`_checks_beside`).
+    from .checks import CheckContext, StageChecks
+
     Tinv = np.linalg.inv(T0)
-    from ..io.design import design_from_arrays
-
-    def settled_flat(Pf, edges, p):
-        from ..solve import NewtonOptions, minimize
-
-        fwd = Linkage(design_from_arrays(Pf, edges), material, subdivision=options.subdivision, rest_lengths=p)
-        # as `xshells deploy` treats a case with rest lengths: the flat state settles with its angles free
-        minimize(fwd, fixed=fwd.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
-        return fwd
-
-    def with_free_ends(flat_L):
-        """The stage's design with those free ends that keep clear of the other beams, settled."""
-        from ..linkage.clearance import crowded_segments
-        from .free_ends import crossing_ends
-
-        use, n = ends, len(design.edges)
-        for _ in range(4):
-            Pf, edges, p = _stage_design(flat_L, design.edges, use)
-            fwd = settled_flat(Pf, edges, p)
-            crowded = crowded_segments(fwd, width) if width > 0 else np.zeros(0, np.int64)
-            # free ends too close to a neighbouring beam, or across another beam without a joint: left off
-            bad = np.union1d(crowded[crowded >= n] - n, crossing_ends(Pf, edges, n))
-            if not len(bad) or not len(use):
-                return (Pf, edges, p), fwd, use
-            use = use.subset(~np.isin(np.arange(len(use)), bad))
-        Pf, edges, p = _stage_design(flat_L, design.edges, use)
-        return (Pf, edges, p), settled_flat(Pf, edges, p), use
+    checks = StageChecks(CheckContext(surface, material, options.subdivision, options.steps, options.direction,
+                                      theta, width, np.asarray(design.edges, np.int64), ends),
+                         beside=_checks_beside(options, net.num_segments))
 
     def after_stage(mu):
-        from ..linkage.clearance import beam_overlaps
-
-        if ends is not None and len(ends):
-            made, fwd, used = with_free_ends(problem.flat.L)
-        else:
-            made = _stage_design(problem.flat.L, design.edges)
-            fwd, used = settled_flat(*made), None
-        overlap = beam_overlaps(fwd, width) if width > 0 else ""
-        if overlap:  # not buildable: the verification would refuse it
-            best["why"] = f"the flat layout is not buildable: {overlap}"
-            return
-        res = deploy(fwd, theta, DeployOptions(steps=options.steps, direction=options.direction))
-        if not res.converged:
-            best["why"] = f"its deployment from flat stopped: {res.message}"
-            return
-        guess = apply(Tinv, problem.deployed.L.joint_positions())
-        Y = fwd.joint_positions()
-        placed = apply(place(surface, Y, guess), Y)
-        d = surface_distances(surface, placed)
-        fit, top = float(np.mean(d)), float(np.max(d))
-        best["checked"].append({"load_factor": mu, "fit_mean": fit / surface.diagonal, "fit_max": top / surface.diagonal})
-        rank = stage_rank(fit / surface.diagonal, top / surface.diagonal)
-        if rank < best["rank"]:
-            best.update(fit=fit, rank=rank, mu=mu, design=made, free_ends=0 if used is None else len(used), tracked=placed)
+        checks.ask(mu, problem.flat.L.vertex_positions(), problem.flat.L.rest_lengths,
+                   apply(Tinv, problem.deployed.L.joint_positions()))
 
     interrupted = False
     stages = []
@@ -1240,10 +1194,16 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     finally:
         if bar is not None:
             bar.close()
+    try:
+        checked = checks.results(wait=not interrupted)
+    except KeyboardInterrupt:  # while waiting for the last checks: those that ended count
+        interrupted, checked = True, checks.results(wait=False)
+    best = _best_stage(checked, surface)
     released = bool(stages) and stages[-1].load_factor == 0.0 and not interrupted and "design" in best
     times["optimize_s"] = time.perf_counter() - t
 
     # outputs of the design ------------------------------------------------------------------------
+    from ..io.design import design_from_arrays
     from ..io.fabrication import write_drawings
 
     if "design" in best:
@@ -1355,17 +1315,39 @@ def judge(reached_end: bool, deploy_message: str, folded: str, overlap: str, fla
 
 
 def _stage_design(flat_L, edges, ends=None):
-    """The design a stage would write: its flat vertices (k, 3) centred in the plane z = 0, segments (s, 2)
-    and rest lengths (s,), with ``ends`` (:class:`.free_ends.FreeEnds`) attached when given."""
-    Pf = flat_L.vertex_positions()
-    Pf = Pf - Pf.mean(axis=0)
-    Pf[:, 2] = 0.0  # planar to round-off (checked on the verification's flat state)
-    p = np.asarray(flat_L.rest_lengths, float)
-    if ends is not None and len(ends):
-        from .free_ends import attach
+    """The design a stage would write (:func:`.checks.stage_arrays`) from its flat linkage."""
+    from .checks import stage_arrays
 
-        return attach(Pf, edges, ends, p)
-    return Pf, np.asarray(edges, np.int64), p
+    return stage_arrays(flat_L.vertex_positions(), flat_L.rest_lengths, edges, ends)
+
+
+#: the smallest net whose stage checks run in a process beside the optimization (:func:`_checks_beside`)
+CHECKS_BESIDE_SEGMENTS = 100
+
+
+def _checks_beside(options: InverseOptions, segments: int) -> bool:
+    """Whether a design's stage checks run in a process of their own (:class:`.checks.StageChecks`): where
+    ``--workers`` (or the cores) allow two processes, and the net has at least :data:`CHECKS_BESIDE_SEGMENTS`
+    segments (below that a check takes about as long as starting the process)."""
+    return _workers(options) >= 2 and segments >= CHECKS_BESIDE_SEGMENTS
+
+
+def _best_stage(checked: list, surface) -> dict:
+    """The stage designs' figures (``checked``, as :meth:`.checks.StageChecks.results` gives them, in the order
+    checked) and the best of them by :func:`stage_rank` (the first of equals), with why the last one that
+    could not be kept was not."""
+    best = {"fit": np.inf, "rank": (True, np.inf), "checked": []}
+    for mu, r in checked:
+        if "why" in r:
+            best["why"] = r["why"]
+            continue
+        fit_mean, fit_max = r["fit"] / surface.diagonal, r["top"] / surface.diagonal
+        best["checked"].append({"load_factor": mu, "fit_mean": fit_mean, "fit_max": fit_max})
+        rank = stage_rank(fit_mean, fit_max)
+        if rank < best["rank"]:
+            best.update(fit=r["fit"], rank=rank, mu=mu, design=r["design"], free_ends=r["free_ends"],
+                        tracked=r["tracked"])
+    return best
 
 
 def _write_design(out_dir, design, p) -> None:

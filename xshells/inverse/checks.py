@@ -1,0 +1,242 @@
+"""Stage checks: the design as it stands, deployed from its flat state as the verification will deploy it.
+
+After each stage of the design optimization (and every few iterations of the
+last, :class:`~.guide.GuideOptions`), the flat layout is settled and deployed
+from flat with no hold, with those free ends that keep clear of the other
+beams. The design whose own deployment fits the surface best is kept: a held
+state can end on a branch that a deployment from flat never reaches.
+
+A check needs only the design's arrays (flat vertices, rest lengths, where the
+optimization holds the joints), so it can run in a process beside the
+optimization (:class:`StageChecks`, ``beside=True``). Checks took about a fifth
+of an inverse design (the pointy wings' penalized design: 73 s of 334 s under
+cProfile, 2026-12-06), and a design often runs alone on the two-core machine
+(the last candidate, a buckling retry, ``--beams even``). Each check is the same
+function on the same arrays in either place, and the results are taken in
+the order the stages asked for them, so the kept design is the same to the
+last bit.
+"""
+from __future__ import annotations
+
+import signal
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CheckContext:
+    """What every check of one design shares: sent once to the checking process.
+
+    Attributes
+    ----------
+    surface : TargetSurface
+    material : Material
+    subdivision, steps : int
+        The case's subdivision and deployment steps.
+    direction : str
+        "up" or "down".
+    theta : float
+        The deployed average angle (radians).
+    width : float
+        The beams' width (0: no clearance checks).
+    edges : (s, 2) int
+        The net's segments (joint indices of the flat vertices).
+    ends : FreeEnds or None
+        The free ends to attach (:mod:`.free_ends`).
+    """
+
+    surface: object
+    material: object
+    subdivision: int
+    steps: int
+    direction: str
+    theta: float
+    width: float
+    edges: np.ndarray
+    ends: object = None
+
+
+def stage_arrays(Pv: np.ndarray, p: np.ndarray, edges, ends=None):
+    """The design a stage would write, from the flat linkage's vertices ``Pv`` (k, 3) and rest lengths ``p`` (s,):
+    its flat vertices (k', 3) centred in the plane z = 0, segments (s', 2) and rest lengths (s',), with ``ends``
+    (:class:`.free_ends.FreeEnds`) attached when given."""
+    Pf = np.asarray(Pv, float)
+    Pf = Pf - Pf.mean(axis=0)
+    Pf[:, 2] = 0.0  # planar to round-off (checked on the verification's flat state)
+    p = np.asarray(p, float)
+    if ends is not None and len(ends):
+        from .free_ends import attach
+
+        return attach(Pf, edges, ends, p)
+    return Pf, np.asarray(edges, np.int64), p
+
+
+def settled_flat(ctx: CheckContext, Pf, edges, p):
+    """The linkage of a flat design, settled with its angles free as ``xshells deploy`` settles a case with
+    rest lengths."""
+    from ..io.design import design_from_arrays
+    from ..linkage.linkage import Linkage
+    from ..solve import NewtonOptions, minimize
+
+    fwd = Linkage(design_from_arrays(Pf, edges), ctx.material, subdivision=ctx.subdivision, rest_lengths=p)
+    minimize(fwd, fixed=fwd.rigid_pin_indices(), options=NewtonOptions(gradient_tolerance=1e-9, max_iterations=100))
+    return fwd
+
+
+def with_free_ends(ctx: CheckContext, Pv, p):
+    """The stage's design with those free ends that keep clear of the other beams, settled:
+    ``((Pf, edges, p), linkage, the free ends used)``."""
+    from ..linkage.clearance import crowded_segments
+    from .free_ends import crossing_ends
+
+    use, n = ctx.ends, len(ctx.edges)
+    for _ in range(4):
+        Pf, edges, q = stage_arrays(Pv, p, ctx.edges, use)
+        fwd = settled_flat(ctx, Pf, edges, q)
+        crowded = crowded_segments(fwd, ctx.width) if ctx.width > 0 else np.zeros(0, np.int64)
+        # free ends too close to a neighbouring beam, or across another beam without a joint: left off
+        bad = np.union1d(crowded[crowded >= n] - n, crossing_ends(Pf, edges, n))
+        if not len(bad) or not len(use):
+            return (Pf, edges, q), fwd, use
+        use = use.subset(~np.isin(np.arange(len(use)), bad))
+    Pf, edges, q = stage_arrays(Pv, p, ctx.edges, use)
+    return (Pf, edges, q), settled_flat(ctx, Pf, edges, q), use
+
+
+def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndarray) -> dict:
+    """Deploy the design ``(Pv, p)`` from flat and measure its fit.
+
+    Parameters
+    ----------
+    Pv : (k, 3) float
+        The flat linkage's vertices.
+    p : (s,) float
+        Its rest lengths.
+    guess : (j, 3) float
+        Where the optimization holds the joints, in the surface's frame: the start of the placement.
+
+    Returns
+    -------
+    dict
+        ``{"why": ...}`` where the design cannot be kept (its flat layout overlaps, its deployment stops);
+        else ``fit`` and ``top`` (mean and largest joint distance, design units), ``design`` (Pf, edges, p),
+        ``free_ends`` (attached) and ``tracked`` (the placed deployed joints, (j, 3)).
+    """
+    from ..deploy.simulate import DeployOptions, deploy
+    from ..linkage.clearance import beam_overlaps
+    from .metrics import apply, place, surface_distances
+
+    if ctx.ends is not None and len(ctx.ends):
+        made, fwd, used = with_free_ends(ctx, Pv, p)
+    else:
+        made = stage_arrays(Pv, p, ctx.edges)
+        fwd, used = settled_flat(ctx, *made), None
+    overlap = beam_overlaps(fwd, ctx.width) if ctx.width > 0 else ""
+    if overlap:  # not buildable: the verification would refuse it
+        return {"why": f"the flat layout is not buildable: {overlap}"}
+    res = deploy(fwd, ctx.theta, DeployOptions(steps=ctx.steps, direction=ctx.direction))
+    if not res.converged:
+        return {"why": f"its deployment from flat stopped: {res.message}"}
+    Y = fwd.joint_positions()
+    placed = apply(place(ctx.surface, Y, guess), Y)
+    d = surface_distances(ctx.surface, placed)
+    return {"fit": float(np.mean(d)), "top": float(np.max(d)), "design": made,
+            "free_ends": 0 if used is None else len(used), "tracked": placed}
+
+
+_CONTEXT = None  # in the checking process: the design's CheckContext
+
+
+def _init_checker(ctx: CheckContext) -> None:
+    global _CONTEXT
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the optimizing process's to handle
+    _CONTEXT = ctx
+    from ..deploy import simulate  # noqa: F401  (imported while the optimization's first stage runs)
+
+
+def _check_beside(Pv, p, guess) -> dict:
+    return check_stage(_CONTEXT, Pv, p, guess)
+
+
+def _ready() -> bool:
+    return True
+
+
+class StageChecks:
+    """The checks of one design, in the order asked: run at once here, or queued to one process beside.
+
+    Parameters
+    ----------
+    ctx : CheckContext
+    beside : bool
+        Run the checks in a process of their own (forked from a fork server, as :mod:`.processes` does)
+        while the optimization goes on here.
+    """
+
+    def __init__(self, ctx: CheckContext, beside: bool = False):
+        self.ctx = ctx
+        self._asked = []  # (load factor, result dict or Future), in the order asked
+        self._pool = None
+        if beside:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context(method),
+                                             initializer=_init_checker, initargs=(ctx,))
+            self._pool.submit(_ready)  # starts the process (and its imports) now, not at the first check
+
+    @property
+    def beside(self) -> bool:
+        return self._pool is not None
+
+    def ask(self, mu: float, Pv: np.ndarray, p: np.ndarray, guess: np.ndarray) -> None:
+        """Check the design ``(Pv, p)`` reached at load factor ``mu`` (the arrays are copied)."""
+        args = (np.array(Pv, float), np.array(p, float), np.array(guess, float))
+        if self._pool is None:
+            self._asked.append((mu, args, check_stage(self.ctx, *args)))
+        else:
+            from concurrent.futures.process import BrokenProcessPool
+
+            try:
+                self._asked.append((mu, args, self._pool.submit(_check_beside, *args)))
+            except BrokenProcessPool:  # the process died (killed, out of memory): the checks go on here
+                self.close()
+                self._asked.append((mu, args, check_stage(self.ctx, *args)))
+
+    def results(self, wait: bool = True) -> list:
+        """``[(load factor, result of :func:`check_stage`)]`` in the order asked. ``wait=False`` (after Ctrl-C):
+        only the checks that have ended, the others dropped. The checking process is ended either way; a
+        check it could not return (the process died) is run here."""
+        from concurrent.futures import Future
+        from concurrent.futures.process import BrokenProcessPool
+
+        out = []
+        try:
+            for mu, args, r in self._asked:
+                if isinstance(r, Future):
+                    if not wait and (not r.done() or r.cancelled() or r.exception() is not None):
+                        continue
+                    try:
+                        r = r.result()
+                    except BrokenProcessPool:
+                        r = check_stage(self.ctx, *args)
+                out.append((mu, r))
+        except BaseException:
+            self.close()
+            raise
+        self.close(graceful=wait)
+        return out
+
+    def close(self, graceful: bool = False) -> None:
+        """End the checking process, dropping checks not yet run: ``graceful`` once every check has ended,
+        else at once (it ignores Ctrl-C, so it is terminated here)."""
+        if self._pool is None:
+            return
+        pool, self._pool = self._pool, None
+        if not graceful:
+            for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                if proc.is_alive():
+                    proc.terminate()
+        pool.shutdown(wait=graceful, cancel_futures=True)
