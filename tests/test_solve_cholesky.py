@@ -89,38 +89,3 @@ def test_a_second_object_on_a_known_pattern_gives_the_very_same_solves():
     lower = SparseCholesky()
     lower.factorize(sp.tril(A, format="csr"))
     assert np.array_equal(lower.solve(b), first.solve(b))
-
-
-@pytest.mark.parametrize("k", [8, 9, 40])
-def test_many_columns_are_solved_at_once_and_agree_with_one_at_a_time(k):
-    import xshells.solve.cholesky as cholesky
-
-    A = spd(400, 11)
-    chol = SparseCholesky()
-    chol.factorize(A)
-    B = np.random.default_rng(k).standard_normal((400, k))
-    X = chol.solve(B)
-    one_by_one = np.column_stack([chol.solve(B[:, j]) for j in range(k)])
-    assert cholesky._library() is not None  # cvxopt's CHOLMOD is reachable here: the blocked path ran
-    assert X.shape == (400, k) and X.flags.f_contiguous
-    assert np.abs(X - one_by_one).max() <= 1e-13 * np.abs(one_by_one).max()
-    assert np.allclose(A @ X, B, atol=1e-10)
-    # any memory order in, the same numbers out; B is not overwritten
-    C = np.ascontiguousarray(B)
-    assert np.array_equal(chol.solve(C), X) and np.array_equal(C, B)
-    # (a column's last bits depend on its place in BLAS's blocks, not on the others' values)
-    assert np.abs(chol.solve(B[:, ::-1])[:, ::-1] - X).max() <= 1e-13 * np.abs(X).max()
-
-
-def test_below_the_blocked_columns_and_without_the_library_the_solves_are_cvxopts_bit_for_bit(monkeypatch):
-    import xshells.solve.cholesky as cholesky
-
-    A = spd(300, 12)
-    chol = SparseCholesky()
-    chol.factorize(A)
-    B = np.random.default_rng(3).standard_normal((300, 12))
-    one_by_one = np.column_stack([chol.solve(B[:, j]) for j in range(12)])
-    few = cholesky.BLOCKED_COLUMNS - 1
-    assert np.array_equal(chol.solve(B[:, :few]), one_by_one[:, :few])  # a deployment's two columns: unchanged
-    monkeypatch.setitem(cholesky._CHOLMOD, "lib", None)  # a CHOLMOD that ctypes cannot reach: cvxopt's loop
-    assert np.array_equal(chol.solve(B), one_by_one)

@@ -5,9 +5,6 @@ The symbolic analysis of each sparsity pattern is kept and reused; a matrix that
 """
 from __future__ import annotations
 
-import ctypes
-import threading
-
 import numpy as np
 import scipy.sparse as sp
 from cvxopt import cholmod, matrix, spmatrix
@@ -108,20 +105,11 @@ class SparseCholesky:
         self._numeric = entry[1]
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        """Solve ``A x = b`` for ``b`` of shape (n,) or (n, k).
-
-        With :data:`BLOCKED_COLUMNS` or more columns, all of them go to CHOLMOD in one call
-        (:func:`_blocked_solve`), which works through the supernodes with BLAS 3; cvxopt's ``cholmod.solve``
-        hands CHOLMOD one column at a time.
-        """
+        """Solve ``A x = b`` for ``b`` of shape (n,) or (n, k)."""
         if self._numeric is None:
             raise RuntimeError("no successful factorization to solve with")
         B = np.asarray(b, dtype=float)
         one = B.ndim == 1
-        if not one and B.shape[1] >= BLOCKED_COLUMNS:
-            X = _blocked_solve(self._numeric, B.reshape(self.n, -1))
-            if X is not None:
-                return X
         # cvxopt copies B (any strides) into a column-major matrix that the solve overwrites; the
         # solution is then read in place through the buffer protocol (np.array copied it element by
         # element: 46 ms for 8,000 × 340, a dense state Jacobian of the design optimization)
@@ -129,88 +117,3 @@ class SparseCholesky:
         cholmod.solve(self._numeric, M)
         out = np.asarray(M)
         return out[:, 0] if one else out
-
-
-#: right-hand sides from which :meth:`SparseCholesky.solve` passes them to CHOLMOD all at once. Measured on the
-#: manta ray's Hessian (8,073 rows, one thread): 312 columns 159 → 65 ms, 64 columns 32 → 10 ms, 16 columns
-#: 7.9 → 2.6 ms, 4 columns 2.0 → 1.0 ms. The results differ from the column-by-column solve in the last bits
-#: (1e-15 relative), and a deployment's Newton steps solve two columns: below 8 they stay column by column,
-#: and deployments bit for bit as they were.
-BLOCKED_COLUMNS = 8
-
-
-class _Dense(ctypes.Structure):
-    """CHOLMOD's ``cholmod_dense`` (the same in CHOLMOD 3 to 5)."""
-
-    _fields_ = [("nrow", ctypes.c_size_t), ("ncol", ctypes.c_size_t), ("nzmax", ctypes.c_size_t),
-                ("d", ctypes.c_size_t), ("x", ctypes.c_void_p), ("z", ctypes.c_void_p),
-                ("xtype", ctypes.c_int), ("dtype", ctypes.c_int)]
-
-
-_CHOLMOD = {}  # "lib": the CHOLMOD library cvxopt's module is linked to (None where it cannot be called)
-_COMMON = threading.local()  # a cholmod_common per thread: CHOLMOD keeps its status and workspace there
-_COMMON_BYTES = 1 << 18  # more than any CHOLMOD's cholmod_common (about 3 KB in CHOLMOD 3)
-
-
-def _library():
-    """The CHOLMOD that cvxopt's ``cholmod`` module calls, through ctypes (the factor objects are its own), or
-    None where its functions cannot be found."""
-    if "lib" not in _CHOLMOD:
-        lib = None
-        try:
-            from cvxopt import cholmod as module
-
-            # dlsym on the extension's handle also searches the libraries it is linked to (its CHOLMOD)
-            lib = ctypes.CDLL(module.__file__)
-            lib.cholmod_l_solve.restype = ctypes.POINTER(_Dense)
-            lib.cholmod_l_solve.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.POINTER(_Dense), ctypes.c_void_p]
-            lib.cholmod_l_free_dense.argtypes = [ctypes.POINTER(ctypes.POINTER(_Dense)), ctypes.c_void_p]
-            lib.cholmod_l_start.argtypes = [ctypes.c_void_p]
-            name = ctypes.pythonapi.PyCapsule_GetName
-            name.restype, name.argtypes = ctypes.c_char_p, [ctypes.py_object]
-            pointer = ctypes.pythonapi.PyCapsule_GetPointer
-            pointer.restype, pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
-        except (OSError, AttributeError, ImportError):
-            lib = None
-        _CHOLMOD["lib"] = lib
-    return _CHOLMOD["lib"]
-
-
-def _common(lib):
-    common = getattr(_COMMON, "buffer", None)
-    if common is None:
-        common = ctypes.create_string_buffer(_COMMON_BYTES)
-        if lib.cholmod_l_start(common) != 1:
-            return None
-        _COMMON.buffer = common
-    return common
-
-
-def _blocked_solve(factor, B: np.ndarray):
-    """``A⁻¹ B`` (n, k) by one ``cholmod_l_solve`` on all columns with cvxopt's ``factor``; None where that
-    cannot be done here (the caller then solves through cvxopt)."""
-    lib = _library()
-    if lib is None:
-        return None
-    name = ctypes.pythonapi.PyCapsule_GetName(factor)
-    if not name or not name.startswith(b"CHOLMOD FACTOR D"):  # real (double) factors only
-        return None
-    common = _common(lib)
-    if common is None:
-        return None
-    L = ctypes.pythonapi.PyCapsule_GetPointer(factor, name)
-    B = np.asfortranarray(B, dtype=float)
-    n, k = B.shape
-    dense = _Dense(n, k, n * k, n, B.ctypes.data, None, 1, 0)  # CHOLMOD_REAL, CHOLMOD_DOUBLE
-    X = lib.cholmod_l_solve(0, L, ctypes.byref(dense), common)  # CHOLMOD_A: A x = b
-    if not X:
-        return None
-    try:
-        x = X.contents
-        if x.nrow != n or x.ncol != k or x.d < n or x.xtype != 1 or x.dtype != 0:
-            return None
-        raw = np.ctypeslib.as_array(ctypes.cast(x.x, ctypes.POINTER(ctypes.c_double)), shape=(k, x.d))
-        out = np.array(raw[:, :n].T, order="F")  # a copy: CHOLMOD's array is freed below
-    finally:
-        lib.cholmod_l_free_dense(ctypes.byref(X), common)
-    return out
