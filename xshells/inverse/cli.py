@@ -62,7 +62,7 @@ def register(subparsers) -> None:
     p.add_argument("--polish", type=float, default=None,
                    help="after the last stage, 20 more iterations with the fit weight times this, from the design "
                         "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
-    p.add_argument("--workers", type=int, help="processes for the fan screen, the tries of one net and the auto candidates, side by side (default: the cores, at most 2; 1: one after the other)")
+    p.add_argument("--workers", type=int, help="processes for the fan screen, the tries of one net and the auto candidates, side by side, and for each design's stage checks beside its optimization (default: the cores, at most 2; 1: one after the other)")
     p.add_argument("--force", action="store_true", help="allow nets of more than 5,000 segments, up to what fits in memory")
     p.add_argument("--out", default="inverse_out",
                    help="output folder (default inverse_out; a reused one loses an earlier run's candidates/, refined/, heavier/, "

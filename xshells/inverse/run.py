@@ -98,7 +98,9 @@ class InverseOptions:
         the middle lines and ``α₀ (1 − κ)`` at the ends. None: screened (:func:`.fanned.screen_fans`).
     workers : int or None
         Processes for the fan screen (its two bisectors side by side) and for ``auto``'s candidates (side by
-        side, :mod:`.processes`); default: the machine's cores, at most 2. 1 runs everything in this process.
+        side, :mod:`.processes`), and for each design's stage checks beside its optimization (nets of
+        :data:`CHECKS_BESIDE_SEGMENTS` segments or more, :mod:`.checks`); default: the machine's cores, at most
+        2. 1 runs everything in this process.
     free_ends : bool
         Continue each beam of the automatic net from its last joint to the
         surface's boundary by a free end (:mod:`.free_ends`; default True).
