@@ -179,12 +179,12 @@ class StageChecks:
         self._asked = []  # (load factor, result dict or Future), in the order asked
         self._pool = None
         if beside:
-            import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
 
-            method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context(method),
-                                             initializer=_init_checker, initargs=(ctx,))
+            from .processes import mp_context
+
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp_context(), initializer=_init_checker,
+                                             initargs=(ctx,))
             self._pool.submit(_ready)  # starts the process (and its imports) now, not at the first check
 
     @property
@@ -234,9 +234,7 @@ class StageChecks:
         else at once (it ignores Ctrl-C, so it is terminated here)."""
         if self._pool is None:
             return
+        from .processes import end_pool
+
         pool, self._pool = self._pool, None
-        if not graceful:
-            for proc in list((getattr(pool, "_processes", None) or {}).values()):
-                if proc.is_alive():
-                    proc.terminate()
-        pool.shutdown(wait=graceful, cancel_futures=True)
+        end_pool(pool, wait=graceful)

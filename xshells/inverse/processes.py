@@ -101,6 +101,23 @@ class BarRelay:
             bar.close()
 
 
+def mp_context():
+    """The multiprocessing context workers start from: a fork server where there is one, else spawn."""
+    import multiprocessing as mp
+
+    return mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
+
+
+def end_pool(pool, wait: bool) -> None:
+    """Shut ``pool`` (a ProcessPoolExecutor) down, dropping jobs not started; unless ``wait``, its workers
+    are terminated first (they ignore Ctrl-C)."""
+    if not wait:
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            if proc.is_alive():
+                proc.terminate()
+    pool.shutdown(wait=wait, cancel_futures=True)
+
+
 def in_processes(fn, jobs: list, workers: int, progress: bool = False, stop_wait: float = 0.0):
     """``fn(*job)`` for each job in up to ``workers`` processes; yields ``(job index, result)`` as they finish.
 
@@ -109,11 +126,9 @@ def in_processes(fn, jobs: list, workers: int, progress: bool = False, stop_wait
     given ``stop_wait`` seconds to finish (a candidate then writes its design
     so far); then they are ended.
     """
-    import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed, wait
 
-    method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-    ctx = mp.get_context(method)
+    ctx = mp_context()
     queue, stop = (ctx.Queue() if progress else None), ctx.Event()
     relay = BarRelay(queue) if progress else None
     from ..rhino.read import get_defaults
@@ -131,8 +146,6 @@ def in_processes(fn, jobs: list, workers: int, progress: bool = False, stop_wait
             stop.set()
             if stop_wait > 0:
                 wait(futures, timeout=stop_wait)
-            for proc in list(getattr(pool, "_processes", {}).values()):  # they ignore SIGINT: end them here
-                proc.terminate()
-        pool.shutdown(wait=done, cancel_futures=True)
+        end_pool(pool, wait=done)
         if relay is not None:
             relay.close()
