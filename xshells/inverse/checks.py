@@ -120,8 +120,9 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
     -------
     dict
         ``{"why": ...}`` where the design cannot be kept (its flat layout overlaps, its deployment stops);
-        else ``fit`` and ``top`` (mean and largest joint distance, design units), ``design`` (Pf, edges, p),
-        ``free_ends`` (attached) and ``tracked`` (the placed deployed joints, (j, 3)).
+        else ``fit`` and ``top`` (mean and largest joint distance, design units), ``rise`` (how far the
+        deployment left the layout's plane, relative to the flat span: about 0 where it never buckled),
+        ``design`` (Pf, edges, p), ``free_ends`` (attached) and ``tracked`` (the placed deployed joints, (j, 3)).
     """
     from ..deploy.simulate import DeployOptions, deploy
     from ..linkage.clearance import beam_overlaps
@@ -133,6 +134,7 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
         made = stage_arrays(Pv, p, ctx.edges)
         fwd, used = settled_flat(ctx, *made), None
     overlap = beam_overlaps(fwd, ctx.width) if ctx.width > 0 else ""
+    span = float(np.ptp(fwd.rods.points, axis=0).max())
     if overlap:  # not buildable: the verification would refuse it
         return {"why": f"the flat layout is not buildable: {overlap}"}
     res = deploy(fwd, ctx.theta, DeployOptions(steps=ctx.steps, direction=ctx.direction))
@@ -141,7 +143,8 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
     Y = fwd.joint_positions()
     placed = apply(place(ctx.surface, Y, guess), Y)
     d = surface_distances(ctx.surface, placed)
-    return {"fit": float(np.mean(d)), "top": float(np.max(d)), "design": made,
+    return {"fit": float(np.mean(d)), "top": float(np.max(d)), "rise": float(np.ptp(fwd.rods.points[:, 2])) / span,
+            "design": made,
             "free_ends": 0 if used is None else len(used), "tracked": placed}
 
 

@@ -1344,7 +1344,7 @@ def _best_stage(checked: list, surface) -> dict:
             best["why"] = r["why"]
             continue
         fit_mean, fit_max = r["fit"] / surface.diagonal, r["top"] / surface.diagonal
-        best["checked"].append({"load_factor": mu, "fit_mean": fit_mean, "fit_max": fit_max})
+        best["checked"].append({"load_factor": mu, "fit_mean": fit_mean, "fit_max": fit_max, "rise": r.get("rise")})
         rank = stage_rank(fit_mean, fit_max)
         if rank < best["rank"]:
             best.update(fit=r["fit"], rank=rank, mu=mu, design=r["design"], free_ends=r["free_ends"],
