@@ -245,7 +245,7 @@ def fanned_net(surface: TargetSurface, smap: ScissorMap, angle: float, spacing: 
     """
     if not -0.5 < kappa < 0.5:
         raise InputError(f"a fan of {kappa:g} would close the flat layout's end lines: keep it within (-0.5, 0.5)")
-    V, F = surface.V, surface.F
+    F = surface.F
     uv = net_coordinates(smap, angle, spacing)
     uv = uv - np.floor(uv.min(0))
     hi = np.ceil(uv.max(0)).astype(int)

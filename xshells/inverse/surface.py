@@ -11,7 +11,6 @@ mesh was exported, not of the surface).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
