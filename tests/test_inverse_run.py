@@ -294,7 +294,7 @@ def test_auto_on_a_saddle_runs_both_nets_and_its_case_reproduces_the_result(tmp_
 def test_ctrl_c_in_auto_keeps_the_candidate_that_finished(tmp_path, monkeypatch):
     import xshells.inverse.run as run
 
-    def fake_once(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason=None):
+    def fake_once(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason=None, board=None):
         os.makedirs(out_dir, exist_ok=True)
         if options.beams == "even":  # the second candidate: interrupted before it wrote anything
             raise KeyboardInterrupt

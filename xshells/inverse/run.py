@@ -688,16 +688,19 @@ def _run_at_spacing(surface, surface_path, out_dir, material_spec: dict, options
     workers = _workers(options)
     run_times["plan_s"] = time.perf_counter() - t  # the geodesic net's closure and the even net's bisector
     results, errors = {}, {}
+    boards = _boards(out_dir, plan)
     try:
         if workers > 1 and len(plan) > 1:
-            _candidates_in_processes(surface_path, out_dir, material_spec, plan, progress, why, workers, results, errors)
+            _candidates_in_processes(surface_path, out_dir, material_spec, plan, progress, why, workers, results, errors,
+                                     boards)
         else:
             for beams, opts in plan.items():
                 try:
                     results[beams] = _run_net(surface_path, os.path.join(out_dir, "candidates", beams), material_spec,
-                                               opts, None, progress, beams_reason=f"auto: {why}")
+                                               opts, None, progress, beams_reason=f"auto: {why}", board=boards[beams])
                 except InputError as exc:  # this net does not get through (a first layout that inverts, say)
                     errors[beams] = str(exc)
+                    boards[beams].post_failed()
     except KeyboardInterrupt:
         for beams in plan:  # the interrupted candidates' designs so far
             current = os.path.join(out_dir, "candidates", beams, "result.json")
@@ -721,34 +724,46 @@ def _workers(options: InverseOptions) -> int:
 STOP_WAIT = 60.0
 
 
-def _candidates_in_processes(surface_path, out_dir, material_spec, plan, progress, why, workers, results, errors):
-    """The candidates side by side in ``workers`` processes (:mod:`.processes`), into ``results`` / ``errors``."""
+def _boards(out_dir, plan: dict) -> dict:
+    """Each candidate's :class:`.board.Board`, the earlier ones in the plan's order (the order they start in)."""
+    from .board import Board
+
+    folders = [os.path.join(out_dir, "candidates", beams) for beams in plan]
+    return {beams: Board(folders[i], folders[:i]) for i, beams in enumerate(plan)}
+
+
+def _candidates_in_processes(surface_path, out_dir, material_spec, plan, progress, why, workers, results, errors,
+                             boards):
+    """The candidates side by side in ``workers`` processes (:mod:`.processes`), into ``results`` / ``errors``;
+    they start in the plan's order (:mod:`.board` relies on it)."""
     from .processes import in_processes
 
     # an earlier run's candidates, left in a reused folder, are gone already (:func:`clear_stale`)
     jobs = [(surface_path, os.path.join(out_dir, "candidates", beams), material_spec, opts, beams, progress,
-             f"auto: {why}") for beams, opts in plan.items()]
+             f"auto: {why}", boards[beams]) for beams, opts in plan.items()]
     for _, (beams, ok, value) in in_processes(_candidate, jobs, workers, progress=progress, stop_wait=STOP_WAIT):
         if ok:
             results[beams] = value
         else:
             errors[beams] = value
+            boards[beams].post_failed()  # where it failed before its first design ended: the later ones wait on it
 
 
-def _candidate(surface_path, out_dir, material_spec, options, beams, progress, beams_reason):
+def _candidate(surface_path, out_dir, material_spec, options, beams, progress, beams_reason, board=None):
     """One ``auto`` candidate in a worker process: (beams, True, result) or (beams, False, why it failed)."""
-    return (beams, *_in_worker(_run_net, beams, surface_path, out_dir, material_spec, options, None, progress, beams_reason))
+    return (beams, *_in_worker(_run_net, beams, surface_path, out_dir, material_spec, options, None, progress, beams_reason,
+                               board=board))
 
 
-def _in_worker(design, label, surface_path, out_dir, material_spec, options, net_path, progress, beams_reason):
+def _in_worker(design, label, surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, **extra):
     """``design`` (:func:`_run_net` or :func:`_run_once`) in a worker process, its bars labelled ``label``:
-    (True, result) or (False, why it failed)."""
+    (True, result) or (False, why it failed). ``extra``: more keyword arguments of ``design``."""
     from .processes import RemoteProgress
 
     try:
         return True, design(surface_path, out_dir, material_spec, options, net_path,
                             RemoteProgress(label) if progress else False, beams_reason=beams_reason,
-                            stop=RemoteProgress(label).stopped)
+                            stop=RemoteProgress(label).stopped, **extra)
     except InputError as exc:
         return False, str(exc)
     except KeyboardInterrupt:  # asked to stop: the design so far is written
@@ -852,7 +867,7 @@ TRY_FACTOR = 2.0
 
 
 def _run_net(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress,
-             beams_reason: str | None = None, stop=None, workers: int = 1) -> dict:
+             beams_reason: str | None = None, stop=None, workers: int = 1, board=None) -> dict:
     """:func:`_run_once` ``options.tries`` times with one net, try ``k`` with the fit weight ``β·TRY_FACTOR^k``.
 
     With one try (the default) this is :func:`_run_once` into ``out_dir``. With more, try ``k`` designs into
@@ -863,7 +878,11 @@ def _run_net(surface_path, out_dir, material_spec: dict, options: InverseOptions
     """
     _check_tries(options)  # before any worker starts
     extra = {k: v for k, v in (("beams_reason", beams_reason), ("stop", stop)) if v is not None}
+    if board is not None and options.tries > 1:  # its tries' retries are not dropped: later candidates need not wait
+        board.post(None)
     if options.tries <= 1:
+        if board is not None:
+            extra["board"] = board
         return _run_once(surface_path, out_dir, material_spec, options, net_path, progress, **extra)
     tries = _Tries(out_dir, options)
     if workers > 1:
@@ -957,33 +976,54 @@ RETRY_BUCKLING = 1.0
 
 
 def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress,
-              beams_reason: str | None = None, stop=None) -> dict:
+              beams_reason: str | None = None, stop=None, board=None) -> dict:
     """One inverse design with one net (``options.beams`` "even" or "geodesic", or a grading or ``net_path``).
 
     With ``options.buckling`` None, a design whose verified deployment stays in the plane (``deployed_rise``
     ≤ :data:`PLANAR`), or of which no stage could be kept, is designed again from the same net with the
     planar-buckling penalty (:data:`RETRY_BUCKLING`, into ``out_dir/buckling``); the better of the two (by
     status, then the bar's figures missed, then mean fit) ends in ``out_dir``, and its ``result.json`` names the other under ``buckling_retry``.
+
+    ``board`` (an ``auto`` candidate's :class:`.board.Board`): the first design is posted on it, and the second
+    is dropped where an earlier candidate's first design is close to the surface (:mod:`.board`).
     """
-    first = _design_with_net(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, stop)
+    try:
+        first = _design_with_net(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, stop)
+    except InputError:
+        if board is not None:
+            board.post(None)
+        raise
+    if board is not None:
+        board.post(first)
     flat = first.get("status") == "missed" and first.get("deployed_rise", 1.0) <= PLANAR
     if options.buckling is not None or not (flat or first.get("status") == "stopped"):
         return first
     why = "its deployment stays in the plane" if flat else "no stage's design could be kept"
+    if board is not None and board.decided():
+        return _retry_dropped(out_dir, first, why, board, 0.0, progress)
+    t_retry = time.perf_counter()
     if progress is True:  # a second round of the stages' bars follows: say why (workers' bars are relayed)
         import sys
 
         print(f"xshells inverse: {why}: designing this net again with the planar-buckling penalty "
               f"(weight {RETRY_BUCKLING:g}; see docs/inverse.md)", file=sys.stderr)
+    retry_stop = stop if board is None else (lambda: (stop is not None and stop()) or bool(board.decided()))
     try:
         second = _design_with_net(surface_path, os.path.join(out_dir, "buckling"), material_spec,
-                                  replace(options, buckling=RETRY_BUCKLING), net_path, progress, beams_reason, stop)
+                                  replace(options, buckling=RETRY_BUCKLING), net_path, progress, beams_reason,
+                                  retry_stop)
     except InputError as exc:  # this net does not get through with the penalty: the first design stands
         r = dict(first)
         r["buckling_retry"] = {"why": why, "kept": "the design without the penalty", "other": {"status": "failed",
                                                                                             "message": str(exc)}}
         atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
         return r
+    except KeyboardInterrupt:  # stopped because an earlier candidate came close, or by the user
+        if board is not None and board.decided():
+            return _retry_dropped(out_dir, first, why, board, time.perf_counter() - t_retry, progress)
+        raise
+    if board is not None and board.wait(stop):  # ended before the earlier candidates were known: as if stopped
+        return _retry_dropped(out_dir, first, why, board, time.perf_counter() - t_retry, progress)
     if _rank(second) < _rank(first):
         _copy_outputs(os.path.join(out_dir, "buckling"), out_dir)
         kept, other, note = second, first, f"the design with the planar-buckling penalty (weight {RETRY_BUCKLING:g})"
@@ -997,6 +1037,21 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
 
 
 _SUMMARY_KEYS = ("status", "fit_mean", "fit_max", "coverage", "segments", "deployed_rise", "time_s")
+
+
+def _retry_dropped(out_dir, first: dict, why: str, board, spent: float, progress=False) -> dict:
+    """``first`` kept without its second design, which an earlier candidate's close design made not worth it
+    (:mod:`.board`); ``spent``: the seconds the second design ran before it was stopped or discarded."""
+    if progress is True:
+        import sys
+
+        print(f"xshells inverse: {why}, but no second design: {board.reason()}", file=sys.stderr)
+    r = dict(first)
+    r["buckling_retry"] = {"why": why, "kept": "the design without the penalty",
+                           "other": {"status": "dropped", "message": board.reason(), "time_s": spent}}
+    r["time_s"] = (first.get("time_s") or 0.0) + spent
+    atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
+    return r
 
 
 def bar_misses(result: dict) -> int:
@@ -1029,10 +1084,15 @@ def _remove_outputs(folder: str, names) -> None:
 
 
 def _copy_outputs(src: str, dst: str) -> None:
-    """Every output in ``src`` over its namesake in ``dst`` (folders replaced whole), less ``result.json``."""
+    """Every output in ``src`` over its namesake in ``dst`` (folders replaced whole), less ``result.json`` and a
+    candidate's :data:`.board.MARK` (the run's own bookkeeping)."""
     import shutil
 
+    from .board import MARK
+
     for name in os.listdir(src):
+        if name == MARK:
+            continue
         a, b = os.path.join(src, name), os.path.join(dst, name)
         if os.path.isdir(a):
             if os.path.isdir(b):

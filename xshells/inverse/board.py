@@ -1,0 +1,105 @@
+"""Whether an earlier candidate of ``--beams auto`` already came close to the surface: files on disk that
+candidates in other processes read.
+
+A candidate whose first design stays in the plane, or keeps no stage, is designed a second time with the
+planar-buckling penalty (:func:`.run._run_once`). That second design costs about as much as the first (the
+hyperbolic paraboloid, 2026-12-06: the even net's two designs took 117 s and 144 s of a 286 s run, and its
+second design, 2.47 %, lost to the geodesic net's first, 0.39 %). Where a candidate before it in the plan's
+order has a first design within :data:`CLOSE`, the second design is dropped: stopped if it runs, discarded
+if it has ended.
+
+The decision depends only on the earlier candidates' first designs, never on which process ends first: a
+second design that ends before they are known waits for them. So the kept design is the same with one
+worker or two. Earlier candidates start first (the workers take the candidates in the plan's order), so a
+candidate waits only on candidates that run or have ended.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+#: a first design this close to the surface (relative to the diagonal: mean and largest joint distance; its
+#: status "complete", so its coverage is within the bar too) makes the later candidates' second designs not
+#: worth their time. It is issue 18's bar for a surface known to be reachable (a design's own deployed shape),
+#: half the analytic bar's mean: a candidate that merely meets the analytic bar (the pointy wings' even net,
+#: 0.80 %) still leaves room for a second design that does better (their fanned net's, 0.40 %).
+CLOSE = {"fit_mean": 0.005, "fit_max": 0.02}
+#: the file each candidate writes once its first design has ended (or failed)
+MARK = "first.json"
+
+
+def is_close(result: dict | None) -> bool:
+    """Whether the design ``result`` (a ``result.json``) met the bar within :data:`CLOSE`."""
+    if not result or result.get("status") != "complete":
+        return False
+    mean, top = result.get("fit_mean"), result.get("fit_max")
+    return mean is not None and top is not None and mean <= CLOSE["fit_mean"] and top <= CLOSE["fit_max"]
+
+
+class Board:
+    """One candidate's view: its own folder, where it posts its first design, and the earlier candidates'.
+
+    Parameters
+    ----------
+    own : str
+        This candidate's folder (``out_dir/candidates/<beams>``).
+    earlier : list of str
+        The folders of the candidates before it in the plan's order.
+    """
+
+    def __init__(self, own: str, earlier: list):
+        self.own, self.earlier = own, list(earlier)
+
+    def post(self, first: dict | None) -> None:
+        """Say that this candidate's first design has ended (``first``, its result) or failed (None)."""
+        from ..io.export import atomic_write_text
+
+        mark = {"close": is_close(first)}
+        if first:
+            mark.update({k: first.get(k) for k in ("status", "fit_mean", "fit_max")})
+        os.makedirs(self.own, exist_ok=True)
+        atomic_write_text(os.path.join(self.own, MARK), json.dumps(mark) + "\n")
+
+    def post_failed(self) -> None:
+        """Say that this candidate failed, unless it posted already (its first design ended, then it failed)."""
+        if not os.path.exists(os.path.join(self.own, MARK)):
+            self.post(None)
+
+    def _marks(self) -> list:
+        marks = []
+        for folder in self.earlier:
+            path = os.path.join(folder, MARK)
+            if os.path.exists(path):
+                with open(path) as fh:
+                    marks.append((os.path.basename(os.path.normpath(folder)), json.load(fh)))
+            else:
+                marks.append((os.path.basename(os.path.normpath(folder)), None))
+        return marks
+
+    def decided(self) -> bool | None:
+        """True where an earlier candidate's first design is close (:func:`is_close`), False where every earlier
+        one has ended and none is, None while that is not known yet."""
+        marks = self._marks()
+        if any(m is not None and m["close"] for _, m in marks):
+            return True
+        return False if all(m is not None for _, m in marks) else None
+
+    def reason(self) -> str:
+        """Which earlier candidate is close, in words (where :meth:`decided` is True)."""
+        for name, m in self._marks():
+            if m is not None and m["close"]:
+                return (f"the {name} net's first design is within {100 * CLOSE['fit_mean']:g}% / "
+                        f"{100 * CLOSE['fit_max']:g}% of the diagonal already (fit mean {100 * m['fit_mean']:.2f}%, "
+                        f"max {100 * m['fit_max']:.2f}%)")
+        return ""
+
+    def wait(self, stop=None, poll: float = 0.5) -> bool:
+        """:meth:`decided`, once known; ``stop()`` true (the parent asks to stop) raises KeyboardInterrupt."""
+        while True:
+            d = self.decided()
+            if d is not None:
+                return d
+            if stop is not None and stop():
+                raise KeyboardInterrupt
+            time.sleep(poll)
