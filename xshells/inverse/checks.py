@@ -134,9 +134,9 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
         made = stage_arrays(Pv, p, ctx.edges)
         fwd, used = settled_flat(ctx, *made), None
     overlap = beam_overlaps(fwd, ctx.width) if ctx.width > 0 else ""
-    span = float(np.ptp(fwd.rods.points, axis=0).max())
     if overlap:  # not buildable: the verification would refuse it
         return {"why": f"the flat layout is not buildable: {overlap}"}
+    span = float(np.ptp(fwd.rods.points, axis=0).max())  # the flat span, as the verification's rise is measured
     res = deploy(fwd, ctx.theta, DeployOptions(steps=ctx.steps, direction=ctx.direction))
     if not res.converged:
         return {"why": f"its deployment from flat stopped: {res.message}"}
