@@ -79,6 +79,25 @@ def test_a_trial_design_that_folds_a_flat_joint_is_rejected(monkeypatch):
     assert "trial designs rejected" in res.message
 
 
+def test_a_trial_design_whose_deployed_state_folds_a_joint_is_rejected(monkeypatch):
+    """A re-solve that carries the deployed state through a fold leaves the design's branch: rejected as a
+    folded flat state is (a held state that slid off its hold was tracked folded to the end otherwise)."""
+    import xshells.design.optimize as opt
+
+    prob = banana_problem()
+    q0 = prob._q.copy()
+    seen = []
+
+    def folded(L):
+        seen.append(L is prob.deployed.L)
+        return "" if (L is prob.flat.L or np.array_equal(prob._q, q0)) else "joint 5 folds"
+
+    monkeypatch.setattr(opt, "folded_joint", folded)
+    res = optimize(prob, OptimizeOptions(min_angle=np.radians(-30.0), max_iterations=2))
+    assert res.iterations == 0 and np.array_equal(res.q, q0)  # no trial accepted
+    assert "trial designs rejected" in res.message and any(seen)
+
+
 def test_an_interrupt_is_flagged_whatever_the_message_says(monkeypatch):
     """Ctrl-C after rejected trials: the message gains "(N trial designs rejected)", and
     ``xshells optimize`` once compared the message and reported the run complete."""

@@ -954,17 +954,48 @@ _MISSED = {"status": "missed", "fit_mean": 0.0104, "fit_max": 0.028, "coverage":
     ({**_MISSED, "fit_mean": 0.0256, "fit_max": 0.096, "coverage": 0.597}, {}, True),  # far too: the manta ray
     (_MISSED, {"heavier": False}, False),
     (_MISSED, {"tries": 2}, False),  # --tries sets the weights itself
-    ({**_MISSED, "status": "complete", "fit_mean": 0.006}, {}, False),
+    # met the bar, but not closely (0.5 % mean, 2 % largest): the first design of the simple two bumps at 0.98 %,
+    # the barrel vault's at 0.76 % / 2.25 %
+    ({**_MISSED, "status": "complete", "fit_mean": 0.0098}, {}, True),
+    ({**_MISSED, "status": "complete", "fit_mean": 0.0045, "fit_max": 0.0225}, {}, True),
+    ({**_MISSED, "status": "complete", "fit_mean": 0.0098}, {"heavier": False}, False),
+    ({**_MISSED, "status": "complete", "fit_mean": 0.0045, "fit_max": 0.019}, {}, False),  # close: done
+    ({**_MISSED, "status": "complete", "fit_mean": 0.005, "fit_max": 0.02}, {}, False),  # on the close bar
     ({**_MISSED, "status": "invalid"}, {}, False),
     ({**_MISSED, "status": "stopped", "fit_mean": None}, {}, False),
 ])
-def test_a_design_that_misses_the_bar_is_worth_heavier_fit_weights(result, options, heavier):
+def test_a_design_that_misses_the_bar_or_is_not_close_is_worth_heavier_fit_weights(result, options, heavier):
     import xshells.inverse.run as run
 
     why = run.heavier_reason(result, run.InverseOptions(**options))
     assert (why is not None) == heavier
-    if heavier:
+    if heavier and result["status"] == "missed":
         assert f"fit mean {100 * result['fit_mean']:.2f}%" in why and "the bar is 1%, 3%, 90%" in why
+    elif heavier:
+        assert why == (f"met the bar, not closely (fit mean {100 * result['fit_mean']:.2f}%, max "
+                       f"{100 * result['fit_max']:.2f}%; close is 0.5%, 2%)")
+
+
+@pytest.mark.parametrize("a, b", [
+    # by status first, then the bar's figures missed, then the close bar's, then the mean
+    ({"status": "complete", "fit_mean": 0.009, "fit_max": 0.029, "coverage": 0.95},
+     {"status": "missed", "fit_mean": 0.004, "fit_max": 0.031, "coverage": 0.95}),
+    ({"status": "missed", "fit_mean": 0.012, "fit_max": 0.028, "coverage": 0.95},
+     {"status": "missed", "fit_mean": 0.004, "fit_max": 0.031, "coverage": 0.89}),
+    ({"status": "complete", "fit_mean": 0.0045, "fit_max": 0.019, "coverage": 0.95},  # close
+     {"status": "complete", "fit_mean": 0.0040, "fit_max": 0.023, "coverage": 0.99}),  # lower mean, not close
+    ({"status": "complete", "fit_mean": 0.0060, "fit_max": 0.019, "coverage": 0.95},  # misses one close figure
+     {"status": "complete", "fit_mean": 0.0055, "fit_max": 0.023, "coverage": 0.99}),  # misses both
+    ({"status": "complete", "fit_mean": 0.0045, "fit_max": 0.023, "coverage": 0.95},  # one each: the mean decides
+     {"status": "complete", "fit_mean": 0.0060, "fit_max": 0.019, "coverage": 0.99}),
+    ({"status": "complete", "fit_mean": 0.0040, "fit_max": 0.019, "coverage": 0.91},
+     {"status": "complete", "fit_mean": 0.0045, "fit_max": 0.010, "coverage": 0.99}),
+])
+def test_designs_rank_by_status_then_the_bar_then_the_close_bar_then_the_mean(a, b):
+    import xshells.inverse.run as run
+
+    assert run._rank(a) < run._rank(b)
+    assert min([b, a], key=run._rank) is a
 
 
 @pytest.mark.parametrize("result, options, expect", [
@@ -1048,6 +1079,40 @@ def test_heavier_fit_weights_design_the_kept_net_again_and_the_best_is_kept(tmp_
     assert h["default"]["fit_mean"] == _MISSED["fit_mean"]
     assert r["fit_mean"] == (_MISSED if kept == "default" else results[{"4": 0, "16": 1}[kept]])["fit_mean"]
     assert r["candidates"] == {"even": {"fit_mean": _MISSED["fit_mean"]}}  # how the first was chosen stays on record
+
+
+_MET = {**_MISSED, "status": "complete", "fit_mean": 0.0098, "fit_max": 0.0280}  # within the bar, not close
+
+
+@pytest.mark.parametrize("results, kept", [
+    # the simple two bumps' heavier designs, measured (0.61 % / 1.57 % at 4β, 0.37 % / 1.01 % at 16β)
+    ([{**_MET, "fit_mean": 0.0061, "fit_max": 0.0157}, {**_MET, "fit_mean": 0.0037, "fit_max": 0.0101}], "16"),
+    # a lower mean that is not close either: kept by the mean
+    ([{**_MET, "fit_mean": 0.0061, "fit_max": 0.0250}, {**_MET, "fit_mean": 0.0120}], "4"),
+    # worse, or outside the bar: the first stays
+    ([{**_MET, "fit_mean": 0.0110, "status": "missed"}, {**_MET, "fit_mean": 0.0099}], "default"),
+])
+def test_a_design_within_the_bar_but_not_close_gets_the_heavier_designs_too(tmp_path, monkeypatch, results, kept):
+    import xshells.inverse.run as run
+
+    fake_first, fake_once, calls = _fake_designs(_MET, results)
+    monkeypatch.setattr(run, "_run_at_spacing", fake_first)
+    monkeypatch.setattr(run, "_run_once", fake_once)
+    r = run.run_inverse(str(_write_hypar(tmp_path / "h.obj", n=9)), str(tmp_path / "out"), {},
+                        run.InverseOptions(workers=1), progress=False)
+    assert [c[0] for c in calls] == [4000.0, 16000.0]
+    h = r["heavier"]
+    assert h["why"].startswith("met the bar, not closely (fit mean 0.98%, max 2.80%")
+    assert h["kept"] == kept and h["default"]["fit_mean"] == _MET["fit_mean"]
+    assert r["fit_mean"] == (_MET if kept == "default" else results[{"4": 0, "16": 1}[kept]])["fit_mean"]
+    assert r["status"] == "complete"
+
+    fake_first, fake_once, calls = _fake_designs({**_MET, "fit_mean": 0.0049, "fit_max": 0.0199}, results)
+    monkeypatch.setattr(run, "_run_at_spacing", fake_first)
+    monkeypatch.setattr(run, "_run_once", fake_once)
+    r = run.run_inverse(str(_write_hypar(tmp_path / "h2.obj", n=9)), str(tmp_path / "close"), {},
+                        run.InverseOptions(workers=1), progress=False)
+    assert calls == [] and "heavier" not in r  # close: no more designs
 
 
 
@@ -1150,3 +1215,35 @@ def test_a_miss_names_its_farthest_joint_and_a_met_design_does_not(tmp_path, mon
     monkeypatch.setattr(run, "run_inverse", lambda *a, **k: {**missed, "status": "complete"})
     assert main(["inverse", surface, "--out", str(tmp_path / "o"), "--no-progress"]) == 0
     assert "farthest: joint" not in capsys.readouterr().out
+
+
+def test_a_held_state_that_the_hold_does_not_keep_has_slid_off():
+    """The held state is an equilibrium under its hold; a re-solve that moves it (an unstable hold, left by
+    negative-curvature steps: 1,431 mm on Darth Vader's target at spacing 159) or folds a joint has slid off."""
+    import copy
+
+    from xshells.inverse.run import HOLD_SLIP, slid_off
+    from xshells.linkage.grids import rhombic_grid
+    from xshells.linkage.linkage import Linkage
+    from xshells.section import Material
+
+    held = Linkage(rhombic_grid(4, 4, spacing=100.0, angle=np.radians(30)),
+                   Material.uniform("rectangle", [10, 7], E=20000, nu=0.3), subdivision=4)
+    spacing = 100.0
+    same = copy.deepcopy(held)
+    assert not slid_off(same, held, spacing)
+    x = held.get_vars().copy()
+    rows = 9 * np.arange(held.num_joints)  # joint positions lead each joint's variables (guide.joint_rows)
+    moved = copy.deepcopy(held)
+    x1 = x.copy()
+    x1[rows[3]] += 0.5 * HOLD_SLIP * spacing  # within the slip: the same state, re-solved
+    moved.set_vars(x1)
+    assert not slid_off(moved, held, spacing)
+    x1[rows[3]] += HOLD_SLIP * spacing
+    moved.set_vars(x1)
+    assert slid_off(moved, held, spacing)
+    folded = copy.deepcopy(held)
+    x2 = x.copy()
+    x2[held.angle_indices()[2]] = np.radians(181.0)
+    folded.set_vars(x2)
+    assert slid_off(folded, held, spacing)

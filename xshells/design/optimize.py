@@ -365,6 +365,10 @@ def _trust_region(problem, q0, options, eps, record, failures):
                     reason = f"flat state left the plane (c = {plan:.2e})"
                 elif folded := folded_joint(problem.flat.L):
                     reason = f"flat state: {folded}"
+                elif folded := folded_joint(problem.deployed.L):
+                    # a re-solve that carried the deployed state through a fold: not the state the design
+                    # deploys to (a joint cannot open past 180°), and the branch is lost from then on
+                    reason = f"deployed state: {folded}"
                 elif not np.isfinite(f_trial):
                     reason = "minimum angle or flat stability out of bounds"
             except (ArithmeticError, InputError) as exc:

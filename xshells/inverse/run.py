@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.export import atomic_write_text, finite_json
+from .board import CLOSE
 from .guide import GuideOptions
 
 MAX_SEGMENTS = 5000
@@ -543,15 +544,24 @@ def _note_refined(out_dir, kept: dict, refined: dict, t0) -> dict:
 def heavier_reason(result: dict, options: InverseOptions) -> str | None:
     """Why the design ``result`` is worth designing again with heavier fit weights (:data:`HEAVIER`), or None.
 
-    Only a design that was verified and missed the bar (status ``missed``); not where ``--tries`` already sets
-    the weights, or ``--no-heavier``.
+    A verified design that missed the bar (status ``missed``), or that met it but not closely: further than
+    :data:`~.board.CLOSE` (0.5 % mean, 2 % largest), issue 18's bar for a surface that a design deployed to.
+    A first design lands on either side of 1 % with rounding (Darth Vader's at 0.38 % or 0.98 %, the simple
+    two bumps' at 1.04 % or 0.98 %), and the heavier weights took the simple two bumps from 1.04 % to 0.37 %;
+    so a design just inside the bar gets them as one just outside does. Not where ``--tries`` already sets the
+    weights, or ``--no-heavier``.
     """
-    if not options.heavier or options.tries > 1 or result.get("status") != "missed":
+    if not options.heavier or options.tries > 1 or result.get("status") not in ("missed", "complete"):
         return None
     mean, top, cov = (result.get(k) for k in ("fit_mean", "fit_max", "coverage"))
     if mean is None or top is None or cov is None:
         return None
-    return f"missed the bar ({_against_the_bar(mean, top, cov)})"
+    if result["status"] == "missed":
+        return f"missed the bar ({_against_the_bar(mean, top, cov)})"
+    if not close_misses(result):
+        return None
+    return (f"met the bar, not closely (fit mean {100 * mean:.2f}%, max {100 * top:.2f}%; close is "
+            f"{100 * CLOSE['fit_mean']:g}%, {100 * CLOSE['fit_max']:g}%)")
 
 
 def kept_net_options(options: InverseOptions, result: dict) -> InverseOptions:
@@ -827,6 +837,29 @@ def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float, screened=N
     return r
 
 
+#: a held state whose re-solve under its hold moves a joint further than this share of the spacing has slid off
+#: the hold (see :func:`slid_off`)
+HOLD_SLIP = 0.01
+
+
+def slid_off(deployed, held, spacing: float) -> bool:
+    """Whether the deployed state that the design problem re-solved under the hold (a
+    :class:`~xshells.linkage.linkage.Linkage`) left the ``held`` state it started from: a joint moved further than
+    :data:`HOLD_SLIP` × ``spacing``, or folded.
+
+    The held state is an equilibrium under the hold by construction, so a stable one does not move at all. An
+    unstable one is left by the solver's negative-curvature steps for another equilibrium, which can be far off
+    and folded: on Darth Vader's realizable target at spacing 159 (its own 158.9), the dead load alone moved a
+    joint by 1,431 mm and opened another to 272°, and the design then tracked that state from the first stage
+    to the last (2.2 % mean fit); with the weakest springs that keep the held state (0.3 of the hold's), it
+    stays where it was held.
+    """
+    from ..deploy.simulate import folded_joint
+
+    moved = float(np.linalg.norm(deployed.joint_positions() - held.joint_positions(), axis=1).max())
+    return moved > HOLD_SLIP * spacing or bool(folded_joint(deployed))
+
+
 def _min_beam_gap(net, alpha0: float) -> float:
     """The flat layout's narrowest gap between neighbouring beams of a family (:func:`.flatten.flat_beam_gaps`;
     the shortest segment times sin α₀ where no joint is interior)."""
@@ -1062,13 +1095,23 @@ def bar_misses(result: dict) -> int:
         int(cov is None or cov < REACH["coverage"])
 
 
+def close_misses(result: dict) -> int:
+    """How many of the close bar's two fit figures (:data:`~.board.CLOSE`: mean and largest joint distance)
+    ``result`` misses (a figure it lacks counts as missed)."""
+    mean, top = result.get("fit_mean"), result.get("fit_max")
+    return int(mean is None or mean > CLOSE["fit_mean"]) + int(top is None or top > CLOSE["fit_max"])
+
+
 def _rank(result: dict) -> tuple:
     """How a design ranks among others for the same surface (lower is better): by status, then by how many of the
-    bar's figures it misses (:func:`bar_misses`), then by mean fit; as :func:`stage_rank` ranks a stage's design.
+    bar's figures it misses (:func:`bar_misses`), then how many of the close bar's (:func:`close_misses`), then
+    by mean fit; as :func:`stage_rank` ranks a stage's design.
     By the mean alone, a finer net's design at 1.19 % / 3.33 % / 97.8 % was kept over 1.20 % / 2.68 % / 99.4 %,
-    though it misses one figure more (recheck 34)."""
+    though it misses one figure more (recheck 34); and a design at 0.40 % / 2.3 % would be kept over one at
+    0.45 % / 1.9 %, which is close."""
     fit = result.get("fit_mean")
-    return _STATUS_RANK.get(result.get("status"), 9), bar_misses(result), np.inf if fit is None else fit
+    return (_STATUS_RANK.get(result.get("status"), 9), bar_misses(result), close_misses(result),
+            np.inf if fit is None else fit)
 
 
 def _remove_outputs(folder: str, names) -> None:
@@ -1209,12 +1252,14 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
         try:
             problem = DesignProblem(L, theta, DesignWeights(gamma=options.gamma, beta=options.beta, buckling=options.buckling or 0.0), fitting=fitting,
                                     deployed=copy.deepcopy(held), deployed_load=hold.load, deployed_tether=hold.steady)
-            break
         except ArithmeticError:
             continue
+        if not slid_off(problem.deployed.L, held, spacing):
+            break
+        problem = None
     if problem is None:
         raise InputError(f"{surface.path}: the deployed layout cannot be held on the surface (every hold was "
-                         f"unstable): the surface is out of this net's reach; try another --orientation or --angle")
+                         f"unstable, or let it slide off): the surface is out of this net's reach; try another --orientation or --angle")
     times["hold_s"] = time.perf_counter() - t
     t = time.perf_counter()
     ks0 = problem.min_angle(problem._q)
