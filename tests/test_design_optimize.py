@@ -98,6 +98,18 @@ def test_a_trial_design_whose_deployed_state_folds_a_joint_is_rejected(monkeypat
     assert "trial designs rejected" in res.message and any(seen)
 
 
+def test_a_deployed_state_folded_from_the_start_does_not_block_every_trial(monkeypatch):
+    """Where the tracked deployed state is folded already (a hold that pulled a corner joint past 180°), its
+    folds are left to the stage checks: the optimization goes on as before."""
+    import xshells.design.optimize as opt
+
+    prob = banana_problem()
+    q0 = prob._q.copy()
+    monkeypatch.setattr(opt, "folded_joint", lambda L: "joint 5 folds" if L is prob.deployed.L else "")
+    res = optimize(prob, OptimizeOptions(min_angle=np.radians(-30.0), max_iterations=2))
+    assert res.iterations >= 1 and not np.array_equal(res.q, q0)
+
+
 def test_an_interrupt_is_flagged_whatever_the_message_says(monkeypatch):
     """Ctrl-C after rejected trials: the message gains "(N trial designs rejected)", and
     ``xshells optimize`` once compared the message and reported the run complete."""
@@ -108,6 +120,8 @@ def test_an_interrupt_is_flagged_whatever_the_message_says(monkeypatch):
     calls = []
 
     def folded(L):
+        if L is not prob.flat.L:  # the deployed state: open throughout
+            return ""
         calls.append(1)
         if len(calls) == 3:
             raise KeyboardInterrupt

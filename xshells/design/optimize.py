@@ -347,6 +347,7 @@ def _trust_region(problem, q0, options, eps, record, failures):
         if radius is None:
             radius = options.initial_radius * float(np.linalg.norm(gy))
 
+        deployed_folded = bool(folded_joint(problem.deployed.L))
         while True:  # until a trial is accepted
             s = np.zeros(len(q))
             y = steihaug(hy, gy, radius, min(0.1, np.sqrt(gnorm)) * float(np.linalg.norm(gy)), options.max_cg_iterations)
@@ -365,9 +366,11 @@ def _trust_region(problem, q0, options, eps, record, failures):
                     reason = f"flat state left the plane (c = {plan:.2e})"
                 elif folded := folded_joint(problem.flat.L):
                     reason = f"flat state: {folded}"
-                elif folded := folded_joint(problem.deployed.L):
+                elif not deployed_folded and (folded := folded_joint(problem.deployed.L)):
                     # a re-solve that carried the deployed state through a fold: not the state the design
-                    # deploys to (a joint cannot open past 180°), and the branch is lost from then on
+                    # deploys to (a joint cannot open past 180°), and the branch is lost from then on. (A
+                    # tracked state folded already, where a hold pulled a corner past 180°, is left to the
+                    # stage checks, which deploy each design from flat.)
                     reason = f"deployed state: {folded}"
                 elif not np.isfinite(f_trial):
                     reason = "minimum angle or flat stability out of bounds"
