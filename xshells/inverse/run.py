@@ -115,7 +115,7 @@ class InverseOptions:
         two kept (:func:`_run_once`).
     tries : int
         Designs of each net, the fit weight ``beta`` doubled from one to the next (:data:`TRY_FACTOR`):
-        the best verified design (by status, then the bar's figures missed, then mean fit) is kept (:func:`_run_net`). The optimization
+        the best verified design (by status, then the bar's figures missed, then the close bar's, then mean fit) is kept (:func:`_run_net`). The optimization
         is not convex and its result moves with any change of its path, so a second try with another
         weight is a second start; default 1.
     refine : bool
@@ -491,7 +491,7 @@ def _against_the_bar(mean: float, top: float, cov: float) -> str:
 
 def _refined(surface, surface_path, out_dir, material_spec, options, progress, first: dict, why: str, t0) -> dict:
     """The design on a net :data:`REFINE_FACTOR` times as fine as ``first``'s, into ``out_dir/refined``; the
-    better of the two (by status, then the bar's figures missed, then mean fit) ends in ``out_dir``, its ``result.json`` naming both
+    better of the two (by status, then the bar's figures missed, then the close bar's, then mean fit) ends in ``out_dir``, its ``result.json`` naming both
     under ``refined``. Ctrl-C during it keeps ``first``."""
 
     spacing = REFINE_FACTOR * first["spacing"]
@@ -661,7 +661,7 @@ def _run_at_spacing(surface, surface_path, out_dir, material_spec: dict, options
     whose scissor map closes the surface better, :func:`even_bisector`), the best
     fan (where one deploys) and, where :func:`geodesic_closure` says it is
     worth a try, the geodesic net each run into ``out_dir/candidates/<beams>/``,
-    and the best result (by status, then the bar's figures missed, then mean fit) is copied into ``out_dir``.
+    and the best result (by status, then the bar's figures missed, then the close bar's, then mean fit) is copied into ``out_dir``.
     Its ``result.json`` lists them under ``candidates`` and the screen under
     ``fan_screen``. ``"fanned"`` without ``options.fan`` runs the best fan alone.
     """
@@ -829,7 +829,7 @@ def _adopt(out_dir, results: dict, errors: dict, why: str, t0: float, screened=N
     if run_times is not None:
         r["stage_times_s"] = _run_times(r, run_times, t0)
     r["candidates"].update({b: {"status": "failed", "message": m} for b, m in errors.items()})
-    r["beams_reason"] = f"auto: {why}; kept the {best} net's design, the best of {len(r['candidates'])} (by status, then the bar's figures missed, then mean fit)"
+    r["beams_reason"] = f"auto: {why}; kept the {best} net's design, the best of {len(r['candidates'])} (by status, then the bar's figures missed, then the close bar's, then mean fit)"
     if screened is not None:
         r["fan_screen"] = screened
     r["time_s"] = time.perf_counter() - t0
@@ -913,7 +913,7 @@ def _run_net(surface_path, out_dir, material_spec: dict, options: InverseOptions
     """:func:`_run_once` ``options.tries`` times with one net, try ``k`` with the fit weight ``β·TRY_FACTOR^k``.
 
     With one try (the default) this is :func:`_run_once` into ``out_dir``. With more, try ``k`` designs into
-    ``out_dir/tries/<k>``, and as each one ends the best so far (by status, then the bar's figures missed, then mean fit) is copied into
+    ``out_dir/tries/<k>``, and as each one ends the best so far (by status, then the bar's figures missed, then the close bar's, then mean fit) is copied into
     ``out_dir``, so that Ctrl-C keeps it; its ``result.json`` lists every try under ``tries``. With
     ``workers`` > 1 the tries run side by side in worker processes (:mod:`.processes`), as ``auto``'s
     candidates do; each candidate of ``auto`` runs its own tries one after the other.
@@ -1114,7 +1114,8 @@ def close_misses(result: dict) -> int:
 def _rank(result: dict) -> tuple:
     """How a design ranks among others for the same surface (lower is better): by status, then by how many of the
     bar's figures it misses (:func:`bar_misses`), then how many of the close bar's (:func:`close_misses`), then
-    by mean fit; as :func:`stage_rank` ranks a stage's design.
+    by mean fit. (:func:`stage_rank`, which picks a stage within one design, ranks by the bar's fit and the mean
+    only: the close bar was not tried there.)
     By the mean alone, a finer net's design at 1.19 % / 3.33 % / 97.8 % was kept over 1.20 % / 2.68 % / 99.4 %,
     though it misses one figure more (recheck 34); and a design at 0.40 % / 2.3 % would be kept over one at
     0.45 % / 1.9 %, which is close."""
