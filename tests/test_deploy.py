@@ -808,3 +808,18 @@ def test_the_deployment_plot_keeps_both_axis_labels_on_its_canvas(monkeypatch):
         for ax in fig.axes:
             label = ax.yaxis.label.get_window_extent(renderer)
             assert canvas.x0 <= label.x0 and label.x1 <= canvas.x1, (ax.get_ylabel(), label, canvas)
+
+
+def test_folded_joints_lists_every_joint_at_or_past_0_or_180_degrees_and_folded_joint_names_the_worst():
+    from xshells.deploy.simulate import folded_joint, folded_joints
+
+    L = Linkage(rhombic_grid(3, 3, spacing=100.0, angle=np.radians(30)),
+                Material.uniform("rectangle", [10, 7], E=20000, nu=0.3), subdivision=4)
+    assert folded_joints(L).size == 0 and folded_joint(L) == ""
+    x = L.get_vars().copy()
+    a = L.angle_indices()
+    x[a[1]], x[a[4]], x[a[6]] = np.pi, -0.01, np.radians(179.0)
+    assert folded_joints(L, x).tolist() == [1, 4]
+    assert folded_joints(L, x, margin=np.radians(1.5)).tolist() == [1, 4, 6]
+    L.set_vars(x)
+    assert "joint 4 " in folded_joint(L)  # -0.57° is further out than 180° exactly

@@ -609,9 +609,16 @@ def _is_flat(linkage: Linkage) -> bool:
     return max_abs_z(P) <= 1e-8 * float(np.ptp(P, axis=0).max())
 
 
+def folded_joints(linkage: Linkage, x=None, margin: float = 0.0) -> np.ndarray:
+    """The joints (indices, shape (k,)) of the state ``x`` (default: the current one) whose opening angle is within
+    ``margin`` radians of 0 or 180° or beyond."""
+    alpha = (linkage.get_vars() if x is None else x)[linkage.angle_indices()]
+    return np.flatnonzero(np.minimum(alpha, np.pi - alpha) <= margin)
+
+
 def folded_joint(linkage: Linkage, x=None, margin: float = 0.0) -> str:
     """'' or why the state ``x`` (default: the current one) is inverted: a joint
-    whose opening angle is within ``margin`` radians of 0 or 180° or beyond."""
+    whose opening angle is within ``margin`` radians of 0 or 180° or beyond (the worst such joint is named)."""
     alpha = (linkage.get_vars() if x is None else x)[linkage.angle_indices()]
     j = int(np.argmin(np.minimum(alpha, np.pi - alpha)))
     if min(alpha[j], np.pi - alpha[j]) <= margin:

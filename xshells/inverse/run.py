@@ -862,11 +862,9 @@ def slid_off(deployed, held, spacing: float) -> bool:
 def newly_folded(linkage, before) -> np.ndarray:
     """The joints (indices) whose opening angle lies outside (0, π) in ``linkage`` but inside it in ``before`` (two
     states of one linkage)."""
-    def out(L):
-        a = L.get_vars()[L.angle_indices()]
-        return (a <= 0.0) | (a >= np.pi)
+    from ..deploy.simulate import folded_joints
 
-    return np.flatnonzero(out(linkage) & ~out(before))
+    return np.setdiff1d(folded_joints(linkage), folded_joints(before))
 
 
 def _min_beam_gap(net, alpha0: float) -> float:
