@@ -575,9 +575,10 @@ def kept_net_options(options: InverseOptions, result: dict) -> InverseOptions:
     return o
 
 
-def _heavier_job(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, k):
-    """One heavier design in a worker process: (k, True, result) or (k, False, why it failed)."""
-    return (k, *_in_worker(_run_once, f"fit weight ×{HEAVIER[k]:g}", surface_path, out_dir, material_spec, options,
+def _heavier_job(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, k, factor):
+    """One heavier design (the ``k``-th, β × ``factor``) in a worker process: (k, True, result) or (k, False, why it
+    failed). (The factor is sent, not looked up: a worker imports :data:`HEAVIER` afresh.)"""
+    return (k, *_in_worker(_run_once, f"fit weight ×{factor:g}", surface_path, out_dir, material_spec, options,
                            net_path, progress, beams_reason))
 
 
@@ -589,8 +590,8 @@ def _heavier(surface_path, out_dir, material_spec, options, net_path, progress, 
     base = kept_net_options(options, first)
     where = [os.path.join(out_dir, "heavier", f"{f:g}") for f in HEAVIER]
     weighted = [replace(base, beta=options.beta * f) for f in HEAVIER]
-    jobs = [(surface_path, where[k], material_spec, weighted[k], net_path, progress, first.get("beams_reason"), k)
-            for k in range(len(HEAVIER))]
+    jobs = [(surface_path, where[k], material_spec, weighted[k], net_path, progress, first.get("beams_reason"), k, f)
+            for k, f in enumerate(HEAVIER)]
     if progress:
         import sys
 
@@ -601,7 +602,7 @@ def _heavier(surface_path, out_dir, material_spec, options, net_path, progress, 
     done: dict[int, object] = {}
     workers = _workers(options)
     try:
-        if workers > 1:
+        if workers > 1 and len(jobs) > 1:  # (one design alone runs here, its stage checks beside it)
             from .processes import in_processes
 
             for _, (k, ok, value) in in_processes(_heavier_job, jobs, workers, progress=progress, stop_wait=STOP_WAIT):
