@@ -58,8 +58,8 @@ def register(subparsers) -> None:
                         "(default: such a design is designed again on a net 3/4 as fine, and the better kept)")
     p.add_argument("--no-heavier", action="store_true",
                    help="keep the design even where it misses the bar, or meets it but not within 0.5%% mean and 2%% "
-                        "max (default: its net is designed again with the fit weight x4 and x16, side by side, "
-                        "and the best kept)")
+                        "max (default: its net is designed again with the fit weight x16, then x4 where "
+                        "x16 is not that close either, and the best kept)")
     p.add_argument("--polish", type=float, default=None,
                    help="after the last stage, 20 more iterations with the fit weight times this, from the design "
                         "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
