@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.export import atomic_write_text, finite_json
-from .board import CLOSE
+from .board import CLOSE, is_close
 from .guide import GuideOptions
 
 MAX_SEGMENTS = 5000
@@ -584,7 +584,7 @@ def _heavier(surface_path, out_dir, material_spec, options, net_path, progress, 
     """The net of ``first`` designed again with the fit weight β times the factors of :data:`HEAVIER`, the
     heaviest first, one after the other, each with its stage checks beside it where
     ``--workers`` allows, into ``out_dir/heavier/<factor>``; a design that meets the bar closely
-    (:func:`close_enough`) ends the round. The best of all (:func:`_rank`) ends in ``out_dir``, its
+    (:func:`.board.is_close`) ends the round. The best of all (:func:`_rank`) ends in ``out_dir``, its
     ``result.json`` naming every design under ``heavier``. Ctrl-C keeps the best design that ended."""
     base = kept_net_options(options, first)
     where = [os.path.join(out_dir, "heavier", f"{f:g}") for f in HEAVIER]
@@ -610,17 +610,12 @@ def _heavier(surface_path, out_dir, material_spec, options, net_path, progress, 
             except InputError as exc:  # this weight's first layout does not get through: the others stand
                 done[k] = exc
                 continue
-            if close_enough(done[k]):
+            if is_close(done[k]):  # within the bar and the close bar: no heavier design after it
                 closer = k
     except KeyboardInterrupt:
         _keep_best_heavier(out_dir, where, first, done, summary, options.beta, t0)
         raise
     return _keep_best_heavier(out_dir, where, first, done, summary, options.beta, t0)
-
-
-def close_enough(result: dict) -> bool:
-    """Whether a verified design meets the bar and the close bar (:data:`~.board.CLOSE`): no heavier design after it."""
-    return result.get("status") == "complete" and bar_misses(result) == 0 and close_misses(result) == 0
 
 
 def _keep_best_heavier(out_dir, where, first: dict, done: dict, summary: dict, beta: float, t0) -> dict:
