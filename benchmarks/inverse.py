@@ -111,6 +111,18 @@ GENERATED.update({
 })
 
 
+# Two more, first run on 2026-12-07 (docs/inverse.md, "The heavier designs one after the other"): a plan that
+# is not convex, and a ridge whose curvature changes sign along it.
+GENERATED.update({
+    # cosine dome over an L-shaped plan: a 3000 x 3000 square less its quarter x > 0, y > 0; 350 high at the middle
+    "l_dome": (lambda x, y: 350 * np.cos(np.pi * x / 3000) * np.cos(np.pi * y / 3000), (-1500, 1500, 61),
+               (-1500, 1500, 61), lambda x, y: (x <= 1e-6) | (y <= 1e-6)),
+    # a ridge 300 high across a 3000 x 2400 plan, falling off as a Gaussian across it and as a cosine along it
+    "ridge": (lambda x, y: 300 * np.exp(-(y / 700) ** 2) * np.cos(np.pi * x / 4000), (-1500, 1500, 61),
+              (-1200, 1200, 49), None),
+})
+
+
 def generated_surface(name: str, out_obj: str) -> None:
     """Write the generated analytic target ``name`` (GENERATED) as a triangulated grid."""
     f, (x0, x1, nx), (y0, y1, ny), inside = GENERATED[name]
