@@ -10,9 +10,10 @@ overlapping, stable at its angle).
 
 Its first design misses the bar on its maximum (0.547 % / 2.63 %), so it is designed again with a heavier fit
 weight (step 11 of docs/inverse.md's Method): 16β, which meets the bar closely (0.292 % / 1.41 %, coverage
-100 %, measured 2026-12-07 with NumPy 2.4.6 and SciPy 1.17.1), so 4β is not run. It takes about four minutes (a deployment from flat after every stage), so the other targets, the
-analytic ones among them, are measured by the benchmark (the bundled cap is designed whole, at a coarser spacing,
-in ``test_inverse_run.py``). The method's outcome can move with rounding-level changes (docs/inverse.md, Results).
+100 %, measured 2026-12-07 with NumPy 2.4.6 and SciPy 1.17.1), so 4β is not run. It takes about four minutes
+(a deployment from flat after every stage), so the other targets, the analytic ones among them, are measured
+by the benchmark (the bundled cap is designed whole, at a coarser spacing, in ``test_inverse_run.py``). The
+method's outcome can move with rounding-level changes (docs/inverse.md, Results).
 """
 from __future__ import annotations
 
