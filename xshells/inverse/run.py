@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.export import atomic_write_text, finite_json
-from .board import CLOSE, is_close
+from .board import CLOSE, close_misses, is_close
 from .guide import GuideOptions
 
 MAX_SEGMENTS = 5000
@@ -1105,13 +1105,6 @@ def bar_misses(result: dict) -> int:
     mean, top, cov = (result.get(k) for k in ("fit_mean", "fit_max", "coverage"))
     return int(mean is None or mean > REACH["fit_mean"]) + int(top is None or top > REACH["fit_max"]) + \
         int(cov is None or cov < REACH["coverage"])
-
-
-def close_misses(result: dict) -> int:
-    """How many of the close bar's two fit figures (:data:`~.board.CLOSE`: mean and largest joint distance)
-    ``result`` misses (a figure it lacks counts as missed)."""
-    mean, top = result.get("fit_mean"), result.get("fit_max")
-    return int(mean is None or mean > CLOSE["fit_mean"]) + int(top is None or top > CLOSE["fit_max"])
 
 
 def _rank(result: dict) -> tuple:
