@@ -15,6 +15,7 @@ FLAT = {"status": "missed", "fit_mean": 0.05, "fit_max": 0.12, "coverage": 0.6, 
 BUCKLED = {"status": "missed", "fit_mean": 0.02, "fit_max": 0.06, "coverage": 0.8, "deployed_rise": 0.2, "time_s": 12.0}
 NEAR = {"status": "complete", "fit_mean": 0.004, "fit_max": 0.013, "coverage": 0.97, "deployed_rise": 0.3}
 MET = {"status": "complete", "fit_mean": 0.008, "fit_max": 0.019, "coverage": 0.97, "deployed_rise": 0.3}
+NO_STAGE = {"status": "stopped", "fit_mean": None, "fit_max": None, "coverage": None, "segments": 40, "time_s": 9.0}
 
 
 @pytest.mark.parametrize("result, close", [
@@ -45,6 +46,20 @@ def test_a_board_knows_only_once_every_earlier_candidate_has_posted_or_one_is_cl
     os.remove(os.path.join(b, MARK))
     assert board.decided() is True
     assert Board(a, []).decided() is False  # the first candidate has no earlier one
+
+
+def test_a_design_within_the_bar_decides_only_for_a_net_that_kept_no_stage(tmp_path):
+    a, b = str(tmp_path / "even"), str(tmp_path / "fanned")
+    board = Board(b, [a])
+    assert board.decided(met=True) is None
+    Board(a, []).post({**MET, "status": "missed"})  # within the fit figures, but its coverage missed
+    assert board.decided(met=True) is False
+    os.remove(os.path.join(a, MARK))
+    Board(a, []).post(MET)
+    assert board.decided() is False and board.reason() == ""  # a flat net's retry still runs
+    assert board.decided(met=True) is True
+    assert "the even net's first design meets the bar already (fit mean 0.80%, max 1.90%)" in board.reason(met=True)
+    assert "kept no stage" in board.reason(met=True)
 
 
 def test_a_failed_candidate_counts_as_not_close_and_does_not_overwrite_its_first_design(tmp_path):
@@ -124,6 +139,47 @@ def test_a_retry_is_stopped_once_an_earlier_candidate_comes_close(tmp_path, monk
     assert r["buckling_retry"]["other"]["status"] == "dropped" and r["fit_mean"] == FLAT["fit_mean"]
 
 
+def test_the_retry_of_a_net_that_kept_no_stage_stops_once_an_earlier_candidate_meets_the_bar(tmp_path, monkeypatch):
+    import xshells.inverse.run as run
+
+    earlier = str(tmp_path / "candidates" / "even")
+    board = Board(str(tmp_path / "candidates" / "fanned"), [earlier])
+
+    def meanwhile(stop):  # the earlier candidate ends within the bar, not close: enough for a net with no stage
+        assert not stop()
+        Board(earlier, []).post(MET)
+        assert stop()
+        raise KeyboardInterrupt
+
+    r, calls, design = _run_once(tmp_path, monkeypatch, [NO_STAGE, BUCKLED], board, meanwhile)
+    assert calls == [None, run.RETRY_BUCKLING] and design == "design 1\n"
+    assert r["status"] == "stopped" and r["buckling_retry"]["why"] == "no stage's design could be kept"
+    assert r["buckling_retry"]["other"]["status"] == "dropped"
+    assert "meets the bar already" in r["buckling_retry"]["other"]["message"]
+
+
+def test_no_retry_for_a_net_that_kept_no_stage_where_an_earlier_candidate_met_the_bar(tmp_path, monkeypatch):
+    Board(str(tmp_path / "candidates" / "even"), []).post(MET)
+    board = Board(str(tmp_path / "candidates" / "fanned"), [str(tmp_path / "candidates" / "even")])
+    r, calls, design = _run_once(tmp_path, monkeypatch, [NO_STAGE, BUCKLED], board)
+    assert calls == [None] and design == "design 1\n" and r["buckling_retry"]["other"]["status"] == "dropped"
+
+
+def test_the_retry_of_a_net_that_kept_no_stage_counts_where_the_earlier_candidate_missed(tmp_path, monkeypatch):
+    import xshells.inverse.run as run
+
+    earlier = str(tmp_path / "candidates" / "even")
+    board = Board(str(tmp_path / "candidates" / "fanned"), [earlier])
+    timer = threading.Timer(0.3, lambda: Board(earlier, []).post(FLAT))  # the boat: its even net missed far
+    timer.start()
+    try:
+        r, calls, design = _run_once(tmp_path, monkeypatch, [NO_STAGE, BUCKLED], board)
+    finally:
+        timer.join()
+    assert calls == [None, run.RETRY_BUCKLING] and design == "design 2\n"
+    assert r["fit_mean"] == BUCKLED["fit_mean"] and r["buckling_retry"]["other"]["status"] == "stopped"
+
+
 def test_a_retry_that_ends_first_waits_for_the_earlier_candidates_and_then_counts(tmp_path, monkeypatch):
     import xshells.inverse.run as run
 
@@ -140,13 +196,18 @@ def test_a_retry_that_ends_first_waits_for_the_earlier_candidates_and_then_count
     assert r["fit_mean"] == BUCKLED["fit_mean"] and r["buckling_retry"]["other"]["status"] == "missed"
 
 
-def test_a_retry_that_ends_first_is_discarded_where_an_earlier_candidate_then_ends_close(tmp_path, monkeypatch):
-    earlier = str(tmp_path / "candidates" / "geodesic")
-    board = Board(str(tmp_path / "candidates" / "even"), [earlier])
-    timer = threading.Timer(0.3, lambda: Board(earlier, []).post(NEAR))
+@pytest.mark.parametrize("first, earlier", [
+    (FLAT, NEAR),
+    (NO_STAGE, MET),  # a net that kept no stage gives way to an earlier design within the bar
+])
+def test_a_retry_that_ends_first_is_discarded_where_an_earlier_candidate_then_ends_close(tmp_path, monkeypatch, first,
+                                                                                          earlier):
+    folder = str(tmp_path / "candidates" / "geodesic")
+    board = Board(str(tmp_path / "candidates" / "even"), [folder])
+    timer = threading.Timer(0.3, lambda: Board(folder, []).post(earlier))
     timer.start()
     try:
-        r, calls, design = _run_once(tmp_path, monkeypatch, [FLAT, BUCKLED], board)
+        r, calls, design = _run_once(tmp_path, monkeypatch, [first, BUCKLED], board)
     finally:
         timer.join()
     assert design == "design 1\n" and r["buckling_retry"]["other"]["status"] == "dropped"

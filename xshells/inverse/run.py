@@ -1030,7 +1030,8 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     status, then the bar's figures missed, then mean fit) ends in ``out_dir``, and its ``result.json`` names the other under ``buckling_retry``.
 
     ``board`` (an ``auto`` candidate's :class:`.board.Board`): the first design is posted on it, and the second
-    is dropped where an earlier candidate's first design is close to the surface (:mod:`.board`).
+    is dropped where an earlier candidate's first design is close to the surface, or where this one kept no
+    stage and an earlier one meets the bar (:mod:`.board`).
     """
     try:
         first = _design_with_net(surface_path, out_dir, material_spec, options, net_path, progress, beams_reason, stop)
@@ -1044,15 +1045,16 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
     if options.buckling is not None or not (flat or first.get("status") == "stopped"):
         return first
     why = "its deployment stays in the plane" if flat else "no stage's design could be kept"
-    if board is not None and board.decided():
-        return _retry_dropped(out_dir, first, why, board, 0.0, progress)
+    met = not flat  # a net that kept no stage gives way to an earlier one that meets the bar (see .board)
+    if board is not None and board.decided(met):
+        return _retry_dropped(out_dir, first, why, board, 0.0, progress, met)
     t_retry = time.perf_counter()
     if progress is True:  # a second round of the stages' bars follows: say why (workers' bars are relayed)
         import sys
 
         print(f"xshells inverse: {why}: designing this net again with the planar-buckling penalty "
               f"(weight {RETRY_BUCKLING:g}; see docs/inverse.md)", file=sys.stderr)
-    retry_stop = stop if board is None else (lambda: (stop is not None and stop()) or bool(board.decided()))
+    retry_stop = stop if board is None else (lambda: (stop is not None and stop()) or bool(board.decided(met)))
     try:
         second = _design_with_net(surface_path, os.path.join(out_dir, "buckling"), material_spec,
                                   replace(options, buckling=RETRY_BUCKLING), net_path, progress, beams_reason,
@@ -1064,11 +1066,11 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
         atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
         return r
     except KeyboardInterrupt:  # stopped because an earlier candidate came close, or by the user
-        if board is not None and board.decided():
-            return _retry_dropped(out_dir, first, why, board, time.perf_counter() - t_retry, progress)
+        if board is not None and board.decided(met):
+            return _retry_dropped(out_dir, first, why, board, time.perf_counter() - t_retry, progress, met)
         raise
-    if board is not None and board.wait(stop):  # ended before the earlier candidates were known: as if stopped
-        return _retry_dropped(out_dir, first, why, board, time.perf_counter() - t_retry, progress)
+    if board is not None and board.wait(stop, met=met):  # ended before the earlier ones were known: as if stopped
+        return _retry_dropped(out_dir, first, why, board, time.perf_counter() - t_retry, progress, met)
     if _rank(second) < _rank(first):
         _copy_outputs(os.path.join(out_dir, "buckling"), out_dir)
         kept, other, note = second, first, f"the design with the planar-buckling penalty (weight {RETRY_BUCKLING:g})"
@@ -1084,16 +1086,17 @@ def _run_once(surface_path, out_dir, material_spec: dict, options: InverseOption
 _SUMMARY_KEYS = ("status", "fit_mean", "fit_max", "coverage", "segments", "deployed_rise", "time_s")
 
 
-def _retry_dropped(out_dir, first: dict, why: str, board, spent: float, progress=False) -> dict:
-    """``first`` kept without its second design, which an earlier candidate's close design made not worth it
-    (:mod:`.board`); ``spent``: the seconds the second design ran before it was stopped or discarded."""
+def _retry_dropped(out_dir, first: dict, why: str, board, spent: float, progress=False, met: bool = False) -> dict:
+    """``first`` kept without its second design, which an earlier candidate's close design (``met``: or one
+    within the bar) made not worth it (:mod:`.board`); ``spent``: the seconds the second design ran before it
+    was stopped or discarded."""
     if progress is True:
         import sys
 
-        print(f"xshells inverse: {why}, but no second design: {board.reason()}", file=sys.stderr)
+        print(f"xshells inverse: {why}, but no second design: {board.reason(met)}", file=sys.stderr)
     r = dict(first)
     r["buckling_retry"] = {"why": why, "kept": "the design without the penalty",
-                           "other": {"status": "dropped", "message": board.reason(), "time_s": spent}}
+                           "other": {"status": "dropped", "message": board.reason(met), "time_s": spent}}
     r["time_s"] = (first.get("time_s") or 0.0) + spent
     atomic_write_text(os.path.join(out_dir, "result.json"), finite_json(r, indent=1))
     return r
