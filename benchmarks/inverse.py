@@ -65,9 +65,11 @@ REALIZABLE = {
 # the paper's own designs (../shared, cases.json), where present: realizable targets the method has not been shaped on
 CASES = os.path.join(HERE, "..", "..", "shared", "data", "elasticrods", "cases.json")
 # (simple_two_bumps, asymm_clapper and swimming_ray added 2026-12-06, forward_design_fig10 and
-# wiggly_banana_preopt 2026-12-06 later: first measured then)
+# wiggly_banana_preopt 2026-12-06 later, the last four 2026-12-07: first measured then)
 PAPER = ("boat", "legged_pavilion", "simple_two_bumps", "asymm_clapper", "swimming_ray", "forward_design_fig10",
-         "wiggly_banana_preopt")
+         "wiggly_banana_preopt",
+         # first measured 2026-12-07 (twenty-seventh session)
+         "pavilion", "hole", "two_asymm_bumps", "scary_face")
 if os.path.exists(CASES):
     with open(CASES) as _fh:
         for _c in json.load(_fh)["cases"]:

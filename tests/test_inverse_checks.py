@@ -104,3 +104,15 @@ def test_checks_go_beside_with_two_workers_on_a_net_large_enough(workers, segmen
     from xshells.inverse.run import InverseOptions, _checks_beside
 
     assert _checks_beside(InverseOptions(workers=workers), segments) is beside
+
+
+@pytest.mark.parametrize("errors", ["ignore", "warn"])
+def test_the_checking_process_handles_numpys_floating_point_errors_as_the_optimizing_one(errors):
+    from xshells.inverse.checks import CheckContext, StageChecks
+
+    with np.errstate(all=errors):
+        checks = StageChecks(CheckContext(None, None, 8, 30, "up", 1.0, 0.0, np.zeros((0, 2), np.int64)), beside=True)
+    try:
+        assert set(checks._pool.submit(np.geterr).result(timeout=60).values()) == {errors}
+    finally:
+        checks.close()

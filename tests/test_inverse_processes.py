@@ -56,3 +56,23 @@ def test_the_workers_read_3dm_files_with_the_commands_options():
         assert [r["target_layer"] for _, r in in_processes(get_defaults, [()], 1)] == ["roof"]
     finally:
         set_defaults()
+
+
+
+def _errors_and_a_division_by_zero():
+    import numpy as np
+
+    return np.geterr(), float((np.array([1.0]) / np.array([0.0]))[0])
+
+
+@pytest.mark.parametrize("errors", ["ignore", "warn", "raise"])
+def test_the_workers_handle_numpys_floating_point_errors_as_the_parent_does(errors):
+    """The command runs under np.errstate(all="ignore"): its workers printed RuntimeWarnings all the same."""
+    import numpy as np
+
+    with np.errstate(all=errors):
+        (_, got), = in_processes(_errors_and_a_division_by_zero if errors != "raise" else np.geterr, [()], 1)
+    seen = got if errors == "raise" else got[0]
+    assert set(seen.values()) == {errors}
+    if errors != "raise":
+        assert got[1] == np.inf

@@ -151,9 +151,12 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
 _CONTEXT = None  # in the checking process: the design's CheckContext
 
 
-def _init_checker(ctx: CheckContext) -> None:
+def _init_checker(ctx: CheckContext, numpy_errors=None) -> None:
     global _CONTEXT
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the optimizing process's to handle
+    from .processes import follow_numpy_errors
+
+    follow_numpy_errors(numpy_errors)
     _CONTEXT = ctx
     from ..deploy import simulate  # noqa: F401  (imported while the optimization's first stage runs)
 
@@ -187,7 +190,7 @@ class StageChecks:
             from .processes import mp_context
 
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp_context(), initializer=_init_checker,
-                                             initargs=(ctx,))
+                                             initargs=(ctx, np.geterr()))
             self._pool.submit(_ready)  # starts the process (and its imports) now, not at the first check
 
     @property

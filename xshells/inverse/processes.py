@@ -21,9 +21,10 @@ _QUEUE = None  # in a worker: the queue its bars' updates go to
 _STOP = None   # in a worker: set when this process asks the work to stop
 
 
-def _init_worker(queue=None, stop=None, rhino_defaults=None):
+def _init_worker(queue=None, stop=None, rhino_defaults=None, numpy_errors=None):
     global _QUEUE, _STOP
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    follow_numpy_errors(numpy_errors)
     _QUEUE, _STOP = queue, stop
     if rhino_defaults:  # the command's --target-layer etc.: a fork server's worker does not inherit them
         from ..rhino.read import set_defaults
@@ -101,6 +102,18 @@ class BarRelay:
             bar.close()
 
 
+def follow_numpy_errors(errors: dict | None) -> None:
+    """In a worker: NumPy's floating-point error handling as the parent's was (``np.geterr()`` there).
+
+    A worker does not inherit it: the command runs under ``np.errstate(all="ignore")`` (the solvers reject
+    a trial step whose energy is not finite, and say so), yet its workers printed NumPy's RuntimeWarnings
+    (divide by zero in a joint kernel) beside its progress bars."""
+    if errors:
+        import numpy as np
+
+        np.seterr(**errors)
+
+
 def mp_context():
     """The multiprocessing context workers start from: a fork server where there is one, else spawn."""
     import multiprocessing as mp
@@ -131,10 +144,12 @@ def in_processes(fn, jobs: list, workers: int, progress: bool = False, stop_wait
     ctx = mp_context()
     queue, stop = (ctx.Queue() if progress else None), ctx.Event()
     relay = BarRelay(queue) if progress else None
+    import numpy as np
+
     from ..rhino.read import get_defaults
 
     pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx, initializer=_init_worker,
-                               initargs=(queue, stop, get_defaults()))
+                               initargs=(queue, stop, get_defaults(), np.geterr()))
     done, futures = False, {}
     try:
         futures = {pool.submit(fn, *job): i for i, job in enumerate(jobs)}
