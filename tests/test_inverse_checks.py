@@ -91,12 +91,14 @@ def test_the_best_stage_is_the_first_of_equals_within_the_bar_and_the_last_refus
     from xshells.inverse.run import _best_stage
 
     S = SimpleNamespace(diagonal=100.0)
-    r = lambda fit, top, tag: {"fit": fit, "top": top, "design": tag, "free_ends": 0, "tracked": tag}  # noqa: E731
-    best = _best_stage([(0.5, r(0.4, 5.0, "a")), (0.25, {"why": "overlaps"}), (0.0, r(0.6, 1.0, "b")),
+    r = lambda fit, top, tag, way="up": {"fit": fit, "top": top, "design": tag, "free_ends": 0, "tracked": tag,  # noqa: E731
+                                         "direction": way}
+    best = _best_stage([(0.5, r(0.4, 5.0, "a")), (0.25, {"why": "overlaps"}), (0.0, r(0.6, 1.0, "b", "down")),
                         (0.0, r(0.6, 1.0, "c")), (0.0, {"why": "stopped"})], S)
-    # 0.4 % mean but 5 % max misses the bar: the first of the two within it is kept
-    assert best["design"] == "b" and best["mu"] == 0.0 and best["why"] == "stopped"
+    # 0.4 % mean but 5 % max misses the bar: the first of the two within it is kept, with its direction
+    assert best["design"] == "b" and best["mu"] == 0.0 and best["why"] == "stopped" and best["direction"] == "down"
     assert [c["fit_mean"] for c in best["checked"]] == [0.004, 0.006, 0.006]
+    assert [c["direction"] for c in best["checked"]] == ["up", "down", "up"]
 
 
 @pytest.mark.parametrize("workers, segments, beside", [(1, 500, False), (2, 99, False), (2, 100, True)])
@@ -116,3 +118,86 @@ def test_the_checking_process_handles_numpys_floating_point_errors_as_the_optimi
         assert set(checks._pool.submit(np.geterr).result(timeout=60).values()) == {errors}
     finally:
         checks.close()
+
+
+def _wings_both_ways(steps=10):
+    """The bundled pointy wings (rest lengths, in-plane curved beams, a 12 × 8 section stiff along d1), its
+    settled flat linkage, and its deployments asked "up" and "down"."""
+    import copy
+
+    from xshells.deploy.case import load_case, material_from_spec, target_angle
+    from xshells.deploy.simulate import DeployOptions, deploy
+    from xshells.io import read_design, read_rest_lengths
+    from xshells.linkage.linkage import Linkage
+
+    c = load_case(EXAMPLES / "asymm_wings_pointy" / "case.json")
+    d = read_design(c.design_path)
+    material = material_from_spec(c.material)
+    L = Linkage(d, material, subdivision=c.subdivision, rest_lengths=read_rest_lengths(c.rest_lengths_path, d.num_segments))
+    theta = target_angle(c, L)
+    deployed = {}
+    for direction in ("up", "down"):
+        D = copy.deepcopy(L)
+        assert deploy(D, theta, DeployOptions(steps=steps, direction=direction)).converged
+        deployed[direction] = D
+    return d, material, L, theta, deployed
+
+
+@pytest.fixture(scope="module")
+def wings_both_ways():
+    return _wings_both_ways()
+
+
+def test_the_other_direction_deploys_the_mirror_image(wings_both_ways):
+    # what check_stage relies on to score the other direction without deploying it
+    from xshells.inverse.metrics import apply, kabsch
+
+    _, _, _, _, deployed = wings_both_ways
+    up, down = deployed["up"].joint_positions(), deployed["down"].joint_positions()
+    span = np.ptp(up, axis=0).max()
+    assert np.ptp(up[:, 2]) > 0.05 * span  # it buckled
+    mirror = up * np.array([1.0, 1.0, -1.0])
+    assert np.abs(apply(kabsch(mirror, down), mirror) - down).max() <= 1e-9 * span
+    assert np.abs(apply(kabsch(up, down), up) - down).max() > 0.01 * span  # not merely the same state turned
+
+
+@pytest.mark.parametrize("asked", ["up", "down"])
+def test_a_check_asks_for_the_direction_that_deploys_the_design_onto_the_surface(wings_both_ways, asked):
+    from xshells.design.fitting import target_surface
+    from xshells.inverse.checks import CheckContext, check_stage
+    from xshells.inverse.surface import check_target
+
+    d, material, L, theta, deployed = wings_both_ways
+    surface = check_target(*target_surface(deployed["down"]))  # the surface the design reaches when asked "down"
+    ctx = CheckContext(surface, material, L.subdivision, 10, asked, theta, 0.0, np.asarray(d.edges, np.int64))
+    r = check_stage(ctx, L.vertex_positions(), L.rest_lengths, deployed["down"].joint_positions())
+    assert r["direction"] == "down"
+    # where the surface's own joints lie (a Loop-subdivided surface passes near its joints, not through them)
+    from xshells.inverse.metrics import apply, place, surface_distances
+
+    on = surface_distances(surface, deployed["down"].joint_positions())
+    assert r["fit"] == pytest.approx(np.mean(on), rel=0.05) and r["fit"] <= 0.005 * surface.diagonal
+    assert np.abs(r["tracked"] - deployed["down"].joint_positions()).max() <= 0.01 * surface.diagonal
+    up = deployed["up"].joint_positions()  # the state asked "up" reaches, placed as well as it goes: far off
+    assert np.mean(surface_distances(surface, apply(place(surface, up, deployed["down"].joint_positions()), up))) \
+        > 0.02 * surface.diagonal
+
+
+def test_the_kept_stages_direction_is_the_cases_and_the_verifications(tmp_path, monkeypatch):
+    # plumbing: a kept stage that asks "down" (as check_stage answers where the mirror image fits) is written
+    # into the case, reported, and verified by deploying it so, as `xshells deploy case.json` then does
+    import xshells.inverse.run as run
+
+    _short_design(monkeypatch)
+    real = run._best_stage
+    monkeypatch.setattr(run, "_best_stage", lambda checked, surface: {**real(checked, surface), "direction": "down"})
+    out = tmp_path / "out"
+    main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--no-heavier", "--no-refine",
+          "--buckling", "0", "--workers", "1", "--out", str(out), "--no-progress"])
+    r = json.loads((out / "result.json").read_text())
+    assert json.loads((out / "case.json").read_text())["direction"] == "down"
+    assert (r["direction"], r["direction_asked"]) == ("down", "up")
+    assert main(["deploy", str(out / "case.json"), "--out", str(tmp_path / "again"), "--no-progress"]) in (0, 1)
+    Y = np.array(json.loads((tmp_path / "again" / "result.json").read_text())["deployed"]["joint_positions"])
+    T = np.array(r["placement"])
+    assert np.abs(Y @ T[:3, :3].T + T[:3, 3] - np.array(r["deployed_joints"])).max() <= 1e-6 * DIAG

@@ -1329,10 +1329,12 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
         attached = 0 if ends is None else len(ends)
     final_design = design_from_arrays(Pf, edges)
     _write_design(out_dir, final_design, p)
+    # the kept stage's own deployment went the other way where its mirror image fits (:func:`.checks.check_stage`)
+    direction = best.get("direction") or options.direction
     case = {"name": os.path.splitext(os.path.basename(str(surface_path)))[0] + "_xshell",
             "file": "flat_design.obj", "rest_lengths": "design_parameters.txt", "material": material_spec,
             "subdivision": options.subdivision, "steps": options.steps, "angle_deg": float(options.angle),
-            "direction": options.direction}
+            "direction": direction}
     atomic_write_text(os.path.join(out_dir, "case.json"), json.dumps(case, indent=1) + "\n")
     write_drawings(out_dir, "flat_layout", final_design, p)
 
@@ -1340,7 +1342,7 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
               "surface_simplified": simplification(surface), "spacing": spacing, "angle_deg": options.angle,
               "flat_angle_deg": options.flat_angle, "orientation_deg": options.orientation, "grading_deg": options.grading, "beams": beams, "fan": options.fan if beams == "fanned" else None,
               "beta": options.beta, "beams_reason": beams_reason,
-              "direction": options.direction,
+              "direction": direction, "direction_asked": options.direction,
               "mirrored_layout": mirror, "scissor_residual": smap.residual, "held_rms": held_rms, "steadying_springs": steady if hold.steady is not None else 0.0,
               "segments": int(final_design.num_segments), "joints": int(problem.flat.L.num_joints),
               "free_ends": attached,
@@ -1362,7 +1364,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
 
     # 6. verify: deploy the case as `xshells deploy case.json` does --------------------------------
     t = time.perf_counter()
-    _verify_or_note(out_dir, result, times, t_start, lambda: _verify(out_dir, surface, net, material, options, spacing,
+    _verify_or_note(out_dir, result, times, t_start, lambda: _verify(out_dir, surface, net, material,
+                                                                     replace(options, direction=direction), spacing,
                                                                      width, best["tracked"], progress))
     times["verify_s"] = time.perf_counter() - t
     from .surface import developable_warning, total_curvature
@@ -1458,11 +1461,12 @@ def _best_stage(checked: list, surface) -> dict:
             best["why"] = r["why"]
             continue
         fit_mean, fit_max = r["fit"] / surface.diagonal, r["top"] / surface.diagonal
-        best["checked"].append({"load_factor": mu, "fit_mean": fit_mean, "fit_max": fit_max, "rise": r.get("rise")})
+        best["checked"].append({"load_factor": mu, "fit_mean": fit_mean, "fit_max": fit_max, "rise": r.get("rise"),
+                                "direction": r.get("direction")})
         rank = stage_rank(fit_mean, fit_max)
         if rank < best["rank"]:
             best.update(fit=r["fit"], rank=rank, mu=mu, design=r["design"], free_ends=r["free_ends"],
-                        tracked=r["tracked"])
+                        tracked=r["tracked"], direction=r.get("direction"))
     return best
 
 
