@@ -892,11 +892,13 @@ def test_a_stage_design_within_the_bar_ranks_before_a_lower_mean_that_misses_it(
 def test_every_checked_stage_design_is_reported(cap_run):
     _, _, r = cap_run
     checked = r["checked_stages"]
-    assert len(checked) >= 2 and all(set(c) == {"load_factor", "fit_mean", "fit_max", "rise"} for c in checked)
+    assert len(checked) >= 2 and all(set(c) == {"load_factor", "fit_mean", "fit_max", "rise", "direction"} for c in checked)
+    assert all(c["direction"] in ("up", "down") for c in checked)
     assert all(0 <= c["fit_mean"] <= c["fit_max"] for c in checked)
     assert r["chosen_stage_fit_mean"] in [c["fit_mean"] for c in checked]
     # the chosen stage's own deployment is the one verified: the same rise out of the plane
     chosen = next(c for c in checked if c["fit_mean"] == r["chosen_stage_fit_mean"])
+    assert chosen["direction"] == r["direction"]
     assert chosen["rise"] == pytest.approx(r["deployed_rise"], rel=1e-6) and chosen["rise"] > 1e-3
 
 

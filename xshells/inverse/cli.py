@@ -36,7 +36,8 @@ def register(subparsers) -> None:
     p.add_argument("--net", help="a 3D quad net (OBJ: quad faces or beam lines) drawn on or near the surface, used "
                                  "instead of the automatic one")
     p.add_argument("--direction", choices=("up", "down"), default="up",
-                   help="which way the flat layout buckles (written into the case; default up)")
+                   help="which way the flat layout buckles (written into the case; default up; a design that deploys "
+                        "onto the surface only the other way is kept with the other direction, named in the case)")
     p.add_argument("--material", help="TYPE:P1,P2,... (e.g. rectangle:10,7) or a cross-section JSON file (default rectangle 10 × 7)")
     p.add_argument("--young", type=float, help="Young's modulus (default 20000, as in the paper, MPa)")
     p.add_argument("--poisson", type=float, help="Poisson's ratio (default 0.3)")
