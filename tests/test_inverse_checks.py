@@ -183,7 +183,7 @@ def test_a_check_asks_for_the_direction_that_deploys_the_design_onto_the_surface
         > 0.02 * surface.diagonal
 
 
-def test_the_kept_stages_direction_is_the_cases_and_the_verifications(tmp_path, monkeypatch):
+def test_the_kept_stages_direction_is_the_cases_and_the_verifications(tmp_path, monkeypatch, capsys):
     # plumbing: a kept stage that asks "down" (as check_stage answers where the mirror image fits) is written
     # into the case, reported, and verified by deploying it so, as `xshells deploy case.json` then does
     import xshells.inverse.run as run
@@ -194,6 +194,8 @@ def test_the_kept_stages_direction_is_the_cases_and_the_verifications(tmp_path, 
     out = tmp_path / "out"
     main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--no-heavier", "--no-refine",
           "--buckling", "0", "--workers", "1", "--out", str(out), "--no-progress"])
+    assert "direction: down (asked up; buckling up, this design deploys to the mirror image of the surface); the case " \
+        "says down" in capsys.readouterr().out
     r = json.loads((out / "result.json").read_text())
     assert json.loads((out / "case.json").read_text())["direction"] == "down"
     assert (r["direction"], r["direction_asked"]) == ("down", "up")

@@ -115,6 +115,9 @@ def _inverse(args) -> int:
               f"(average {r['angle_deg']:g}°), {r['min_flat_angle_deg']:.1f}–{r['flat_angle_max_deg']:.1f}° flat")
     if r.get("beams"):
         print(f"  beams: {r['beams']} ({r.get('beams_reason', '')})")
+    if r.get("direction_asked") and r.get("direction") != r["direction_asked"]:
+        print(f"  direction: {r['direction']} (asked {r['direction_asked']}; buckling {r['direction_asked']}, this "
+              f"design deploys to the mirror image of the surface); the case says {r['direction']}")
     if r.get("tries"):
         t = r["tries"]
         figures = ", ".join(f"{d['beta']:g}: " + (f"{100 * d['fit_mean']:.2f}%" if d.get("fit_mean") is not None else d["status"])
