@@ -40,3 +40,12 @@ def test_coverage_of_a_plane_by_beams_is_the_strip_area():
     many = np.array([[x, y, 0.0] for x in xs for y in (-500.0, 500.0)])
     edges = np.array([[2 * k, 2 * k + 1] for k in range(6)])
     assert coverage(s, many, edges, 100.0) == pytest.approx(1.0)
+
+
+def test_the_mirror_image_reflects_through_the_plane_normal_to_the_given_direction():
+    from xshells.inverse.metrics import mirror_image
+
+    P = np.array([[1.0, 2.0, 3.0], [-4.0, 0.5, -2.0]])
+    assert np.array_equal(mirror_image(P, (0.0, 0.0, 1.0)), P * [1.0, 1.0, -1.0])
+    n = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
+    assert np.allclose(mirror_image(P, n), P[:, [1, 0, 2]] * [-1.0, -1.0, 1.0])

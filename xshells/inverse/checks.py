@@ -147,7 +147,9 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
     # image (to round-off: 1e-11 of the span, tested): where that fits better, the design's case asks for it.
     # Without this, a design whose deployment had passed to the mirror image was no longer kept, while the
     # optimization went on closing in on the surface (the pavilion's last stage: 9.2 % up, 0.47 % down).
-    mirrored, dm = _placed(ctx.surface, Y * np.array([1.0, 1.0, -1.0]), guess)
+    from .metrics import mirror_image
+
+    mirrored, dm = _placed(ctx.surface, mirror_image(Y, fwd.graph.layout_normal), guess)
     if _rank(dm, ctx.surface) < _rank(d, ctx.surface):
         direction, placed, d = OTHER_DIRECTION[ctx.direction], mirrored, dm
     return {"fit": float(np.mean(d)), "top": float(np.max(d)), "rise": float(np.ptp(fwd.rods.points[:, 2])) / span,

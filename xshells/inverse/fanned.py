@@ -366,7 +366,7 @@ def first_deployment_fit(surface: TargetSurface, net: Net, material, angle: floa
     from ..deploy.simulate import DeployOptions, deploy, rest_length_solve
     from ..io.design import design_from_arrays
     from ..linkage.linkage import Linkage
-    from .metrics import apply, place, surface_distances
+    from .metrics import apply, mirror_image, place, surface_distances
 
     L = Linkage(design_from_arrays(np.c_[net.flat, np.zeros(len(net.flat))], net.segments), material,
                 subdivision=subdivision)
@@ -377,7 +377,7 @@ def first_deployment_fit(surface: TargetSurface, net: Net, material, angle: floa
     jv = np.asarray(L.graph.joint_vertex)
     Y, n = L.joint_positions(), np.asarray(L.graph.layout_normal, float)
     fits = []
-    for Yc in (Y, Y - 2.0 * np.outer(Y @ n, n)):  # the mirrored layout deploys to the mirror image
+    for Yc in (Y, mirror_image(Y, n)):  # the mirrored layout deploys to the mirror image
         T = place(surface, Yc, net.joints[jv])
         fits.append(float(np.mean(surface_distances(surface, apply(T, Yc)))) / surface.diagonal)
     return min(fits), float(np.ptp(Y @ n))

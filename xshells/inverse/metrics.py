@@ -25,6 +25,13 @@ def apply(T: np.ndarray, P: np.ndarray) -> np.ndarray:
     return P @ T[:3, :3].T + T[:3, 3]
 
 
+def mirror_image(P: np.ndarray, normal) -> np.ndarray:
+    """Points (k, 3) reflected through the plane through the origin normal to ``normal`` (a unit 3-vector): where a
+    flat layout of that normal deploys, the other ``direction`` deploys to this image (up to a rigid motion)."""
+    n = np.asarray(normal, float)
+    return P - 2.0 * np.outer(P @ n, n)
+
+
 def surface_distances(surface: TargetSurface, P: np.ndarray) -> np.ndarray:
     """Unsigned distances (k,) of points to the surface."""
     sq, _, _ = point_mesh_squared_distance(np.asarray(P, float), surface.V, surface.F)
