@@ -61,6 +61,10 @@ def register(subparsers) -> None:
                    help="keep the design even where it misses the bar, or meets it but not within 0.5%% mean and 2%% "
                         "max (default: its net is designed again with the fit weight x16, then x4 where "
                         "x16 is not that close either, and the best kept)")
+    p.add_argument("--no-reseat", action="store_true",
+                   help="never re-seat (default: where no design checked is within 0.5%% mean and 2%% max once the load "
+                        "is let go, the optimization goes on from the state the design's own deployment from flat "
+                        "reaches, up to 2 rounds of 30 iterations)")
     p.add_argument("--polish", type=float, default=None,
                    help="after the last stage, 20 more iterations with the fit weight times this, from the design "
                         "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
@@ -92,10 +96,12 @@ def _inverse(args) -> int:
                           refine=not args.no_refine, heavier=not args.no_heavier,
                           **({} if args.max_iters is None else {"max_iters": args.max_iters}),
                           **({} if args.buckling is None else {"buckling": args.buckling}))
-    if args.polish is not None:
-        from dataclasses import replace
+    from dataclasses import replace
 
+    if args.polish is not None:
         opts = replace(opts, guide=replace(opts.guide, polish=args.polish))
+    if args.no_reseat:
+        opts = replace(opts, reseat=replace(opts.reseat, rounds=0))
     try:
         r = run_inverse(args.surface, args.out, spec, opts, net_path=args.net, progress=not args.no_progress)
     except KeyboardInterrupt as exc:  # the generic handler prints "interrupted" and exits 130; with it, what DIR holds
@@ -118,6 +124,14 @@ def _inverse(args) -> int:
     if r.get("direction_asked") and r.get("direction") != r["direction_asked"]:
         print(f"  direction: {r['direction']} (asked {r['direction_asked']}; buckling {r['direction_asked']}, this "
               f"design deploys to the mirror image of the surface); the case says {r['direction']}")
+    if r.get("chosen_stage_reseat"):
+        k, rounds = r["chosen_stage_reseat"], r.get("reseated") or []
+        done = next((d for d in rounds if d.get("round") == k), {})
+        before = (f" (the state it tracked then fitted {100 * done['tracked_fit_mean']:.2f}% mean, "
+                  f"{100 * done['tracked_fit_max']:.2f}% max, but designs' own deployments went elsewhere)"
+                  if "tracked_fit_mean" in done else "")
+        print(f"  re-seated: the kept design comes from re-seating round {k}, optimized from its own deployment from "
+              f"flat{before}")
     if r.get("tries"):
         t = r["tries"]
         figures = ", ".join(f"{d['beta']:g}: " + (f"{100 * d['fit_mean']:.2f}%" if d.get("fit_mean") is not None else d["status"])

@@ -26,7 +26,8 @@ import numpy as np
 from ..errors import InputError
 from ..io.export import atomic_write_text, finite_json
 from .board import CLOSE, close_misses, is_close
-from .guide import GuideOptions
+from .guide import GuideOptions, StageRecord
+from .reseat import ReseatOptions
 
 MAX_SEGMENTS = 5000
 #: bytes per squared segment of the design optimization's two dense state Jacobians (about 26 degrees of freedom
@@ -132,6 +133,9 @@ class InverseOptions:
         did not meet the bar closely, into ``out_dir/heavier/<factor>``, and keep the best (:func:`_heavier`);
         default True. Not with ``tries`` above 1, which sets the weights itself.
     guide : GuideOptions
+    reseat : ReseatOptions
+        Where the best design checked is not close once the load is let go, the optimization goes on from
+        the state its own deployment from flat reaches (:mod:`.reseat`; ``ReseatOptions(rounds=0)``: never).
     """
 
     spacing: float | None = None
@@ -155,6 +159,7 @@ class InverseOptions:
     refine: bool = True
     heavier: bool = True
     guide: GuideOptions = field(default_factory=GuideOptions)
+    reseat: ReseatOptions = field(default_factory=ReseatOptions)
 
 
 def _check_tries(options: InverseOptions) -> None:
@@ -1315,6 +1320,18 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     except KeyboardInterrupt:  # while waiting for the last checks: those that ended count
         interrupted, checked = True, checks.results(wait=False)
     best = _best_stage(checked, surface)
+    reseated = []
+    if stages and not interrupted:
+        try:
+            _reseat_rounds(problem, checks.ctx, surface, T0, options, net.num_segments, eps, checked, reseated, progress,
+                           stop)
+        except KeyboardInterrupt:  # the checks that ended count, as above
+            interrupted = True
+        best = _best_stage(checked, surface)
+        for r in reseated:
+            if "why" not in r:
+                stages.append(StageRecord(0.0, r["iterations"], r["J"], f"re-seated on its own deployment from flat: {r['message']}",
+                                          r["time_s"]))
     released = bool(stages) and stages[-1].load_factor == 0.0 and not interrupted and "design" in best
     times["optimize_s"] = time.perf_counter() - t
 
@@ -1348,7 +1365,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
               "free_ends": attached,
               "stages": [asdict(s) for s in stages], "load_released": released,
               "chosen_stage_load": best.get("mu"), "chosen_stage_fit_mean": best["fit"] / surface.diagonal,
-              "checked_stages": best["checked"]}
+              "checked_stages": best["checked"], "reseated": reseated,
+              "chosen_stage_reseat": best.get("reseat")}
     if interrupted or not released:
         result.update(status="interrupted" if interrupted else "stopped",
                       message="interrupted by the user: the design so far is written, not verified" if interrupted
@@ -1462,12 +1480,63 @@ def _best_stage(checked: list, surface) -> dict:
             continue
         fit_mean, fit_max = r["fit"] / surface.diagonal, r["top"] / surface.diagonal
         best["checked"].append({"load_factor": mu, "fit_mean": fit_mean, "fit_max": fit_max, "rise": r.get("rise"),
-                                "direction": r.get("direction")})
+                                "direction": r.get("direction"), **({"reseat": r["reseat"]} if "reseat" in r else {})})
         rank = stage_rank(fit_mean, fit_max)
         if rank < best["rank"]:
-            best.update(fit=r["fit"], rank=rank, mu=mu, design=r["design"], free_ends=r["free_ends"],
-                        tracked=r["tracked"], direction=r.get("direction"))
+            best.update(fit=r["fit"], top=r["top"], rank=rank, mu=mu, design=r["design"], free_ends=r["free_ends"],
+                        tracked=r["tracked"], direction=r.get("direction"), reseat=r.get("reseat"))
     return best
+
+
+def _reseat_rounds(problem, ctx, surface, T0, options: InverseOptions, segments: int, min_angle, checked: list,
+                   rounds: list, progress, stop) -> None:
+    """Re-seating rounds (:mod:`.reseat`) while the best design in ``checked`` is not close.
+
+    Appends each round's checks to ``checked`` (each marked ``reseat``: its round, from 1) and a record of the
+    round to ``rounds``. On Ctrl-C (or ``stop()``) the checks that ended are appended and KeyboardInterrupt
+    passes on."""
+    from .checks import StageChecks
+    from .metrics import apply, place
+    from .reseat import optimize_reseated, seat_direction, tracked_fit, wants_reseat
+
+    Tinv = np.linalg.inv(T0)
+    for k in range(1, options.reseat.rounds + 1):
+        if not wants_reseat(_best_stage(checked, surface), surface.diagonal):
+            return
+        t = time.perf_counter()
+        tracked = apply(Tinv, problem.deployed.L.joint_positions())  # in the surface's frame
+        before = tracked_fit(surface, tracked)
+        checks = StageChecks(ctx, beside=_checks_beside(options, segments))
+
+        def check():
+            checks.ask(0.0, problem.flat.L.vertex_positions(), problem.flat.L.rest_lengths,
+                       apply(Tinv, problem.deployed.L.joint_positions()))
+
+        bar = _stage_bar(progress, options.reseat.iterations, f"optimizing from its own deployment ({k})")
+
+        def on_iter(rec):
+            if stop is not None and stop():  # a worker asked to stop: as Ctrl-C
+                raise KeyboardInterrupt
+            if bar is not None and rec.iteration:
+                bar.set_postfix(J=f"{rec.J:.4g}")
+                bar.update(1)
+            return False
+
+        direction = seat_direction(checked, options.direction)
+        try:
+            r = optimize_reseated(problem, lambda Y: T0 @ place(surface, Y, tracked), options.steps, direction,
+                                  options.reseat, min_angle=min_angle, check=check, callback=on_iter)
+        except KeyboardInterrupt:
+            checked += [(mu, {**c, "reseat": k}) for mu, c in checks.results(wait=False)]
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        checked += [(mu, {**c, "reseat": k}) for mu, c in checks.results(wait=True)]
+        rounds.append({"round": k, "direction": direction, "tracked_fit_mean": before[0], "tracked_fit_max": before[1],
+                       **r, "time_s": time.perf_counter() - t})
+        if "why" in r:
+            return
 
 
 def _write_design(out_dir, design, p) -> None:
