@@ -154,3 +154,26 @@ def test_the_command_says_when_the_kept_design_was_re_seated_and_never_re_seats_
     assert "re-seated" not in capsys.readouterr().out
     r = json.loads((tmp_path / "b" / "result.json").read_text())
     assert r["reseated"] == [] and r["chosen_stage_reseat"] is None
+
+
+def test_ctrl_c_while_re_seating_keeps_the_best_design_checked_so_far(tmp_path, monkeypatch):
+    import xshells.inverse.reseat as reseat
+    import xshells.inverse.run as run
+
+    _short_design(monkeypatch)
+    monkeypatch.setattr(reseat, "wants_reseat", lambda best, diagonal: True)
+
+    def interrupted(problem, onto_tracked, steps, direction, options, min_angle=None, check=None, callback=None):
+        assert reseat.seat(problem, onto_tracked, steps, direction) == ""
+        check()  # one design checked in the round, then Ctrl-C
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(reseat, "optimize_reseated", interrupted)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run.run_inverse(str(CAP), str(out), {}, run.InverseOptions(
+            spacing=DIAG / 6, beams="even", heavier=False, refine=False, buckling=0.0, workers=1), progress=False)
+    r = json.loads((out / "result.json").read_text())
+    assert r["status"] == "interrupted" and (out / "flat_design.obj").is_file() and (out / "case.json").is_file()
+    # the check that ended before Ctrl-C counts; the round itself did not end
+    assert [c.get("reseat") for c in r["checked_stages"]][-1] == 1 and r["reseated"] == []
