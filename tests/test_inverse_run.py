@@ -332,7 +332,8 @@ def test_max_iters_is_the_budget_of_the_last_stage(tmp_path, monkeypatch):
 
     monkeypatch.setattr(guide, "guided_optimization", spy)
     code = main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--max-iters", "3",
-                 "--no-heavier", "--out", str(tmp_path), "--no-progress"])  # (the heavier designs run in workers)
+                 "--no-heavier", "--no-reseat", "--out", str(tmp_path), "--no-progress"])  # (the heavier designs run in
+    # workers; re-seating would add stages of its own)
     assert code in (0, 1) and seen["final"] == 3
     with open(tmp_path / "result.json") as fh:
         stages = json.load(fh)["stages"]
@@ -439,9 +440,9 @@ def test_a_free_end_that_crowds_a_neighbouring_beam_is_left_off(tmp_path, monkey
 
     monkeypatch.setattr(clearance, "crowded_segments", crowded)
     spacing = f"{DIAG / 6:.3f}"
-    main(["inverse", str(CAP), "--spacing", spacing, "--beams", "even", "--no-heavier", "--workers", "1", "--out",
-          str(tmp_path), "--no-progress"])  # (--no-heavier, --workers 1: the heavier designs and the stage checks
-    # would run in processes of their own, without the stand-ins above)
+    main(["inverse", str(CAP), "--spacing", spacing, "--beams", "even", "--no-heavier", "--no-reseat", "--workers", "1",
+          "--out", str(tmp_path), "--no-progress"])  # (--no-heavier, --workers 1: the heavier designs and the stage
+    # checks would run in processes of their own, without the stand-ins above; --no-reseat: one check)
     r = json.loads((tmp_path / "result.json").read_text())
     # every free end the net has, less the one
     S = load_target(CAP)
@@ -470,7 +471,9 @@ def test_a_curved_developable_surface_is_named_in_a_warning_and_in_the_miss(tmp_
     path = tmp_path / "barrel.obj"
     path.write_text("".join(f"v {p[0]} {p[1]} {p[2]}\n" for p in V) + "".join(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in F))
     # (--no-heavier: the heavier designs run in workers, without the short stage above)
-    code = main(["inverse", str(path), "--beams", "even", "--no-heavier", "--out", str(tmp_path / "out"), "--no-progress"])
+    # (--no-reseat: this is the miss of a design that stays in the plane; re-seated, its design buckled)
+    code = main(["inverse", str(path), "--beams", "even", "--no-heavier", "--no-reseat", "--out", str(tmp_path / "out"),
+                 "--no-progress"])
     err = capsys.readouterr().err
     assert "warning" in err and "the surface is developable" in err  # --no-progress keeps warnings (recheck 50)
     r = json.loads((tmp_path / "out" / "result.json").read_text())
@@ -892,7 +895,9 @@ def test_a_stage_design_within_the_bar_ranks_before_a_lower_mean_that_misses_it(
 def test_every_checked_stage_design_is_reported(cap_run):
     _, _, r = cap_run
     checked = r["checked_stages"]
-    assert len(checked) >= 2 and all(set(c) == {"load_factor", "fit_mean", "fit_max", "rise", "direction"} for c in checked)
+    assert len(checked) >= 2 and all(set(c) - {"reseat"} == {"load_factor", "fit_mean", "fit_max", "rise", "direction"}
+                                     for c in checked)
+    assert all(c["reseat"] in (1, 2) for c in checked if "reseat" in c)  # a re-seating round's checks say which
     assert all(c["direction"] in ("up", "down") for c in checked)
     assert all(0 <= c["fit_mean"] <= c["fit_max"] for c in checked)
     assert r["chosen_stage_fit_mean"] in [c["fit_mean"] for c in checked]
