@@ -128,7 +128,7 @@ def _inverse(args) -> int:
         k, rounds = r["chosen_stage_reseat"], r.get("reseated") or []
         done = next((d for d in rounds if d.get("round") == k), {})
         before = (f" (the state it tracked then fitted {100 * done['tracked_fit_mean']:.2f}% mean, "
-                  f"{100 * done['tracked_fit_max']:.2f}% max, but designs' own deployments went elsewhere)"
+                  f"{100 * done['tracked_fit_max']:.2f}% max, where no design's own deployment had come within 0.5% / 2%)"
                   if "tracked_fit_mean" in done else "")
         print(f"  re-seated: the kept design comes from re-seating round {k}, optimized from its own deployment from "
               f"flat{before}")
