@@ -128,11 +128,11 @@ def seat_direction(checked: list, asked: str) -> str:
 
 def wants_reseat(best: dict, diagonal: float) -> bool:
     """Whether the best design checked so far (:func:`.run._best_stage`) is not close (:data:`.board.CLOSE`)."""
-    from .board import CLOSE
+    from .board import close_misses
 
     if "design" not in best:
         return True
-    return best["fit"] / diagonal > CLOSE["fit_mean"] or best["top"] / diagonal > CLOSE["fit_max"]
+    return close_misses({"fit_mean": best["fit"] / diagonal, "fit_max": best["top"] / diagonal}) > 0
 
 
 def tracked_fit(surface, joints) -> tuple:
