@@ -207,3 +207,84 @@ def test_the_kept_stages_direction_is_the_cases_and_the_verifications(tmp_path, 
     Y = np.array(json.loads((tmp_path / "again" / "result.json").read_text())["deployed"]["joint_positions"])
     T = np.array(r["placement"])
     assert np.abs(Y @ T[:3, :3].T + T[:3, 3] - np.array(r["deployed_joints"])).max() <= 1e-6 * DIAG
+
+
+# ------------------------------------------------------------------ guided deployments (xshells.deploy.guide)
+def test_a_guided_check_settles_into_the_tracked_equilibrium(wings_both_ways):
+    # deployed "up", the wings reach the mirror image of the "down" state the surface was made from; guided into the
+    # tracked ("down") state, the same design settles there with no load: onto the surface
+    import copy
+
+    from xshells.design.fitting import target_surface
+    from xshells.deploy.guide import rigid_fit
+    from xshells.inverse.checks import CheckContext, guided_check
+    from xshells.inverse.surface import check_target
+
+    d, material, L, theta, deployed = wings_both_ways
+    surface = check_target(*target_surface(deployed["down"]))
+    ctx = CheckContext(surface, material, L.subdivision, 10, "up", theta, 0.0, np.asarray(d.edges, np.int64), guide=True)
+    down = deployed["down"].joint_positions()
+    placed, dist, lin = guided_check(ctx, copy.deepcopy(L), down)
+    Y, span = lin.joint_positions(), float(np.ptp(down, axis=0).max())
+    assert np.abs(rigid_fit(down, Y) - Y).max() <= 1e-7 * span
+    assert np.mean(dist) <= 0.005 * surface.diagonal and np.abs(placed - down).max() <= 0.01 * surface.diagonal
+    # guided into the state the deployment reaches anyway, it goes back there: nothing to keep, no guide to write
+    assert guided_check(ctx, copy.deepcopy(L), deployed["up"].joint_positions()) is None
+
+
+def test_a_guide_is_tried_only_where_the_deployment_is_not_close_and_the_tracked_state_fits_better(wings_both_ways):
+    from xshells.design.fitting import target_surface
+    from xshells.inverse.checks import wants_guide
+    from xshells.inverse.surface import check_target
+
+    _, _, _, _, deployed = wings_both_ways
+    surface = check_target(*target_surface(deployed["down"]))
+    down, diag = deployed["down"].joint_positions(), surface.diagonal
+    n = len(down)
+    far = np.full(n, 0.03 * diag)  # a deployment 3 % off: not close
+    assert wants_guide(surface, far, down)  # the tracked state lies on the surface
+    assert not wants_guide(surface, np.full(n, 0.001 * diag), down)  # close already
+    assert not wants_guide(surface, far, down + np.array([0.0, 0.0, 0.2 * diag]))  # the tracked state fits worse
+
+
+def test_a_kept_guided_stage_writes_its_guide_and_the_case_deploys_it(tmp_path, monkeypatch, capsys):
+    # plumbing: a kept stage with a guide (as check_stage answers where the guided deployment fits better) is written
+    # with deploy_guide.txt, which the case names, the verification follows and `xshells deploy case.json` reproduces
+    import xshells.inverse.run as run
+
+    _short_design(monkeypatch)
+    real = run._best_stage
+
+    def guided(checked, surface):
+        best = real(checked, surface)
+        return {**best, "guide": best["tracked"]} if "tracked" in best else best
+
+    monkeypatch.setattr(run, "_best_stage", guided)
+    out = tmp_path / "out"
+    main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--no-heavier", "--no-refine",
+          "--buckling", "0", "--workers", "1", "--out", str(out), "--no-progress"])
+    assert "guided: case.json names deploy_guide.txt" in capsys.readouterr().out
+    r = json.loads((out / "result.json").read_text())
+    assert json.loads((out / "case.json").read_text())["guide"] == "deploy_guide.txt"
+    assert r["chosen_stage_guided"] and r["deploy_guide"]["held"]
+    assert r["deploy_guide"]["moved"] <= 1e-6  # guided into the state it reaches anyway: the same equilibrium
+    assert main(["deploy", str(out / "case.json"), "--out", str(tmp_path / "again"), "--no-progress"]) in (0, 1)
+    again = json.loads((tmp_path / "again" / "result.json").read_text())
+    assert again["guide"]["held"]
+    Y = np.array(again["deployed"]["joint_positions"])
+    T = np.array(r["placement"])
+    assert np.abs(Y @ T[:3, :3].T + T[:3, 3] - np.array(r["deployed_joints"])).max() <= 1e-6 * DIAG
+
+
+def test_an_adopted_design_without_a_guide_leaves_no_guide_file_behind(tmp_path):
+    from xshells.inverse.run import GUIDE_FILE, _copy_outputs, _write_guide
+
+    src, dst = tmp_path / "src", tmp_path / "dst"
+    src.mkdir()
+    dst.mkdir()
+    assert _write_guide(str(dst), np.ones((3, 3)) * np.arange(3)[:, None]) == str(dst / GUIDE_FILE)
+    (src / "case.json").write_text("{}")
+    _copy_outputs(str(src), str(dst))
+    assert not (dst / GUIDE_FILE).exists() and (dst / "case.json").exists()
+    _write_guide(str(dst), np.ones((3, 3)) * np.arange(3)[:, None])
+    assert _write_guide(str(dst), None) is None and not (dst / GUIDE_FILE).exists()

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..deploy.case import load_case, material_from_spec, target_angle
+from ..deploy.case import case_guide, load_case, material_from_spec, target_angle
 from ..deploy.simulate import DeployOptions, deploy, rest_length_solve, rest_length_warning
 from ..errors import STOP, InputError
 from ..io.design import read_design, read_rest_lengths
@@ -65,7 +65,8 @@ def dense_deployment(case_path, *, angle_deg=None, progress=False) -> DenseDeplo
 
         bar = tqdm(total=case.steps, desc=f"dense deployment of {case.name}", unit="step")
     try:
-        res = deploy(L, target, DeployOptions(steps=case.steps, direction=case.direction), callback=(lambda rec: bar.update(1) and False) if bar else None)
+        res = deploy(L, target, DeployOptions(steps=case.steps, direction=case.direction, guide=case_guide(case, L.num_joints)),
+                     callback=(lambda rec: bar.update(1) and False) if bar else None)
     finally:
         if bar is not None:
             bar.close()

@@ -110,11 +110,12 @@ def write_mesh(path, mesh, field: str | None = None) -> None:
 
 
 def write_case(path, name: str, layout: Layout, material: dict, subdivision: int, angle_deg: float | None,
-               rest_lengths=None, direction: str = "up", steps: int | None = None) -> list[str]:
+               rest_lengths=None, direction: str = "up", steps: int | None = None, guide=None) -> list[str]:
     """Write a case JSON that ``xshells deploy`` and the app reload, with its design (and rest lengths) beside it.
 
     ``direction`` and ``steps`` are the deployment's (which way, and in how
-    many increments, the flat state buckles: both decide the branch).
+    many increments, the flat state buckles: both decide the branch);
+    ``guide`` (nj, 3) the case's guide (:mod:`xshells.deploy.guide`), written beside it.
     Returns the paths written.
     """
     from ..io.export import write_design_obj
@@ -137,6 +138,13 @@ def write_case(path, name: str, layout: Layout, material: dict, subdivision: int
         atomic_write_text(os.path.join(folder, rl_name), "".join(f"{v!r}\n" for v in np.asarray(rest_lengths, float).tolist()))
         spec["rest_lengths"] = rl_name
         written.append(os.path.join(folder, rl_name))
+    if guide is not None:
+        from ..deploy.guide import guide_text
+
+        guide_name = f"{stem}_guide.txt"
+        atomic_write_text(os.path.join(folder, guide_name), guide_text(guide))
+        spec["guide"] = guide_name
+        written.append(os.path.join(folder, guide_name))
     atomic_write_text(path, json.dumps(spec, indent=1) + "\n")
     return [path] + written
 

@@ -50,6 +50,8 @@ class Project:
     steps : int
         Angle increments of a deployment from the flat state (a case's ``steps``); the branch it
         buckles into can depend on them, so the app deploys with the command line's.
+    guide : (nj, 3) float or None
+        A case's guide (:mod:`xshells.deploy.guide`), for the deployments from the flat state.
     """
 
     name: str
@@ -62,6 +64,7 @@ class Project:
     note: str | None = None
     steps: int = DEFAULT_STEPS
     to_file: tuple | None = None  # (A (2, 3), b (3,)): layout xy → the file's coordinates, xy @ A + b; None: the same
+    guide: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def open_path(path: str) -> Project:
@@ -81,8 +84,11 @@ def open_path(path: str) -> Project:
         design = read_design(case.design_path)
         p = read_rest_lengths(case.rest_lengths_path, design.num_segments, design) if case.rest_lengths_path else None
         angle = np.degrees(case.angle_rad) if case.angle_rad is not None else None
+        from ..deploy.case import case_guide
+
+        guide = case_guide(case, None)  # counted against the linkage's joints when it deploys
         return Project(case.name, layout_from_design(design), dict(case.material), case.subdivision, angle, p, case.direction,
-                       note=design_note(design), to_file=file_frame(design), steps=case.steps)
+                       note=design_note(design), to_file=file_frame(design), steps=case.steps, guide=guide)
     if ext in DESIGN_SUFFIXES:
         design = read_design(path)
         layout = layout_from_design(design)
@@ -196,6 +202,8 @@ class UploadStore:
             raise InputError(f"{name}: uploaded cases support parametric materials only (type, params, E, nu)")
         if case.rest_lengths:
             raise InputError(f"{name}: rest-length files are not read from uploads; remove 'rest_lengths'")
+        if case.guide:
+            raise InputError(f"{name}: guide files are not read from uploads; remove 'guide' (open the case by path)")
         if case.open_by_deg is not None:
             raise InputError(f"{name}: the app deploys to an angle, not by one: give angle_deg instead of open_by_deg")
         angle = case.angle_deg if case.angle_deg is not None else (

@@ -460,11 +460,22 @@ class Session:
                 self._sims = [e for e in self._sims if e[0] != key][-(SIM_CACHE - 1):] + [(key, layout, sim)]
         return sim
 
+    def _guide_for(self, layout):
+        """The project's guide where ``layout`` has as many joints as it has rows (an edit that adds or removes
+        joints leaves it out), else None."""
+        guide = self.project.guide
+        if guide is None:
+            return None
+        from ..linkage.graph import analyze
+        from .core import layout_to_design
+
+        return guide if analyze(layout_to_design(layout)).num_joints == len(guide) else None
+
     def _settings(self):
         """The simulation settings of the project: its buckling direction and deployment steps, as ``xshells deploy``'s."""
         from .sim import SimSettings
 
-        return SimSettings(direction=self.project.direction, steps=self.project.steps)
+        return SimSettings(direction=self.project.direction, steps=self.project.steps, guide=self.project.guide)
 
     def _view(self, sim, t0: float, info=None) -> View:
         from ..linkage.export import scalar_fields, swept_mesh
@@ -811,7 +822,8 @@ class Session:
                                     "another branch (*Compare with a cold deployment* shows which)")
             return exports.write_case(self._path(".json"), self.name, layout, self.material_spec, self.subdivision,
                                       self.angle_deg if self.angle_deg is not None else self.target_angle_deg, given,
-                                      direction=self.project.direction, steps=self.project.steps)
+                                      direction=self.project.direction, steps=self.project.steps,
+                                      guide=self._guide_for(layout))
         if kind in ("obj", "ply", "gltf", "glb", "png"):
             sim = self.sim
             if sim is None:

@@ -15,7 +15,7 @@ import bisect
 import inspect
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -50,12 +50,16 @@ class SimSettings:
         Deployed states kept for the animation (oldest extra states dropped).
     steps : int
         Angle increments of a deployment from the flat state (a case's ``steps``, as ``xshells deploy``).
+    guide : (nj, 3) float or None
+        A case's guide (:mod:`xshells.deploy.guide`): a deployment from the flat state ends held on it and let
+        go, as ``xshells deploy`` does. Used while the layout has as many joints, else left out.
     """
 
     max_step_deg: float = 6.0
     direction: str = "up"
     max_stored: int = 400
     steps: int = DeployOptions().steps
+    guide: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -304,8 +308,12 @@ class Simulation:
         if progress is not None:  # the start relaxation (before the first step) reports nothing by itself
             progress(0.0, f"{np.degrees(self.flat_angle):.1f}° (relaxing the flat state before the first step)")
         kw = {"newton_callback": self._stopper(cancel)} if _DEPLOY_TAKES_NEWTON_CALLBACK and cancel is not None else {}
-        result = deploy(L, target, DeployOptions(steps=self.settings.steps, direction=self.settings.direction),
+        guide = self.settings.guide
+        guide = guide if guide is not None and len(guide) == L.num_joints else None  # a topology edit leaves it out
+        result = deploy(L, target, DeployOptions(steps=self.settings.steps, direction=self.settings.direction, guide=guide),
                         callback=step, **kw)
+        if result.converged and guide is not None:  # the guided state replaces the last step's stored one
+            self._store(float(self._a @ L.get_vars()), self._info(True, 0))
         if result.converged:
             self.current_angle = float(self._a @ L.get_vars())
             return self.nearest_state(self.current_angle)[2]

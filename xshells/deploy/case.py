@@ -3,7 +3,8 @@
 Keys: ``file`` (design; ``flat_file`` wins when present), ``subdivision``,
 ``material`` (``{type, E, nu, params, stiff_axis}`` or ``{type: "contour",
 contour_file, E, nu}``), one of ``angle_deg``, ``angle_rad`` or
-``open_by_deg``, ``steps`` and ``rest_lengths`` (a file). Paths are relative
+``open_by_deg``, ``steps``, ``rest_lengths`` (a file), ``direction`` and
+``guide`` (a file of joint positions: :mod:`xshells.deploy.guide`). Paths are relative
 to the case file. The schema (types, ranges, units) is
 :mod:`xshells.io.case_schema`, published as ``docs/case.schema.json``.
 """
@@ -29,6 +30,7 @@ class Case:
     steps: int = 40
     rest_lengths_path: str | None = None
     direction: str = "up"
+    guide_path: str | None = None
 
 
 DEFAULT_MATERIAL = {"type": "rectangle", "E": 20000.0, "nu": 0.3, "params": [10.0, 7.0]}
@@ -72,7 +74,18 @@ def load_case(path) -> Case:
         steps=case.steps,
         rest_lengths_path=rel(case.rest_lengths) if case.rest_lengths else None,
         direction=case.direction or "up",
+        guide_path=rel(case.guide) if case.guide else None,
     )
+
+
+def case_guide(case: Case, num_joints: int | None):
+    """The case's guide (nj, 3) (:mod:`.guide`), or None where it names none (``num_joints`` None: its rows are
+    not counted here; :func:`.simulate.deploy` counts them)."""
+    if case.guide_path is None:
+        return None
+    from .guide import read_guide
+
+    return read_guide(case.guide_path, num_joints)
 
 
 def material_spec_from_option(option: str | None, young: float | None = None, poisson: float | None = None,

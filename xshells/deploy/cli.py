@@ -33,6 +33,9 @@ def register(subparsers) -> None:
     p.add_argument("--rest-lengths", help="per-segment rest lengths file (skips the rest-length solve)")
     p.add_argument("--direction", choices=["up", "down"], help="which way the flat state buckles: up = its middle rises along the layout normal "
                    "(default: the case's direction, else up)")
+    p.add_argument("--guide", help="a file of deployed joint positions ('x y z' per joint): at the target angle the shell "
+                                   "is held on them and let go, to settle into that equilibrium (default: the case's "
+                                   "guide, else none; docs/case.md)")
     p.add_argument("--start", choices=["auto", "average", "central-joint"], default="auto",
                    help="how the assembly state is held while it first relaxes: at its average angle, or by the central "
                         "joint's angle alone (auto: the average, unless that folds a joint at once; where both do, "
@@ -79,7 +82,7 @@ def _deploy(args) -> int:
                   steps=case.steps if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else case.angle_rad,
                   open_by=case.open_by_rad, rest_lengths_path=args.rest_lengths or case.rest_lengths_path, name=case.name,
-                  direction=args.direction or case.direction)
+                  direction=args.direction or case.direction, guide_path=args.guide or case.guide_path)
         design = case.design_path
     else:
         spec = _material_spec_from_args(args)
@@ -87,7 +90,8 @@ def _deploy(args) -> int:
         kw = dict(subdivision=10 if args.subdivision is None else args.subdivision,
                   steps=40 if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else None,
-                  rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input), direction=args.direction or "up")
+                  rest_lengths_path=args.rest_lengths, name=os.path.basename(args.input), direction=args.direction or "up",
+                  guide_path=args.guide)
         design = args.input
     result = run_deployment(design, material, out_dir=args.out, start=args.start, progress=not args.no_progress,
                             strength=material_strength(spec), background=True, **kw)

@@ -230,7 +230,7 @@ def _assembly_state(design_path, material, subdivision, rest_lengths_path, progr
 
 def run_deployment(design_path, material, *, out_dir, subdivision=10, target_angle=None, open_by=None, steps=40,
                    rest_lengths_path=None, direction="up", progress=True, name=None, start="auto", states=None,
-                   strength=None, background=False) -> dict:
+                   strength=None, background=False, guide_path=None) -> dict:
     """Build the linkage, find its assembly state, deploy it and write the outputs into ``out_dir``.
 
     ``states``, a dict if given, receives copies of the ``"flat"`` and
@@ -241,6 +241,8 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
     while the deployment goes on (:mod:`xshells.deploy.background`; the
     command line's choice), not in this process in turn, where at least
     3/4 of a core idled while the linkage was built and its rest lengths solved.
+    ``guide_path``: a guide file (:mod:`.guide`): at the target angle the shell
+    is held on its joint positions and let go.
 
     Returns the ``result.json`` content. Interrupting (Ctrl-C) keeps and
     writes the steps finished so far.
@@ -253,6 +255,11 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         idle = IdleCores()
     design, p, linkage, warnings, printed, t_rest = _assembly_state(design_path, material, subdivision,
                                                                     rest_lengths_path, progress)
+    guide = None
+    if guide_path is not None:  # read before the deployment: a bad file is refused at once, not after the steps
+        from .guide import read_guide
+
+        guide = read_guide(guide_path, linkage.num_joints)
     flat = _state_summary(linkage)
     flat_angles = linkage.joint_angles().copy()  # for the joint table of the fabrication files
     flat_xy = None  # the fabrication files' layout: the drawn one, or the flat state that a file's rest lengths relax to
@@ -302,7 +309,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         try:  # an interrupt from here on keeps what is done: the flat files, the steps so far, result.json
             writer = _start_writer(out_dir, linkage, design, background and idle.idle() >= 0.75)
             t2 = time.perf_counter()
-            res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start),
+            res = deploy(linkage, target_angle, DeployOptions(steps=steps, direction=direction, start=start, guide=guide),
                          callback=on_step)
             STOP.check()
         except KeyboardInterrupt:
@@ -327,7 +334,7 @@ def run_deployment(design_path, material, *, out_dir, subdivision=10, target_ang
         result = _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows, strength, {
             "name": name, "flat": flat, "target_angle_deg": float(np.degrees(target_angle)), "warnings": warnings,
             "timings_s": {"rest_length_solve": t_rest, "deploy": t_deploy}, "steps": [rec for rec, _ in finished],
-            "flat_xy": flat_xy},
+            "flat_xy": flat_xy, "guide_path": None if guide_path is None else str(guide_path)},
             t0, writer)
         writer = None
     finally:
@@ -431,6 +438,10 @@ def _finish(out_dir, linkage, design, res, interrupted, flat_angles, stress_rows
     }
     if res is not None:
         _note_refined_steps(result, res)
+        if res.guide is not None:  # what the guide did (.guide.GuideReport); a guide not followed is warned of
+            result["guide"] = {"file": head.get("guide_path"), **asdict(res.guide)}
+            if not res.guide.held:
+                result["warnings"].append(res.guide.note)
         # how the assembly state was held when it first relaxed (see DeployOptions.start)
         result["start"] = {"mode": res.start, "average_angle_deg": res.start_angle_deg, "note": res.start_note}
     buf = io.StringIO()

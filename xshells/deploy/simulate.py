@@ -72,6 +72,11 @@ class DeployOptions:
         that folds a joint as well, "average" again with a first step of 2,
         4, then 8 increments (the swimming ray's narrow joint 118 folds on
         a short first step and stays open on a longer one).
+    guide : (nj, 3) float, optional
+        Joint positions of the equilibrium wanted where the design has more
+        than one: once the target angle is reached, the shell is held on
+        them by springs and let go (:mod:`.guide`). The result is the
+        equilibrium it settles into, with no load.
     max_buckling_step_deg : float
         A step longer than this (degrees) that starts flat and ends buckled out
         of plane is redone from its flat start in sub-steps no longer than
@@ -103,6 +108,8 @@ class DeployOptions:
     collapse_ratio: float = 1e-2
     start: str = "auto"
     max_buckling_step_deg: float = 15.0
+    guide: np.ndarray | None = field(default=None, repr=False, compare=False)
+
 
 
 @dataclass
@@ -139,6 +146,8 @@ class DeploymentResult:
     start_note: str = ""
     # steps redone in sub-steps because they buckled the flat layout in one coarse step (DeployOptions.max_buckling_step_deg)
     refined_steps: list = field(default_factory=list)
+    # what the guide did (:class:`.guide.GuideReport`), where DeployOptions.guide asked for one
+    guide: object = None
 
 
 class _RestLengthProblem:
@@ -286,6 +295,10 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         raise InputError(f"direction must be 'up' or 'down', got {options.direction!r}")
     if options.start not in ("auto", "average", "central-joint"):
         raise InputError(f"start must be 'auto', 'average' or 'central-joint', got {options.start!r}")
+    if options.guide is not None:  # a bad guide is refused before the deployment, not after it
+        from .guide import check_guide
+
+        check_guide(options.guide, linkage.num_joints)
     if not (0 < target_angle < np.pi):
         raise InputError(f"target angle {np.degrees(target_angle):.4g}° is out of reach: an opening angle must lie strictly between 0° and 180°")
     start = time.perf_counter()
@@ -552,10 +565,36 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         if result.start_note:
             result.message += f" (start: {result.start_note})"
 
+    def guided() -> None:
+        """Held on the guide at the target angle and let go (:func:`.guide.settle_into`), once the target is reached."""
+        from .guide import check_guide, settle_into
+
+        if options.guide is None or not result.converged:
+            return
+        guide = check_guide(options.guide, linkage.num_joints)
+        final = NewtonOptions(**{**newton.__dict__,
+                                 "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
+        result.guide = settle_into(linkage, guide, a, target_angle, edge_vars[active],
+                                   lambda: solve(target_angle, final))
+        why = inversion(linkage.get_vars()) if result.guide.held else ""
+        if why:
+            restore(linkage, kept["state"])
+            result.guide.held = False
+            result.guide.note = f"let go from the guide, {why}; the state reached is kept"
+        if result.guide.held:  # the last step's record describes the state the guide led to
+            parts, last = linkage.energy_parts(), result.steps[-1]
+            result.torque = float(np.mean(linkage.gradient()[linkage.angle_indices()[joints]]))
+            result.steps[-1] = StepRecord(last.step, float(np.degrees(a @ linkage.get_vars())), parts.total, parts.stretch,
+                                          parts.bend, parts.twist, result.torque, max_abs_z(linkage.joint_positions()),
+                                          last.iterations, last.converged)
+            kept["state"] = snapshot(linkage)
+        result.message += f"; {result.guide.note}"
+
     result.start, result.start_angle_deg = "average", float(np.degrees(alpha0))
     kept = {"state": snapshot(linkage)}  # the last finished equilibrium (the start until a step ends)
     try:
         start_and_steps()
+        guided()
     except BaseException:
         # Ctrl-C, SIGTERM (the command line raises KeyboardInterrupt) or an error inside a solve: the linkage
         # is left in the last finished equilibrium, as a run that stops on its own leaves it, never in the

@@ -15,66 +15,17 @@ one Cholesky factor of ``H + ρ a aᵀ`` (one of them, with ``a``, cached).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
 
 from ..linkage.derivatives import hessian_derivative_product
 from ..solve import NewtonOptions, NotPositiveDefinite, SparseCholesky, minimize
+from ..solve.tether import Tether, Tethered as _Tethered  # noqa: F401  (Tether: the springs' home was here)
 
 #: columns per block of :meth:`ConstrainedEquilibrium._kkt_solve_free`'s projection (a temporary of f × 16)
 _PROJECTION_COLUMNS = 16
-
-
-@dataclass(frozen=True)
-class Tether:
-    """Springs ``½ k Σ (x_r − t_r)²`` pulling the variables ``rows`` toward ``targets``.
-
-    Attributes
-    ----------
-    k : float
-        Stiffness (force per length for position variables).
-    rows : (r,) int
-    targets : (r,) float
-    """
-
-    k: float
-    rows: np.ndarray
-    targets: np.ndarray
-
-    def energy(self, x) -> float:
-        d = x[self.rows] - self.targets
-        return 0.5 * self.k * float(d @ d)
-
-    def gradient(self, x) -> np.ndarray:
-        g = np.zeros(len(x))
-        g[self.rows] = self.k * (x[self.rows] - self.targets)
-        return g
-
-    def diagonal(self, n: int) -> sp.csr_matrix:
-        """``k`` on the tethered rows of an (n, n) matrix."""
-        return sp.csr_matrix((np.full(len(self.rows), self.k), (self.rows, self.rows)), shape=(n, n))
-
-
-class _Tethered:
-    """A linkage plus a tether, as a Newton problem (the rest is the linkage's)."""
-
-    def __init__(self, linkage, tether: Tether):
-        self._L, self._t = linkage, tether
-
-    def __getattr__(self, name):
-        return getattr(self._L, name)
-
-    def energy(self):
-        return self._L.energy() + self._t.energy(self._L.get_vars())
-
-    def gradient(self):
-        return np.asarray(self._L.gradient(), float) + self._t.gradient(self._L.get_vars())
-
-    def hessian(self):
-        H = self._L.hessian()
-        return (H + self._t.diagonal(H.shape[0])).tocsr()
 
 
 class ConstrainedEquilibrium:

@@ -9,7 +9,7 @@ from dataclasses import asdict
 
 import numpy as np
 
-from ..deploy.case import load_case, material_from_spec, target_angle
+from ..deploy.case import case_guide, load_case, material_from_spec, target_angle
 from ..deploy.run import _write_outputs, bending_field
 from ..deploy.simulate import DeployOptions, deploy, rest_length_solve, rest_length_warning
 from ..errors import InputError
@@ -75,7 +75,8 @@ def build_problem(case_path, *, weights: DesignWeights, angle_deg=None, target_s
 
         bar = tqdm(total=steps, desc=f"deploying {case.name}", unit="step")
     try:
-        res = deploy(D, target, DeployOptions(steps=steps, direction=case.direction), callback=(lambda rec: bar.update(1) and False) if bar else None)
+        res = deploy(D, target, DeployOptions(steps=steps, direction=case.direction, guide=case_guide(case, D.num_joints)),
+                     callback=(lambda rec: bar.update(1) and False) if bar else None)
     finally:
         if bar is not None:
             bar.close()
@@ -195,9 +196,11 @@ STATE_TOLERANCE = 1e-6
 case, ``result.json`` warns (its figures are always the fresh deployment's)."""
 
 
-def _write_case(case_path, out_dir, target: float, name: str) -> str:
+def _write_case(case_path, out_dir, target: float, name: str, guide=None) -> str:
     """``OUT/case.json``: the input case with the optimized rest lengths (``design_parameters.txt``) and the
-    run's target angle, its paths relative to ``out_dir``; returns its path."""
+    run's target angle, its paths relative to ``out_dir``; returns its path. Where the input case names a guide
+    (:mod:`xshells.deploy.guide`), the optimized deployed joints ``guide`` (nj, 3) are the written case's
+    (``deploy_guide.txt``): the optimization followed that equilibrium, not the one the old guide described."""
     from ..io.strict_json import loads
 
     with open(case_path) as fh:
@@ -219,6 +222,11 @@ def _write_case(case_path, out_dir, target: float, name: str) -> str:
     for key in ("angle_rad", "open_by_deg"):
         spec.pop(key, None)
     spec.update(name=name, angle_deg=float(np.degrees(target)), rest_lengths="design_parameters.txt")
+    if spec.get("guide"):
+        from ..deploy.guide import guide_text
+
+        atomic_write_text(os.path.join(out_dir, "deploy_guide.txt"), guide_text(guide))
+        spec["guide"] = "deploy_guide.txt"
     path = os.path.join(out_dir, "case.json")
     atomic_write_text(path, json.dumps(spec, indent=1) + "\n")
     return path
@@ -226,10 +234,9 @@ def _write_case(case_path, out_dir, target: float, name: str) -> str:
 
 def _aligned(A, B):
     """``B`` (n, 3) moved rigidly onto ``A`` (least squares, no reflection)."""
-    ca, cb = A.mean(axis=0), B.mean(axis=0)
-    U, _, Vt = np.linalg.svd((B - cb).T @ (A - ca))
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    return (B - cb) @ (U @ np.diag([1.0, 1.0, d]) @ Vt) + ca
+    from ..deploy.guide import rigid_fit
+
+    return rigid_fit(B, A)
 
 
 def _deploy_written_case(case_json, out_dir, problem, optimizer_final):
@@ -243,7 +250,7 @@ def _deploy_written_case(case_json, out_dir, problem, optimizer_final):
     deployed = run_deployment(case.design_path, material_from_spec(case.material), out_dir=os.path.join(out_dir, "deploy"),
                    subdivision=case.subdivision, target_angle=case.angle_rad, steps=case.steps,
                    rest_lengths_path=case.rest_lengths_path, direction=case.direction, progress=False, name=case.name,
-                   states=states)
+                   states=states, guide_path=case.guide_path)
     distances = {}
     for state, eq in (("flat", problem.flat), ("deployed", problem.deployed)):
         A, B = eq.L.rods.points, states[state].rods.points
@@ -309,7 +316,7 @@ def run_optimize(case_path, out_dir, *, weights: DesignWeights = DesignWeights()
     optimizer_final = _summary(problem, res.q)
     p = res.rest_lengths
     atomic_write_text(os.path.join(out_dir, "design_parameters.txt"), "".join(f"{v:.17g}\n" for v in p))
-    written_case = _write_case(case_path, out_dir, problem.deployed.angle, name)
+    written_case = _write_case(case_path, out_dir, problem.deployed.angle, name, problem.deployed.L.joint_positions())
     # what is reported is what `xshells deploy OUT/case.json` reaches: the written case, deployed afresh
     final, fresh, distances = _deploy_written_case(written_case, out_dir, problem, optimizer_final)
     warnings = list(problem.input_warnings)

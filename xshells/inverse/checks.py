@@ -18,6 +18,7 @@ last bit.
 """
 from __future__ import annotations
 
+import copy
 import signal
 from dataclasses import dataclass
 
@@ -44,6 +45,9 @@ class CheckContext:
         The net's segments (joint indices of the flat vertices).
     ends : FreeEnds or None
         The free ends to attach (:mod:`.free_ends`).
+    guide : bool
+        Whether a stage whose deployment from flat is not close may be deployed again, guided into the state the
+        optimization tracks (:func:`guided_check`), and kept so where that fits better.
     """
 
     surface: object
@@ -55,6 +59,7 @@ class CheckContext:
     width: float
     edges: np.ndarray
     ends: object = None
+    guide: bool = False
 
 
 def stage_arrays(Pv: np.ndarray, p: np.ndarray, edges, ends=None):
@@ -124,7 +129,8 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
         deployment left the layout's plane, relative to the flat span: about 0 where it never buckled),
         ``design`` (Pf, edges, p), ``free_ends`` (attached), ``tracked`` (the placed deployed joints, (j, 3)) and
         ``direction``: the case's direction that deploys it so, ``ctx.direction`` unless the mirror image of
-        that deployment (the other direction's) fits better.
+        that deployment (the other direction's) fits better; ``guide`` (j, 3) where the deployment guided into
+        the tracked state fits better (:func:`guided_check`), else None.
     """
     from ..deploy.simulate import DeployOptions, deploy
     from ..linkage.clearance import beam_overlaps
@@ -138,6 +144,7 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
     if overlap:  # not buildable: the verification would refuse it
         return {"why": f"the flat layout is not buildable: {overlap}"}
     span = float(np.ptp(fwd.rods.points, axis=0).max())  # the flat span, as the verification's rise is measured
+    flat = copy.deepcopy(fwd) if ctx.guide else None  # for a guided deployment from the same flat state
     res = deploy(fwd, ctx.theta, DeployOptions(steps=ctx.steps, direction=ctx.direction))
     if not res.converged:
         return {"why": f"its deployment from flat stopped: {res.message}"}
@@ -152,9 +159,46 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
     mirrored, dm = _placed(ctx.surface, mirror_image(Y, fwd.graph.layout_normal), guess)
     if _rank(dm, ctx.surface) < _rank(d, ctx.surface):
         direction, placed, d = OTHER_DIRECTION[ctx.direction], mirrored, dm
+    guide = None
+    if flat is not None and wants_guide(ctx.surface, d, guess):
+        guided = guided_check(ctx, flat, guess)
+        if guided is not None and _rank(guided[1], ctx.surface) < _rank(d, ctx.surface):
+            placed, d, fwd = guided
+            direction, guide = ctx.direction, np.array(guess, float)
     return {"fit": float(np.mean(d)), "top": float(np.max(d)), "rise": float(np.ptp(fwd.rods.points[:, 2])) / span,
             "design": made, "direction": direction,
-            "free_ends": 0 if used is None else len(used), "tracked": placed}
+            "free_ends": 0 if used is None else len(used), "tracked": placed, "guide": guide}
+
+
+#: a guided state this close to the unguided one (largest joint distance over the span) is the same equilibrium
+#: (measured: 1e-11 where the guide led back to it), and the check keeps the unguided one, with no guide to write
+SAME_STATE = 1e-6
+
+
+def wants_guide(surface, d: np.ndarray, guess: np.ndarray) -> bool:
+    """Whether a guided deployment is worth trying: the deployment from flat (joint distances ``d``) is not close
+    (:data:`.board.CLOSE`), and the state the optimization tracks (``guess``, placed on the surface) fits better."""
+    from .board import close_misses
+    from .metrics import surface_distances
+
+    diag = surface.diagonal
+    if not close_misses({"fit_mean": float(np.mean(d)) / diag, "fit_max": float(np.max(d)) / diag}):
+        return False
+    return _rank(surface_distances(surface, np.asarray(guess, float)), surface) < _rank(d, surface)
+
+
+def guided_check(ctx: CheckContext, flat, guess: np.ndarray):
+    """The design's deployment from its flat state ``flat`` (a linkage, deployed in place) guided into the tracked
+    state ``guess`` (:mod:`xshells.deploy.guide`), as a case naming ``guess`` as its guide deploys it:
+    ``(placed joints (j, 3), their distances (j,), the linkage)``, or None where the guide was not followed, the
+    shell let go went back to the state the deployment from flat reaches (:data:`SAME_STATE`), or the deployment
+    stopped."""
+    from ..deploy.simulate import DeployOptions, deploy
+
+    res = deploy(flat, ctx.theta, DeployOptions(steps=ctx.steps, direction=ctx.direction, guide=np.asarray(guess, float)))
+    if not res.converged or res.guide is None or not res.guide.held or res.guide.moved <= SAME_STATE:
+        return None  # not followed, or let go it went back to the equilibrium the deployment from flat reaches
+    return (*_placed(ctx.surface, flat.joint_positions(), guess), flat)
 
 
 OTHER_DIRECTION = {"up": "down", "down": "up"}

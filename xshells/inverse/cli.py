@@ -65,6 +65,11 @@ def register(subparsers) -> None:
                    help="never re-seat (default: where no design checked is within 0.5%% mean and 2%% max once the load "
                         "is let go, the optimization goes on from the state the design's own deployment from flat "
                         "reaches, up to 2 rounds of 30 iterations)")
+    p.add_argument("--no-deploy-guide", action="store_true",
+                   help="never guide a deployment (default: where a stage's deployment from flat is not within 0.5%% "
+                        "mean and 2%% max and the state the optimization tracks fits better, it is deployed again, held "
+                        "on that state and let go, and kept so where that fits better; its case then names "
+                        "deploy_guide.txt)")
     p.add_argument("--polish", type=float, default=None,
                    help="after the last stage, 20 more iterations with the fit weight times this, from the design "
                         "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
@@ -93,7 +98,7 @@ def _inverse(args) -> int:
                           direction=args.direction, subdivision=args.subdivision, steps=args.steps,
                           force=args.force, grading=args.grading, beams=args.beams, fan=args.fan,
                           free_ends=not args.no_free_ends, workers=args.workers, tries=args.tries,
-                          refine=not args.no_refine, heavier=not args.no_heavier,
+                          refine=not args.no_refine, heavier=not args.no_heavier, deploy_guide=not args.no_deploy_guide,
                           **({} if args.max_iters is None else {"max_iters": args.max_iters}),
                           **({} if args.buckling is None else {"buckling": args.buckling}))
     from dataclasses import replace
@@ -132,6 +137,12 @@ def _inverse(args) -> int:
                   if "tracked_fit_mean" in done else "")
         print(f"  re-seated: the kept design comes from re-seating round {k}, optimized from its own deployment from "
               f"flat{before}")
+    guided = r.get("deploy_guide")
+    if r.get("chosen_stage_guided") and guided:
+        print(f"  guided: case.json names deploy_guide.txt, the state the optimization tracked; held there and let "
+              f"go, the shell stays {100 * guided['released_rms']:.2g}% of its span from it (RMS), "
+              f"{100 * guided['moved']:.2g}% from the equilibrium its deployment from flat reaches alone (largest "
+              f"joint){'' if guided['held'] else '; NOT followed: ' + guided['note']}")
     if r.get("tries"):
         t = r["tries"]
         figures = ", ".join(f"{d['beta']:g}: " + (f"{100 * d['fit_mean']:.2f}%" if d.get("fit_mean") is not None else d["status"])

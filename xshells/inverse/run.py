@@ -133,6 +133,11 @@ class InverseOptions:
         did not meet the bar closely, into ``out_dir/heavier/<factor>``, and keep the best (:func:`_heavier`);
         default True. Not with ``tries`` above 1, which sets the weights itself.
     guide : GuideOptions
+    deploy_guide : bool
+        Where a stage's deployment from flat is not close and the state the optimization tracks fits better,
+        deploy it again guided into that state (:mod:`xshells.deploy.guide`: held on it and let go) and keep
+        the better; a design kept so is written with its guide (``deploy_guide.txt``, the case's ``guide``).
+        Default True.
     reseat : ReseatOptions
         Where the best design checked is not close once the load is let go, the optimization goes on from
         the state its own deployment from flat reaches (:mod:`.reseat`; ``ReseatOptions(rounds=0)``: never).
@@ -159,6 +164,7 @@ class InverseOptions:
     refine: bool = True
     heavier: bool = True
     guide: GuideOptions = field(default_factory=GuideOptions)
+    deploy_guide: bool = True
     reseat: ReseatOptions = field(default_factory=ReseatOptions)
 
 
@@ -1157,6 +1163,8 @@ def _copy_outputs(src: str, dst: str) -> None:
             shutil.copytree(a, b)
         elif name != "result.json":
             shutil.copy2(a, b)
+    if not os.path.exists(os.path.join(src, GUIDE_FILE)) and os.path.exists(os.path.join(dst, GUIDE_FILE)):
+        os.remove(os.path.join(dst, GUIDE_FILE))  # the adopted design deploys without one: dst's is another's
 
 
 def _design_with_net(surface_path, out_dir, material_spec: dict, options: InverseOptions, net_path, progress,
@@ -1299,7 +1307,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
 
     Tinv = np.linalg.inv(T0)
     checks = StageChecks(CheckContext(surface, material, options.subdivision, options.steps, options.direction,
-                                      theta, width, np.asarray(design.edges, np.int64), ends),
+                                      theta, width, np.asarray(design.edges, np.int64), ends,
+                                      guide=options.deploy_guide),
                          beside=_checks_beside(options, net.num_segments))
 
     def after_stage(mu):
@@ -1346,12 +1355,13 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
         attached = 0 if ends is None else len(ends)
     final_design = design_from_arrays(Pf, edges)
     _write_design(out_dir, final_design, p)
+    guide_path = _write_guide(out_dir, best.get("guide"))
     # the kept stage's own deployment went the other way where its mirror image fits (:func:`.checks.check_stage`)
     direction = best.get("direction") or options.direction
     case = {"name": os.path.splitext(os.path.basename(str(surface_path)))[0] + "_xshell",
             "file": "flat_design.obj", "rest_lengths": "design_parameters.txt", "material": material_spec,
             "subdivision": options.subdivision, "steps": options.steps, "angle_deg": float(options.angle),
-            "direction": direction}
+            "direction": direction, **({"guide": GUIDE_FILE} if guide_path else {})}
     atomic_write_text(os.path.join(out_dir, "case.json"), json.dumps(case, indent=1) + "\n")
     write_drawings(out_dir, "flat_layout", final_design, p)
 
@@ -1366,7 +1376,7 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
               "stages": [asdict(s) for s in stages], "load_released": released,
               "chosen_stage_load": best.get("mu"), "chosen_stage_fit_mean": best["fit"] / surface.diagonal,
               "checked_stages": best["checked"], "reseated": reseated,
-              "chosen_stage_reseat": best.get("reseat")}
+              "chosen_stage_reseat": best.get("reseat"), "chosen_stage_guided": guide_path is not None}
     if interrupted or not released:
         result.update(status="interrupted" if interrupted else "stopped",
                       message="interrupted by the user: the design so far is written, not verified" if interrupted
@@ -1384,7 +1394,7 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     t = time.perf_counter()
     _verify_or_note(out_dir, result, times, t_start, lambda: _verify(out_dir, surface, net, material,
                                                                      replace(options, direction=direction), spacing,
-                                                                     width, best["tracked"], progress))
+                                                                     width, best["tracked"], progress, guide_path))
     times["verify_s"] = time.perf_counter() - t
     from .surface import developable_warning, total_curvature
 
@@ -1480,11 +1490,12 @@ def _best_stage(checked: list, surface) -> dict:
             continue
         fit_mean, fit_max = r["fit"] / surface.diagonal, r["top"] / surface.diagonal
         best["checked"].append({"load_factor": mu, "fit_mean": fit_mean, "fit_max": fit_max, "rise": r.get("rise"),
-                                "direction": r.get("direction"), **({"reseat": r["reseat"]} if "reseat" in r else {})})
+                                "direction": r.get("direction"), "guided": r.get("guide") is not None,
+                                **({"reseat": r["reseat"]} if "reseat" in r else {})})
         rank = stage_rank(fit_mean, fit_max)
         if rank < best["rank"]:
             best.update(fit=r["fit"], top=r["top"], rank=rank, mu=mu, design=r["design"], free_ends=r["free_ends"],
-                        tracked=r["tracked"], direction=r.get("direction"), reseat=r.get("reseat"))
+                        tracked=r["tracked"], direction=r.get("direction"), reseat=r.get("reseat"), guide=r.get("guide"))
     return best
 
 
@@ -1547,7 +1558,25 @@ def _write_design(out_dir, design, p) -> None:
     atomic_write_text(os.path.join(out_dir, "design_parameters.txt"), "".join(f"{v:.17g}\n" for v in p))
 
 
-def _verify(out_dir, surface, net, material, options, spacing, width, guess, progress) -> dict:
+#: the kept design's guide file (:mod:`xshells.deploy.guide`), where its deployment is guided
+GUIDE_FILE = "deploy_guide.txt"
+
+
+def _write_guide(out_dir, guide) -> str | None:
+    """``out_dir/deploy_guide.txt`` from the joint positions ``guide`` (j, 3), or an earlier one removed where
+    ``guide`` is None; returns its path or None."""
+    from ..deploy.guide import guide_text
+
+    path = os.path.join(out_dir, GUIDE_FILE)
+    if guide is None:
+        if os.path.exists(path):  # an earlier stage's or run's: the case written now does not name it
+            os.remove(path)
+        return None
+    atomic_write_text(path, guide_text(guide))
+    return path
+
+
+def _verify(out_dir, surface, net, material, options, spacing, width, guess, progress, guide_path=None) -> dict:
     from ..deploy.run import run_deployment
     from ..deploy.simulate import folded_joint
     from ..viz.render import render_fit
@@ -1560,7 +1589,7 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
     dep = run_deployment(os.path.join(out_dir, "flat_design.obj"), material, out_dir=os.path.join(out_dir, "deploy"),
                          subdivision=options.subdivision, target_angle=np.radians(options.angle), steps=options.steps,
                          rest_lengths_path=os.path.join(out_dir, "design_parameters.txt"), direction=options.direction,
-                         progress=progress is True, name="inverse design", states=states)
+                         progress=progress is True, name="inverse design", states=states, guide_path=guide_path)
     if relayed is not None:
         relayed.update(1)
         relayed.close()
@@ -1628,4 +1657,6 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
         "flat_planarity": flat_z, "deployed_rise": rise, "folded": folded, "overlap": overlap,
         "min_eigenvalue_at_fixed_angle": eig,
         "deploy": {"reached": dep["reached"], "message": dep["message"], "time_s": dep["timings_s"]["total"]},
+        # what the case's guide did (:class:`xshells.deploy.guide.GuideReport`); None: the case names none
+        "deploy_guide": dep.get("guide"),
     }

@@ -112,6 +112,10 @@ class CaseFile(_Strict):
                                         description="a file of per-segment rest lengths (design parameters) that replaces the rest-length solve")
     direction: Optional[Literal["up", "down"]] = Field(
         None, description="which way the flat state buckles: up (default) = its middle rises along the layout normal")
+    guide: Optional[str] = Field(
+        None, min_length=1,
+        description="a file of deployed joint positions, one 'x y z' line per joint: at the target angle the shell is held "
+                    "on them and let go, to settle into that equilibrium where the design has more than one")
     # informational keys of the paper's cases.json, kept so that its entries load as they are
     figure: Optional[str] = Field(None, description="informational: the paper's figure")
     description: Optional[str] = Field(None, description="informational: free text")
@@ -312,6 +316,24 @@ def markdown() -> str:
                "with type `contour` and only then; `params` for every type but the rectangle (which defaults "
                "to 10 × 7); types and grades are case-insensitive. The published schema states these rules "
                "too (`not`, `allOf` with `if`/`then`, case-insensitive patterns).")
+    out.extend(["", "## `guide`", "",
+                "A design can have more than one stable equilibrium at its deployed angle, and the deployment from "
+                "flat reaches one of them (the `direction` chooses between mirror images only). A `guide` names "
+                "another: a text file with one `x y z` line per joint, in the design's joint order and units, in "
+                "any rigid placement (`#` starts a comment). Once the deployment reaches its angle, springs on the "
+                "joints pull the shell onto the guide, their stiffness raised in steps until it is within 5 % of a "
+                "segment of it; then the springs are taken away at once and the shell is solved to equilibrium at "
+                "the same angle, with no load. In the workshop: open the shell, push it into shape, let go.", "",
+                "What is reported is the equilibrium it settles into, with its own stability check: the guide "
+                "carries no force in the result, and a guide that is no equilibrium is left (the shell settles "
+                "where its beams take it). `result.json`'s `guide` says how far the state let go lies from the "
+                "guide (`released_rms`, relative to the span) and from where the deployment from flat ended "
+                "(`moved`, largest joint), and both energies. Where the springs cannot bring the shell close to "
+                "the guide, the state the deployment reached is kept, with a warning. `xshells inverse` writes a "
+                "guide (`deploy_guide.txt`) where its design's deployment from flat reaches another equilibrium "
+                "than the one it fitted (docs/inverse.md, \"Guided deployments\"); where its input case names a "
+                "guide, `xshells optimize` writes its optimized state as the guide of the case it writes; the app follows a case's guide while the "
+                "layout keeps its joints. `xshells deploy --guide FILE` gives one on the command line."])
     return "\n".join(out) + "\n"
 
 
