@@ -221,3 +221,11 @@ def test_an_uploaded_case_with_a_guide_is_refused_in_one_line():
         store.open_upload("nonuniform_linkage.obj", fh.read())
     with pytest.raises(InputError, match="guide files are not read from uploads"):
         store.open_upload("case.json", json.dumps({"file": "nonuniform_linkage.obj", "guide": "g.txt"}).encode())
+
+
+def test_analyze_puts_the_guided_state_on_its_supports(guided_case, tmp_path):
+    case, out = guided_case
+    assert main(["analyze", str(case), "--supports", "lowest:4", "--load", "point:3:0,0,-1e-9", "--no-critical",
+                 "--out", str(tmp_path / "a"), "--no-progress"]) == 0
+    dep = json.loads((tmp_path / "a" / "deploy" / "result.json").read_text())
+    assert dep["guide"]["held"] and dep["deployed"]["energy"] == pytest.approx(out["down"].energy(), rel=1e-9)

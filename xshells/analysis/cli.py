@@ -51,7 +51,7 @@ def _analyze(args) -> int:
                   steps=case.steps if args.steps is None else args.steps,
                   target_angle=np.radians(args.angle) if args.angle is not None else case.angle_rad,
                   open_by=case.open_by_rad, rest_lengths_path=case.rest_lengths_path, name=case.name,
-                  direction=case.direction)
+                  direction=case.direction, guide_path=case.guide_path)
         design = case.design_path
     else:
         spec = material_spec_from_option(args.material, args.young, args.poisson, grade=args.grade,

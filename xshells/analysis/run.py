@@ -65,8 +65,10 @@ def parse_load(text: str) -> Load:
 
 def run_analysis(design_path, material, *, out_dir, supports_spec, support_type="pinned", loads=(), joints="locked",
                  load_factor=1.0, strength=None, density_given=True, subdivision=10, target_angle=None, open_by=None,
-                 steps=40, rest_lengths_path=None, direction="up", name=None, progress=True, critical=True) -> dict:
-    """Deploy (as ``xshells deploy``, outputs in ``out_dir/deploy``), then analyse under the loads."""
+                 steps=40, rest_lengths_path=None, direction="up", name=None, progress=True, critical=True,
+                 guide_path=None) -> dict:
+    """Deploy (as ``xshells deploy``, outputs in ``out_dir/deploy``; with the case's guide, ``guide_path``), then
+    analyse under the loads."""
     from ..deploy.run import run_deployment
     from .static import (critical_load_factor, free_rigid_modes, held_variables, load_vector, lowest_supports,
                          reactions, smallest_eigenvalue)
@@ -98,7 +100,8 @@ def run_analysis(design_path, material, *, out_dir, supports_spec, support_type=
     states = {}
     dep = run_deployment(design_path, material, out_dir=os.path.join(out_dir, "deploy"), subdivision=subdivision,
                          target_angle=target_angle, open_by=open_by, steps=steps, rest_lengths_path=rest_lengths_path,
-                         direction=direction, progress=progress, name=name, states=states, strength=strength)
+                         direction=direction, progress=progress, name=name, states=states, strength=strength,
+                         guide_path=guide_path)
     if not dep["reached"]:
         raise InputError(f"the deployment did not reach its angle ({dep['message']}): nothing to analyse")
     L = states["deployed"]
