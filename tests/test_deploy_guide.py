@@ -229,3 +229,20 @@ def test_analyze_puts_the_guided_state_on_its_supports(guided_case, tmp_path):
                  "--out", str(tmp_path / "a"), "--no-progress"]) == 0
     dep = json.loads((tmp_path / "a" / "deploy" / "result.json").read_text())
     assert dep["guide"]["held"] and dep["deployed"]["energy"] == pytest.approx(out["down"].energy(), rel=1e-9)
+
+
+def test_ctrl_c_while_held_on_the_guide_keeps_the_state_reached(both_ways, monkeypatch):
+    import xshells.deploy.guide as guide
+
+    L, out = both_ways
+
+    def interrupted(linkage, *args, **kw):
+        x = linkage.get_vars()
+        linkage.set_vars(x + 1e-3)  # half-way somewhere: must not be what is left
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(guide, "settle_into", interrupted)
+    D = copy.deepcopy(L)
+    with pytest.raises(KeyboardInterrupt):
+        deploy(D, np.radians(60), DeployOptions(steps=4, direction="up", guide=out["down"].joint_positions()))
+    assert np.array_equal(D.get_vars(), out["up"].get_vars())  # the last finished equilibrium: the state reached

@@ -72,11 +72,6 @@ class DeployOptions:
         that folds a joint as well, "average" again with a first step of 2,
         4, then 8 increments (the swimming ray's narrow joint 118 folds on
         a short first step and stays open on a longer one).
-    guide : (nj, 3) float, optional
-        Joint positions of the equilibrium wanted where the design has more
-        than one: once the target angle is reached, the shell is held on
-        them by springs and let go (:mod:`.guide`). The result is the
-        equilibrium it settles into, with no load.
     max_buckling_step_deg : float
         A step longer than this (degrees) that starts flat and ends buckled out
         of plane is redone from its flat start in sub-steps no longer than
@@ -88,6 +83,11 @@ class DeployOptions:
         reached the same equilibrium in 354 Newton iterations instead of 160);
         two_asymm_bumps in 3 steps of 24.9° buckled down when asked up, in 4 of
         18.7° (and 5 to 50) up. ``inf``: never redone.
+    guide : (nj, 3) float, optional
+        Joint positions of the equilibrium wanted where the design has more
+        than one: once the target angle is reached, the shell is held on
+        them by springs and let go (:mod:`.guide`). The result is the
+        equilibrium it settles into, with no load.
     """
 
     steps: int = 40
@@ -109,7 +109,6 @@ class DeployOptions:
     start: str = "auto"
     max_buckling_step_deg: float = 15.0
     guide: np.ndarray | None = field(default=None, repr=False, compare=False)
-
 
 
 @dataclass
@@ -566,29 +565,18 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
             result.message += f" (start: {result.start_note})"
 
     def guided() -> None:
-        """Held on the guide at the target angle and let go (:func:`.guide.settle_into`), once the target is reached."""
-        from .guide import check_guide, settle_into
-
+        """Held on the guide at the target angle and let go (:func:`_guided_end`), once the target is reached."""
+        nonlocal active
         if options.guide is None or not result.converged:
             return
-        guide = check_guide(options.guide, linkage.num_joints)
         final = NewtonOptions(**{**newton.__dict__,
                                  "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
-        result.guide = settle_into(linkage, guide, a, target_angle, edge_vars[active],
-                                   lambda: solve(target_angle, final))
-        why = inversion(linkage.get_vars()) if result.guide.held else ""
-        if why:
-            restore(linkage, kept["state"])
-            result.guide.held = False
-            result.guide.note = f"let go from the guide, {why}; the state reached is kept"
-        if result.guide.held:  # the last step's record describes the state the guide led to
-            parts, last = linkage.energy_parts(), result.steps[-1]
-            result.torque = float(np.mean(linkage.gradient()[linkage.angle_indices()[joints]]))
-            result.steps[-1] = StepRecord(last.step, float(np.degrees(a @ linkage.get_vars())), parts.total, parts.stretch,
-                                          parts.bend, parts.twist, result.torque, max_abs_z(linkage.joint_positions()),
-                                          last.iterations, last.converged)
+        before = active.copy()
+        if _guided_end(linkage, result, options.guide, a, target_angle, joints, edge_vars[active],
+                       lambda: solve(target_angle, final), inversion, kept["state"]):
             kept["state"] = snapshot(linkage)
-        result.message += f"; {result.guide.note}"
+        else:
+            active = before  # the state reached, with its own bounds
 
     result.start, result.start_angle_deg = "average", float(np.degrees(alpha0))
     kept = {"state": snapshot(linkage)}  # the last finished equilibrium (the start until a step ends)
@@ -607,6 +595,34 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     _final_checks(linkage, result, a, pins, edge_vars[active])
     result.time_s = time.perf_counter() - start
     return result
+
+
+def _guided_end(linkage: Linkage, result: DeploymentResult, guide, a, angle: float, joints, held_edges, release,
+                inversion, reached) -> bool:
+    """The deployed ``linkage`` held on ``guide`` and let go (:func:`.guide.settle_into`); whether it settled.
+
+    ``result.guide`` gets the report and ``result.message`` its note; where the shell settled, the last step's
+    record is the settled state's. Where it did not, or settled with a joint folded (``inversion(x)`` says why),
+    the linkage is put back in the state ``reached`` (a snapshot).
+    """
+    from ..linkage.state import restore
+    from .guide import check_guide, settle_into
+
+    result.guide = settle_into(linkage, check_guide(guide, linkage.num_joints), a, angle, held_edges, release)
+    why = inversion(linkage.get_vars()) if result.guide.held else ""
+    if why:
+        restore(linkage, reached)
+        result.guide.held = False
+        result.guide.note = f"let go from the guide, {why}; the state reached is kept"
+    result.message += f"; {result.guide.note}"
+    if not result.guide.held:
+        return False
+    parts, last = linkage.energy_parts(), result.steps[-1]
+    result.torque = float(np.mean(linkage.gradient()[linkage.angle_indices()[joints]]))
+    result.steps[-1] = StepRecord(last.step, float(np.degrees(a @ linkage.get_vars())), parts.total, parts.stretch,
+                                  parts.bend, parts.twist, result.torque, max_abs_z(linkage.joint_positions()),
+                                  last.iterations, last.converged)
+    return True
 
 
 def _final_checks(linkage: Linkage, result: DeploymentResult, a, pins, held_edges) -> None:
