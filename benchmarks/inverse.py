@@ -1,7 +1,8 @@
 """Target-first design benchmark (issue 18): ``xshells inverse`` on analytic and realizable targets.
 
 One row per target, each run in its own process (its peak memory is its own):
-the net it kept (``auto``: even, the best screened fan, or geodesic),
+the net it kept (``auto``: even, the best screened fan, or geodesic; ``x16``:
+the heavier fit weight kept; ``g``: its deployment is guided, docs/case.md),
 segments, fit mean / max (share of the surface's diagonal), coverage, whether
 it meets the bar, the time of each stage of the kept design, and the whole
 run's time (the fan screen and every candidate: ``all s``).
@@ -180,7 +181,7 @@ def one(name: str, tmp: str, grading: float = 0.0, beams: str = "auto", max_iter
             "valid": r.get("valid", False), "tracked_rms": r.get("tracked_rms", float("nan")),
             "beams": r.get("beams", ""), "fan": (r.get("beams_reason") or "").split("fanned net of fan ")[-1].split(" ")[0]
             if r.get("beams") == "fanned" else "", "all_s": r.get("time_s", float("nan")),
-            "heavier": (r.get("heavier") or {}).get("kept", ""),
+            "heavier": (r.get("heavier") or {}).get("kept", ""), "guided": bool(r.get("chosen_stage_guided")),
             "times": r["stage_times_s"], "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
@@ -222,7 +223,8 @@ def main() -> int:
         t = r["times"]
         # the fit weight's factor where a heavier one was kept (step 11 of docs/inverse.md's method)
         beams = r["beams"] + (f" {r['fan']}" if r["fan"] else "") + \
-            (f" x{r['heavier']}" if r.get("heavier") not in ("", "default", None) else "")
+            (f" x{r['heavier']}" if r.get("heavier") not in ("", "default", None) else "") + \
+            (" g" if r.get("guided") else "")  # a guided deployment (the case's guide, docs/case.md)
         # the mean to three decimals: the realizable bar is 0.5 %, and 0.505 % is not within it
         print(f"{r['target']:10} {r['kind']:10} {beams:12} {r['segments']:5d} {100 * r['fit_mean']:8.3f}% {100 * r['fit_max']:7.2f}% "
               f"{100 * r['coverage']:5.1f}% {'yes' if r['meets_bar'] else 'no':>4} {'yes' if r['valid'] else 'no':>5} "
