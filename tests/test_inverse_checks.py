@@ -73,7 +73,7 @@ def test_after_ctrl_c_only_the_checks_that_ended_count():
 def test_a_check_whose_process_died_is_run_here(monkeypatch):
     import xshells.inverse.checks as checks
 
-    monkeypatch.setattr(checks, "check_stage", lambda ctx, Pv, p, guess: {"why": f"here {len(p)}"})
+    monkeypatch.setattr(checks, "check_stage", lambda ctx, Pv, p, guess, try_guide=True: {"why": f"here {len(p)}"})
     stage = checks.StageChecks(checks.CheckContext(None, None, 8, 30, "up", 1.0, 0.0, np.zeros((0, 2), np.int64)),
                                beside=True)
     pool = stage._pool
@@ -230,6 +230,7 @@ def test_a_guided_check_settles_into_the_tracked_equilibrium(wings_both_ways):
     assert np.mean(dist) <= 0.005 * surface.diagonal and np.abs(placed - down).max() <= 0.01 * surface.diagonal
     # guided into the state the deployment reaches anyway, it goes back there: nothing to keep, no guide to write
     assert guided_check(ctx, copy.deepcopy(L), deployed["up"].joint_positions()) is None
+    assert guided_check(ctx, copy.deepcopy(L), down[:-1]) is None  # not one row per joint: no guide, no error
 
 
 def test_a_guide_is_tried_only_where_the_deployment_is_not_close_and_the_tracked_state_fits_better(wings_both_ways):
@@ -288,3 +289,16 @@ def test_an_adopted_design_without_a_guide_leaves_no_guide_file_behind(tmp_path)
     assert not (dst / GUIDE_FILE).exists() and (dst / "case.json").exists()
     _write_guide(str(dst), np.ones((3, 3)) * np.arange(3)[:, None])
     assert _write_guide(str(dst), None) is None and not (dst / GUIDE_FILE).exists()
+
+
+@pytest.mark.parametrize("mu, tried", [(0.5, False), (0.0, True)])
+def test_a_guide_is_tried_only_at_the_stages_without_load(monkeypatch, mu, tried):
+    # under a load the tracked state is held there by it: no equilibrium of the design alone for a guide to find
+    import xshells.inverse.checks as checks
+
+    seen = []
+    monkeypatch.setattr(checks, "check_stage", lambda ctx, Pv, p, guess, try_guide=True: seen.append(try_guide) or {})
+    stage = checks.StageChecks(checks.CheckContext(None, None, 8, 30, "up", 1.0, 0.0, np.zeros((0, 2), np.int64),
+                                                   guide=True))
+    stage.ask(mu, np.zeros((1, 3)), np.zeros(1), np.zeros((1, 3)))
+    assert seen == [tried]
