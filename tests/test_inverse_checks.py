@@ -210,27 +210,39 @@ def test_the_kept_stages_direction_is_the_cases_and_the_verifications(tmp_path, 
 
 
 # ------------------------------------------------------------------ guided deployments (xshells.deploy.guide)
-def test_a_guided_check_settles_into_the_tracked_equilibrium(wings_both_ways):
+def test_a_guided_check_settles_into_the_tracked_equilibrium(wings_both_ways, monkeypatch):
     # deployed "up", the wings reach the mirror image of the "down" state the surface was made from; guided into the
-    # tracked ("down") state, the same design settles there with no load: onto the surface
+    # tracked ("down") state, the same design settles there with no load: onto the surface. The guide is chosen once
+    # the target is reached, and the state is the one a case naming it deploys to from flat, to the last bit.
     import copy
 
-    from xshells.design.fitting import target_surface
+    import xshells.inverse.checks as checks
     from xshells.deploy.guide import rigid_fit
-    from xshells.inverse.checks import CheckContext, guided_check
+    from xshells.deploy.simulate import DeployOptions, deploy
+    from xshells.design.fitting import target_surface
     from xshells.inverse.surface import check_target
 
     d, material, L, theta, deployed = wings_both_ways
     surface = check_target(*target_surface(deployed["down"]))
-    ctx = CheckContext(surface, material, L.subdivision, 10, "up", theta, 0.0, np.asarray(d.edges, np.int64), guide=True)
+    ctx = checks.CheckContext(surface, material, L.subdivision, 10, "up", theta, 0.0, np.asarray(d.edges, np.int64),
+                              guide=True)
     down = deployed["down"].joint_positions()
-    placed, dist, lin = guided_check(ctx, copy.deepcopy(L), down)
+    monkeypatch.setattr(checks, "wants_guide", lambda surface, d, guess: True)  # the mirror image would fit as well
+    lin = copy.deepcopy(L)
+    res, unguided, guided = checks.deployed_fits(ctx, lin, down, True)
+    assert res.converged and res.guide.held and unguided[0] == "down"  # unguided: the mirror image, asked down
+    direction, placed, dist, rise = guided
     Y, span = lin.joint_positions(), float(np.ptp(down, axis=0).max())
+    assert direction == "up" and rise > 0.05
     assert np.abs(rigid_fit(down, Y) - Y).max() <= 1e-7 * span
     assert np.mean(dist) <= 0.005 * surface.diagonal and np.abs(placed - down).max() <= 0.01 * surface.diagonal
+    case = copy.deepcopy(L)  # as `xshells deploy case.json` with the guide deploys it
+    assert deploy(case, theta, DeployOptions(steps=10, direction="up", guide=down)).converged
+    assert np.array_equal(case.get_vars(), lin.get_vars())
     # guided into the state the deployment reaches anyway, it goes back there: nothing to keep, no guide to write
-    assert guided_check(ctx, copy.deepcopy(L), deployed["up"].joint_positions()) is None
-    assert guided_check(ctx, copy.deepcopy(L), down[:-1]) is None  # not one row per joint: no guide, no error
+    assert checks.deployed_fits(ctx, copy.deepcopy(L), deployed["up"].joint_positions(), True)[2] is None
+    res, unguided, guided = checks.deployed_fits(ctx, copy.deepcopy(L), down, False)  # none where not asked
+    assert res.converged and res.guide is None and guided is None and unguided[0] == "down"
 
 
 def test_a_guide_is_tried_only_where_the_deployment_is_not_close_and_the_tracked_state_fits_better(wings_both_ways):

@@ -135,6 +135,17 @@ def _rms(A: np.ndarray, B: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((A - B) ** 2, axis=1))))
 
 
+def segment_stiffness(linkage, length: float) -> float:
+    """E·I_min/ℓ³ (force per length) of the most flexible material, ℓ = ``length``: the stiffness of bending one
+    segment of that length, the unit of the springs that hold a shell on a shape."""
+    return float(min(min(m.bending_stiffness) for m in linkage.materials) / length**3)
+
+
+def joint_rows(linkage) -> np.ndarray:
+    """The variables of the joints' positions, (3·nj,), joint by joint."""
+    return ((9 * np.arange(linkage.num_joints))[:, None] + np.arange(3)[None, :]).ravel()
+
+
 def settle_into(linkage, guide: np.ndarray, a: np.ndarray, angle: float, held, release,
                 options: GuideOptions = GuideOptions()) -> GuideReport:
     """Hold the deployed ``linkage`` (in place) on ``guide`` at the average angle ``a·x = angle``, then let go.
@@ -165,11 +176,11 @@ def settle_into(linkage, guide: np.ndarray, a: np.ndarray, angle: float, held, r
     span = float(np.ptp(linkage.rods.points, axis=0).max()) or 1.0
     report = GuideReport(energy_unguided=float(linkage.energy()))
     G = rigid_fit(np.asarray(guide, float), Y0)  # onto the state reached: the springs then pull only the difference
-    rows = ((9 * np.arange(linkage.num_joints))[:, None] + np.arange(3)[None, :]).ravel()
+    rows = joint_rows(linkage)
     sj = linkage.graph.segment_joints
     sj = sj[(sj >= 0).all(axis=1)]  # joint to joint (a free end has one joint)
     ell = float(np.median(np.linalg.norm(Y0[sj[:, 1]] - Y0[sj[:, 0]], axis=1))) if len(sj) else span
-    unit = float(min(min(m.bending_stiffness) for m in linkage.materials)) / ell**3
+    unit = segment_stiffness(linkage, ell)
     opts = NewtonOptions(gradient_tolerance=1e-6 * max(unit * ell, 1e-300), max_iterations=300,
                          saddle_gradient_factor=float("inf"))
     for factor in options.stiffnesses:

@@ -268,7 +268,7 @@ def rest_length_warning(report, linkage: Linkage) -> list[str]:
 
 
 def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = DeployOptions(), actuated=None,
-           callback=None, newton_callback=None) -> DeploymentResult:
+           callback=None, newton_callback=None, guide_at_end=None) -> DeploymentResult:
     """Open the linkage to an average joint angle ``target_angle`` (radians).
 
     Parameters
@@ -289,6 +289,12 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
         Return True, or raise, to stop at once; either way the linkage is put
         back at the last finished equilibrium (True: the result says it
         stopped by request; an exception passes on).
+    guide_at_end : callable(Linkage) -> (j, 3) array or None, optional
+        Where ``options.guide`` is None: called once with the deployed
+        linkage when the target angle is reached, it returns the guide to
+        settle into (as ``options.guide`` would be), or None. A caller can so
+        choose a guide from the state reached, and gets the same state as a
+        deployment naming that guide from the start, without deploying twice.
     """
     if options.direction not in ("up", "down"):
         raise InputError(f"direction must be 'up' or 'down', got {options.direction!r}")
@@ -567,12 +573,15 @@ def deploy(linkage: Linkage, target_angle: float, options: DeployOptions = Deplo
     def guided() -> None:
         """Held on the guide at the target angle and let go (:func:`_guided_end`), once the target is reached."""
         nonlocal active
-        if options.guide is None or not result.converged:
+        if not result.converged:
+            return
+        guide = options.guide if options.guide is not None or guide_at_end is None else guide_at_end(linkage)
+        if guide is None:
             return
         final = NewtonOptions(**{**newton.__dict__,
                                  "gradient_tolerance": max(newton.gradient_tolerance * options.final_tolerance_factor, floor)})
         before = active.copy()
-        if _guided_end(linkage, result, options.guide, a, target_angle, joints, edge_vars[active],
+        if _guided_end(linkage, result, guide, a, target_angle, joints, edge_vars[active],
                        lambda: solve(target_angle, final), inversion, kept["state"]):
             kept["state"] = snapshot(linkage)
         else:

@@ -18,7 +18,6 @@ last bit.
 """
 from __future__ import annotations
 
-import copy
 import signal
 from dataclasses import dataclass
 
@@ -47,7 +46,7 @@ class CheckContext:
         The free ends to attach (:mod:`.free_ends`).
     guide : bool
         Whether a stage whose deployment from flat is not close may be deployed again, guided into the state the
-        optimization tracks (:func:`guided_check`), and kept so where that fits better.
+        optimization tracks (:func:`deployed_fits`), and kept so where that fits better.
     """
 
     surface: object
@@ -133,9 +132,8 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
         ``design`` (Pf, edges, p), ``free_ends`` (attached), ``tracked`` (the placed deployed joints, (j, 3)) and
         ``direction``: the case's direction that deploys it so, ``ctx.direction`` unless the mirror image of
         that deployment (the other direction's) fits better; ``guide`` (j, 3) where the deployment guided into
-        the tracked state fits better (:func:`guided_check`), else None.
+        the tracked state fits better (:func:`deployed_fits`), else None.
     """
-    from ..deploy.simulate import DeployOptions, deploy
     from ..linkage.clearance import beam_overlaps
 
     if ctx.ends is not None and len(ctx.ends):
@@ -146,31 +144,66 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
     overlap = beam_overlaps(fwd, ctx.width) if ctx.width > 0 else ""
     if overlap:  # not buildable: the verification would refuse it
         return {"why": f"the flat layout is not buildable: {overlap}"}
-    span = float(np.ptp(fwd.rods.points, axis=0).max())  # the flat span, as the verification's rise is measured
-    flat = copy.deepcopy(fwd) if ctx.guide and try_guide else None  # for a guided deployment from the same flat state
-    res = deploy(fwd, ctx.theta, DeployOptions(steps=ctx.steps, direction=ctx.direction))
+    res, unguided, guided = deployed_fits(ctx, fwd, guess, bool(ctx.guide and try_guide))
     if not res.converged:
         return {"why": f"its deployment from flat stopped: {res.message}"}
-    Y = fwd.joint_positions()
-    direction, placed, d = ctx.direction, *_placed(ctx.surface, Y, guess)
-    # The flat layout is symmetric about its plane, so the other direction deploys it to this state's mirror
-    # image (to round-off: 1e-11 of the span, tested): where that fits better, the design's case asks for it.
-    # Without this, a design whose deployment had passed to the mirror image was no longer kept, while the
-    # optimization went on closing in on the surface (the pavilion's last stage: 9.2 % up, 0.47 % down).
+    (direction, placed, d, rise), guide = unguided, None
+    if guided is not None and _rank(guided[2], ctx.surface) < _rank(d, ctx.surface):
+        (direction, placed, d, rise), guide = guided, np.array(guess, float)
+    return {"fit": float(np.mean(d)), "top": float(np.max(d)), "rise": rise, "design": made, "direction": direction,
+            "free_ends": 0 if used is None else len(used), "tracked": placed, "guide": guide}
+
+
+def deployed_fits(ctx: CheckContext, fwd, guess: np.ndarray, try_guide: bool) -> tuple:
+    """Deploy the settled flat linkage ``fwd`` (in place) and measure the state reached and, where
+    :func:`wants_guide` says so, the state it settles into guided into the tracked state ``guess`` (j, 3).
+
+    The guide is chosen once the target angle is reached (``deploy``'s ``guide_at_end``), so the guided state is
+    the one a case naming ``guess`` as its guide deploys to, to the last bit, with one deployment instead of two.
+
+    Returns
+    -------
+    tuple
+        ``(deployment result, unguided, guided)``: each fit is ``(direction, placed joints (j, 3), their distances
+        (j,), rise)``, ``rise`` being how far the state left the layout's plane over the flat span. ``guided`` is
+        None where no guide was tried, it was not followed, or let go the shell went back to the unguided state
+        (:data:`SAME_STATE`); its direction is ``ctx.direction``, as a case with a guide deploys it. The unguided
+        fit's direction is ``ctx.direction``, or the other one where the mirror image of the state reached (which
+        the other direction deploys to) fits better.
+    """
+    from ..deploy.simulate import DeployOptions, deploy
     from .metrics import mirror_image
 
-    mirrored, dm = _placed(ctx.surface, mirror_image(Y, fwd.graph.layout_normal), guess)
-    if _rank(dm, ctx.surface) < _rank(d, ctx.surface):
-        direction, placed, d = OTHER_DIRECTION[ctx.direction], mirrored, dm
-    guide = None
-    if flat is not None and wants_guide(ctx.surface, d, guess):
-        guided = guided_check(ctx, flat, guess)
-        if guided is not None and _rank(guided[1], ctx.surface) < _rank(d, ctx.surface):
-            placed, d, fwd = guided
-            direction, guide = ctx.direction, np.array(guess, float)
-    return {"fit": float(np.mean(d)), "top": float(np.max(d)), "rise": float(np.ptp(fwd.rods.points[:, 2])) / span,
-            "design": made, "direction": direction,
-            "free_ends": 0 if used is None else len(used), "tracked": placed, "guide": guide}
+    span = float(np.ptp(fwd.rods.points, axis=0).max())  # the flat span, as the verification's rise is measured
+    fits = {}
+
+    def reached(linkage):
+        """The state reached: its fit, and the guide to try (or None)."""
+        Y = linkage.joint_positions()
+        rise = float(np.ptp(linkage.rods.points[:, 2])) / span
+        placed, d = _placed(ctx.surface, Y, guess)
+        fits["unguided"] = (ctx.direction, placed, d, rise)
+        # The flat layout is symmetric about its plane, so the other direction deploys it to this state's mirror
+        # image (to round-off: 1e-11 of the span, tested): where that fits better, the design's case asks for it.
+        # Without this, a design whose deployment had passed to the mirror image was no longer kept, while the
+        # optimization went on closing in on the surface (the pavilion's last stage: 9.2 % up, 0.47 % down).
+        mirrored, dm = _placed(ctx.surface, mirror_image(Y, linkage.graph.layout_normal), guess)
+        if _rank(dm, ctx.surface) < _rank(d, ctx.surface):
+            fits["unguided"] = (OTHER_DIRECTION[ctx.direction], mirrored, dm, rise)
+        # a guide names each of the design's joints once: the tracked joints must be the design's
+        if try_guide and len(guess) == linkage.num_joints and wants_guide(ctx.surface, fits["unguided"][2], guess):
+            return np.asarray(guess, float)
+        return None
+
+    res = deploy(fwd, ctx.theta, DeployOptions(steps=ctx.steps, direction=ctx.direction), guide_at_end=reached)
+    if not res.converged:
+        return res, None, None
+    guided = None
+    if res.guide is not None and res.guide.held and res.guide.moved > SAME_STATE:
+        # not followed, or let go it went back to the equilibrium reached unguided: nothing new
+        guided = (ctx.direction, *_placed(ctx.surface, fwd.joint_positions(), guess),
+                  float(np.ptp(fwd.rods.points[:, 2])) / span)
+    return res, fits["unguided"], guided
 
 
 #: a guided state this close to the unguided one (largest joint distance over the span) is the same equilibrium
@@ -188,22 +221,6 @@ def wants_guide(surface, d: np.ndarray, guess: np.ndarray) -> bool:
     if not close_misses({"fit_mean": float(np.mean(d)) / diag, "fit_max": float(np.max(d)) / diag}):
         return False
     return _rank(surface_distances(surface, np.asarray(guess, float)), surface) < _rank(d, surface)
-
-
-def guided_check(ctx: CheckContext, flat, guess: np.ndarray):
-    """The design's deployment from its flat state ``flat`` (a linkage, deployed in place) guided into the tracked
-    state ``guess`` (:mod:`xshells.deploy.guide`), as a case naming ``guess`` as its guide deploys it:
-    ``(placed joints (j, 3), their distances (j,), the linkage)``, or None where the guide was not followed, the
-    shell let go went back to the state the deployment from flat reaches (:data:`SAME_STATE`), or the deployment
-    stopped."""
-    from ..deploy.simulate import DeployOptions, deploy
-
-    if len(guess) != flat.num_joints:  # the tracked joints are the design's joints; a guide must name each once
-        return None
-    res = deploy(flat, ctx.theta, DeployOptions(steps=ctx.steps, direction=ctx.direction, guide=np.asarray(guess, float)))
-    if not res.converged or res.guide is None or not res.guide.held or res.guide.moved <= SAME_STATE:
-        return None  # not followed, or let go it went back to the equilibrium the deployment from flat reaches
-    return (*_placed(ctx.surface, flat.joint_positions(), guess), flat)
 
 
 OTHER_DIRECTION = {"up": "down", "down": "up"}

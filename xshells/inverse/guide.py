@@ -83,16 +83,6 @@ class GuideOptions:
     polish_iterations: int = 20
 
 
-def segment_stiffness(linkage, spacing: float) -> float:
-    """E·I_min/ℓ³ (force per length) of the most flexible material: the stiffness of bending one segment."""
-    return float(min(min(m.bending_stiffness) for m in linkage.materials) / spacing**3)
-
-
-def joint_rows(linkage) -> np.ndarray:
-    """The variables of the joints' positions, (3·nj,), joint by joint."""
-    return ((9 * np.arange(linkage.num_joints))[:, None] + np.arange(3)[None, :]).ravel()
-
-
 def hold_on_target(linkage, targets: np.ndarray, angle: float, spacing: float, options: GuideOptions = GuideOptions(),
                    unit: float = 1.0):
     """Pull the deployed ``linkage`` (in place) onto ``targets`` (nj, 3) at average angle ``angle``.
@@ -101,7 +91,8 @@ def hold_on_target(linkage, targets: np.ndarray, angle: float, spacing: float, o
     ``(tether, rms)``: the springs that hold the state reached, and its
     RMS distance to the targets.
     """
-    from ..design.equilibrium import Tether, _Tethered
+    from ..deploy.guide import joint_rows
+    from ..solve.tether import Tether, Tethered
 
     n = linkage.num_joints
     a = np.zeros(linkage.num_vars)
@@ -111,7 +102,7 @@ def hold_on_target(linkage, targets: np.ndarray, angle: float, spacing: float, o
     rms, tether = np.inf, None
     for factor in options.stiffnesses:
         tether = Tether(factor * unit, rows, np.asarray(targets, float).ravel())
-        minimize(_Tethered(linkage, tether), fixed=np.array([], np.int64), constraint=(a, angle), options=opts)
+        minimize(Tethered(linkage, tether), fixed=np.array([], np.int64), constraint=(a, angle), options=opts)
         linkage.update_source_frame()
         rms = float(np.sqrt(np.mean(np.sum((linkage.joint_positions() - targets) ** 2, axis=1))))
         if rms <= options.hold_tolerance * spacing:

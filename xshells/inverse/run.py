@@ -1254,7 +1254,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     # 4-5. hold on the target, then design optimization while the holding load is let go ---------------
     from ..design.fitting import FittingTerm
     from ..design.objective import DesignProblem, DesignWeights
-    from .guide import Hold, guided_optimization, hold_on_target, holding_load, segment_stiffness
+    from ..deploy.guide import segment_stiffness
+    from .guide import Hold, guided_optimization, hold_on_target, holding_load
 
     t = time.perf_counter()
     w, ws = _fitting_weights(D)
