@@ -103,6 +103,8 @@ def test_the_best_stage_is_the_first_of_equals_within_the_bar_and_the_last_refus
     assert best["design"] == "b" and best["mu"] == 0.0 and best["why"] == "stopped" and best["direction"] == "down"
     assert [c["fit_mean"] for c in best["checked"]] == [0.004, 0.006, 0.006]
     assert [c["direction"] for c in best["checked"]] == ["up", "down", "up"]
+    # every design that could not be kept says why, not only the last (result.json's refused_stages)
+    assert best["refused"] == [{"load_factor": 0.25, "why": "overlaps"}, {"load_factor": 0.0, "why": "stopped"}]
 
 
 @pytest.mark.parametrize("workers, segments, beside", [(1, 500, False), (2, 99, False), (2, 100, True)])

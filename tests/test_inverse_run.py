@@ -898,6 +898,7 @@ def test_every_checked_stage_design_is_reported(cap_run):
     assert len(checked) >= 2 and all(set(c) - {"reseat"} == {"load_factor", "fit_mean", "fit_max", "rise", "direction",
                                                                "guided"} for c in checked)
     assert all(isinstance(c["guided"], bool) for c in checked)  # whether the check's deployment was guided
+    assert all(set(c) - {"reseat"} == {"load_factor", "why"} and c["why"] for c in r["refused_stages"])
     assert r["chosen_stage_guided"] == any(c["guided"] for c in checked if c["fit_mean"] == r["chosen_stage_fit_mean"])
     assert all(c["reseat"] in (1, 2) for c in checked if "reseat" in c)  # a re-seating round's checks say which
     assert all(c["direction"] in ("up", "down") for c in checked)

@@ -45,7 +45,7 @@ class CheckContext:
     ends : FreeEnds or None
         The free ends to attach (:mod:`.free_ends`).
     guide : bool
-        Whether a stage whose deployment from flat is not close may be deployed again, guided into the state the
+        Whether a stage whose deployment from flat is not close may be guided, once deployed, into the state the
         optimization tracks (:func:`deployed_fits`), and kept so where that fits better.
     """
 

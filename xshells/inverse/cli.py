@@ -67,7 +67,7 @@ def register(subparsers) -> None:
                         "reaches, up to 2 rounds of 30 iterations)")
     p.add_argument("--no-deploy-guide", action="store_true",
                    help="never guide a deployment (default: where a stage's deployment from flat is not within 0.5%% "
-                        "mean and 2%% max and the state the optimization tracks fits better, it is deployed again, held "
+                        "mean and 2%% max and the state the optimization tracks fits better, the deployed shell is held "
                         "on that state and let go, and kept so where that fits better; its case then names "
                         "deploy_guide.txt)")
     p.add_argument("--polish", type=float, default=None,

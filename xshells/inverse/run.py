@@ -1376,7 +1376,7 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
               "free_ends": attached,
               "stages": [asdict(s) for s in stages], "load_released": released,
               "chosen_stage_load": best.get("mu"), "chosen_stage_fit_mean": best["fit"] / surface.diagonal,
-              "checked_stages": best["checked"], "reseated": reseated,
+              "checked_stages": best["checked"], "refused_stages": best["refused"], "reseated": reseated,
               "chosen_stage_reseat": best.get("reseat"), "chosen_stage_guided": guide_path is not None}
     if interrupted or not released:
         result.update(status="interrupted" if interrupted else "stopped",
@@ -1483,11 +1483,12 @@ def _checks_beside(options: InverseOptions, segments: int) -> bool:
 def _best_stage(checked: list, surface) -> dict:
     """The stage designs' figures (``checked``, as :meth:`.checks.StageChecks.results` gives them, in the order
     checked) and the best of them by :func:`stage_rank` (the first of equals), with why the last one that
-    could not be kept was not."""
-    best = {"fit": np.inf, "rank": (True, np.inf), "checked": []}
+    could not be kept was not (``why``) and why each was not (``refused``: load factor and why, in order)."""
+    best = {"fit": np.inf, "rank": (True, np.inf), "checked": [], "refused": []}
     for mu, r in checked:
         if "why" in r:
             best["why"] = r["why"]
+            best["refused"].append({"load_factor": mu, "why": r["why"], **({"reseat": r["reseat"]} if "reseat" in r else {})})
             continue
         fit_mean, fit_max = r["fit"] / surface.diagonal, r["top"] / surface.diagonal
         best["checked"].append({"load_factor": mu, "fit_mean": fit_mean, "fit_max": fit_max, "rise": r.get("rise"),
