@@ -247,3 +247,30 @@ def test_a_predicted_start_that_goes_non_finite_falls_back_quietly(banana, monke
     assert len(calls) == 2  # the predicted start, then the re-solve from the last state
     assert not [w for w in seen if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in seen]
     assert np.isfinite(eq.L.get_vars()).all()
+
+
+def test_flat_clearance_is_a_smooth_minimum_with_adjoint_derivatives(banana):
+    # the flat beams of one family: a smooth minimum of their in-plane distances, below the smallest one by at
+    # most s·log(pairs)·width, and its gradient in q (adjoint on the flat state) converging at second order
+    from xshells.design.objective import CLEARANCE_REACH, CLEARANCE_SHARPNESS
+    from xshells.linkage.clearance import family_clearance, same_family_pairs
+
+    prob = banana
+    rng = np.random.default_rng(3)
+    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
+    v = rng.standard_normal(len(q))
+    v /= np.linalg.norm(v)  # the banana's flat beams are 0.04 of 885 mm apart: tiny steps stay linear
+    prob.set_q(q)
+    gap = family_clearance(prob.flat.L, np.inf)[0]
+    width = 0.8 * gap
+    value, grad = prob.flat_clearance(q, width)
+    n = len(same_family_pairs(prob.flat.L, CLEARANCE_REACH * width)[0])
+    assert gap - CLEARANCE_SHARPNESS * np.log(n) * width <= value <= gap and n > 1
+    errors = []
+    for h in (4e-6, 2e-6, 1e-6):
+        fd = (prob.flat_clearance(q + h * v, width)[0] - prob.flat_clearance(q - h * v, width)[0]) / (2 * h)
+        errors.append(abs(fd - grad @ v) / abs(grad @ v))
+    assert errors[-1] < 1e-4 and errors[0] / errors[1] > 3 and errors[1] / errors[2] > 3, errors
+    # no pair within reach: the value is the reach, and nothing moves it
+    value, grad = prob.flat_clearance(q, 1e-3 * gap)
+    assert value == CLEARANCE_REACH * 1e-3 * gap and not grad.any()

@@ -211,3 +211,43 @@ def test_the_wiggly_banana_reaches_the_papers_result_with_the_default_weights():
     assert t["fit"] < 1.05 * fit0
     z = prob.flat.L.joint_positions()[:, 2]
     assert np.ptp(z) < 1e-6 * np.ptp(prob.flat.L.joint_positions(), axis=0).max()
+
+
+def test_the_clearance_barrier_keeps_the_flat_beams_apart():
+    # every accepted design keeps the flat beams of one family apart: the width, or 0.9 of the starting design's
+    # smooth minimum where that is less (the banana's flat beams start 0.04 mm apart)
+    from xshells.linkage.clearance import family_clearance
+
+    prob = banana_problem()
+    width = 1.2 * family_clearance(prob.flat.L, np.inf)[0]
+    floor = 0.9 * prob.flat_clearance(prob._q, width)[0]
+    gaps = []
+    res = optimize(prob, OptimizeOptions(max_iterations=6, min_clearance=width),
+                   callback=lambda rec: gaps.append(family_clearance(prob.flat.L, np.inf)[0]) and False)
+    assert res.iterations >= 1 and len(gaps) == res.iterations + 1
+    assert min(gaps) > floor
+
+
+@pytest.mark.parametrize("barrier", [True, False])
+def test_the_clearance_barrier_holds_a_bound_the_objective_would_cross(monkeypatch, barrier):
+    # a clearance that shrinks as J falls (the real one need not bind on a short run): with the barrier J stops
+    # short of the bound, 0.9 of the start; without it, J falls past it
+    prob = banana_problem()
+    q0 = prob._q.copy()
+    J0 = prob.objective(q0)
+    monkeypatch.setattr(prob, "flat_clearance", lambda q, w: (w * (1 + 50 * (prob.objective(q) - J0) / J0),
+                                                              50 * w / J0 * prob.gradient(q)))
+    seen = []
+    res = optimize(prob, OptimizeOptions(max_iterations=6, min_clearance=1.0 if barrier else None),
+                   callback=lambda rec: seen.append(rec.J) and False)
+    assert res.iterations >= 1 and len(seen) == res.iterations + 1
+    clearance = 1 + 50 * (np.array(seen) - J0) / J0  # of every accepted design
+    assert (clearance.min() > 0.9) == barrier
+
+
+def test_min_clearance_is_a_positive_length_for_the_trust_region_methods():
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="min_clearance must be a positive length"):
+            OptimizeOptions(min_clearance=bad)
+    with pytest.raises(InputError, match="not trust-constr"):
+        OptimizeOptions(min_clearance=1.0, method="trust-constr")

@@ -316,3 +316,20 @@ def test_a_guide_is_tried_only_at_the_stages_without_load(monkeypatch, mu, tried
                                                    guide=True))
     stage.ask(mu, np.zeros((1, 3)), np.zeros(1), np.zeros((1, 3)))
     assert seen == [tried]
+
+
+@pytest.mark.parametrize("flag", [[], ["--no-clearance"]])
+def test_the_optimization_keeps_the_flat_beams_a_width_apart_unless_told_not_to(tmp_path, monkeypatch, flag):
+    # plumbing: every design optimization of the run (stages, polish, re-seating) gets the beams' width as its
+    # min_clearance (stage designs whose flat beams overlap are refused by their checks), or None when told
+    import xshells.design.optimize as opt
+
+    _short_design(monkeypatch)
+    real, seen = opt.optimize, []
+    monkeypatch.setattr(opt, "optimize", lambda problem, options, **kw: seen.append(options.min_clearance)
+                        or real(problem, options, **kw))
+    main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--no-heavier", "--no-refine",
+          "--buckling", "0", "--workers", "1", "--out", str(tmp_path / "out"), "--no-progress", *flag])
+    material = json.loads((tmp_path / "out" / "case.json").read_text())["material"]
+    assert material["type"] == "rectangle" and len(seen) >= 2
+    assert set(seen) == ({None} if flag else {max(material["params"])})  # the default section: 10 mm wide

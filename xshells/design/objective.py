@@ -94,6 +94,14 @@ def ks_min(alpha: np.ndarray, s: float) -> tuple[float, np.ndarray, np.ndarray]:
     return m - s * np.log(total), pi, curvature
 
 
+#: KS sharpness of :meth:`DesignProblem.flat_clearance`, on distances over the beams' width: the smooth minimum
+#: lies below the smallest distance by at most 0.02·log(pairs)·width (0.14 width for 1,000 pairs), so the barrier
+#: at the width keeps the beams little more than that apart
+CLEARANCE_SHARPNESS = 0.02
+#: pairs of rod points farther apart than this many widths are left out of the clearance (their weight is e⁻⁵⁰ where the nearest pair is a width apart)
+CLEARANCE_REACH = 2.0
+
+
 class _StateTerm:
     """A scalar function of one equilibrium state: value, ∇ₓ and ∇²ₓ·v, as callables on the linkage."""
 
@@ -459,6 +467,50 @@ class DesignProblem:
         self.set_q(q)
         dp = np.asarray(v, float) * self.p0
         return self._state_hessp_p(self.flat, self._angle_term(), "angle", dp, "2d") * self.p0
+
+    # ------------------------------------------------------------ clearance
+    def flat_clearance(self, q, width: float) -> tuple[float, np.ndarray]:
+        """How close the flat state's beams of one family come, as a smooth minimum, and its gradient in ``q``.
+
+        Beams of one family lie in one layer and never meet at a joint, so where two of them come closer than
+        the beams are wide the layout cannot be built (:func:`xshells.linkage.clearance.beam_overlaps`
+        measures it so: in-plane distances between rod points of two beams of one family). This is the KS
+        minimum of those distances over ``width`` (sharpness :data:`CLEARANCE_SHARPNESS`), times ``width``:
+        at most the smallest distance, so ``KS ≥ width`` keeps every pair apart. Only pairs within
+        ``CLEARANCE_REACH · width`` are looked at; where none is, the value is that reach and the gradient 0.
+
+        Returns
+        -------
+        (value, gradient) : (float, (S,) array)
+            The gradient is that of the flat equilibrium's value as the rest lengths ``q p₀`` move (adjoint).
+        """
+        from ..linkage.clearance import same_family_pairs
+
+        self.set_q(q)
+        key = ("clearance", float(width))
+        if key in self._cache:
+            return self._cache[key]
+        L = self.flat.L
+        reach = CLEARANCE_REACH * width
+        pairs, pts, _, _ = same_family_pairs(L, reach)
+        if not len(pairs):
+            out = (reach, np.zeros(len(self.p0)))
+        else:
+            i, j = pairs[:, 0], pairs[:, 1]
+            diff = pts[i] - pts[j]
+            d = np.linalg.norm(diff, axis=1)
+            ks, pi, _ = ks_min(d / width, CLEARANCE_SHARPNESS)
+            u = (pi / np.maximum(d, 1e-300))[:, None] * diff  # ∂KS·width/∂(point i) in the plane
+            G = np.zeros((len(pts), 3))
+            np.add.at(G[:, :2], i, u)
+            np.add.at(G[:, :2], j, -u)
+            g_rod = np.zeros(L.rods.num_vars)
+            g_rod[: G.size] = G.ravel()
+            gx = L._jacobian().T @ g_rod
+            term = _StateTerm(lambda: ks * width, lambda: gx, None)
+            out = (float(ks * width), self._state_gradient_p(self.flat, term, ("clearance", float(width))) * self.p0)
+        self._cache[key] = out
+        return out
 
     # ------------------------------------------------------------ stability
     def flat_stability(self, q, modes: int = 4) -> tuple[float, np.ndarray]:

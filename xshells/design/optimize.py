@@ -96,6 +96,16 @@ class OptimizeOptions:
         Keep the lowest ``stability_modes`` flat eigenvalues unchanged to
         first order in every trust-region step.
     stability_modes : int
+    min_clearance : float or None
+        Trust-region methods: the beams' width (design units; None, the
+        default: off). A log barrier keeps the flat state's beams of one
+        family at least this far apart (their smooth minimum distance,
+        :meth:`DesignProblem.flat_clearance`), or, where the starting design
+        has them closer, at least 0.9 of its distance (then a run that
+        starts where another ended at the width keeps the width, not 0.9
+        of it, as the inverse design's stages do): a design whose flat
+        beams overlap cannot be built (the inverse design's checks refuse
+        it), and the energy alone does not keep them apart.
     trial_newton_iterations : int
         Newton steps allowed to the equilibria of a trial design before it
         is rejected (the trust region shrinks); a flat state that turns
@@ -117,6 +127,7 @@ class OptimizeOptions:
     hold_stability: bool = True
     stability_modes: int = 4
     trial_newton_iterations: int = 30
+    min_clearance: float | None = None
 
     def __post_init__(self):
         if self.method not in ("newton-cg", "bfgs", "trust-constr"):
@@ -125,6 +136,10 @@ class OptimizeOptions:
             raise InputError(f"max_iterations must be at least 1, got {self.max_iterations}")
         if not (0 < self.min_rest_length_factor < 1):
             raise InputError(f"min_rest_length_factor must lie in (0, 1), got {self.min_rest_length_factor}")
+        if self.min_clearance is not None and not (self.min_clearance > 0 and np.isfinite(self.min_clearance)):
+            raise InputError(f"min_clearance must be a positive length, got {self.min_clearance}")
+        if self.min_clearance is not None and self.method == "trust-constr":
+            raise InputError("min_clearance applies to the trust-region methods (newton-cg, bfgs), not trust-constr")
 
 
 @dataclass
@@ -258,10 +273,19 @@ def _trust_region(problem, q0, options, eps, record, failures):
     mu = options.barrier * problem.objective(q)
     sigma_min = options.min_stability
 
+    width = options.min_clearance
+    if width is not None:  # the width, or below the starting design's own distance: its iterates start feasible
+        start_gap = problem.flat_clearance(q, width)[0]
+        clear_min = width if start_gap > width else 0.9 * start_gap
+
     def barrier_parts(q):
         ang = problem.min_angle(q)
         sig, dsig = problem.flat_stability(q, options.stability_modes)
-        return ((ang - eps, problem.min_angle_gradient(q)), (sig - sigma_min, dsig))
+        parts = ((ang - eps, problem.min_angle_gradient(q)), (sig - sigma_min, dsig))
+        if width is None:
+            return parts
+        gap, dgap = problem.flat_clearance(q, width)
+        return (*parts, (gap - clear_min, dgap))
 
     def merit(q):
         J = problem.objective(q)
@@ -373,7 +397,7 @@ def _trust_region(problem, q0, options, eps, record, failures):
                     # stage checks, which deploy each design from flat.)
                     reason = f"deployed state: {folded}"
                 elif not np.isfinite(f_trial):
-                    reason = "minimum angle or flat stability out of bounds"
+                    reason = "minimum angle, flat stability or beam clearance out of bounds"
             except (ArithmeticError, InputError) as exc:
                 reason = f"no equilibrium ({exc})"
             actual = f - f_trial if not reason else -np.inf

@@ -70,6 +70,9 @@ def register(subparsers) -> None:
                         "mean and 2%% max and the state the optimization tracks fits better, the deployed shell is held "
                         "on that state and let go, and kept so where that fits better; its case then names "
                         "deploy_guide.txt)")
+    p.add_argument("--no-clearance", action="store_true",
+                   help="let the optimization bring the flat layout's beams of one family closer than a beam's width "
+                        "(default: a barrier keeps them apart, since a stage design whose flat beams overlap is refused)")
     p.add_argument("--polish", type=float, default=None,
                    help="after the last stage, 20 more iterations with the fit weight times this, from the design "
                         "reached; the design whose own deployment fits best is kept (default 2; 0: off)")
@@ -99,6 +102,7 @@ def _inverse(args) -> int:
                           force=args.force, grading=args.grading, beams=args.beams, fan=args.fan,
                           free_ends=not args.no_free_ends, workers=args.workers, tries=args.tries,
                           refine=not args.no_refine, heavier=not args.no_heavier, deploy_guide=not args.no_deploy_guide,
+                          clearance=not args.no_clearance,
                           **({} if args.max_iters is None else {"max_iters": args.max_iters}),
                           **({} if args.buckling is None else {"buckling": args.buckling}))
     from dataclasses import replace

@@ -187,7 +187,7 @@ def _release(problem, hold: Hold, mu_from: float, mu_to: float, depth: int = 4) 
 
 
 def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOptions(), min_angle: float | None = None,
-                        callback=None, after_stage=None) -> list:
+                        callback=None, after_stage=None, min_clearance: float | None = None) -> list:
     """Design optimization (eq. 5) of ``problem`` at the holds μ·``hold`` of ``options.schedule``.
 
     ``problem`` is a :class:`~xshells.design.objective.DesignProblem` whose
@@ -195,7 +195,8 @@ def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOption
     the last stage. ``callback(stage, record)`` is called after every
     optimization iteration (``record`` an ``OptimizeRecord``); returning
     True stops. Ctrl-C stops too, keeping the best design so far.
-    ``after_stage(mu)`` is called after each stage's optimization.
+    ``after_stage(mu)`` is called after each stage's optimization. ``min_clearance``: the optimizer's (the
+    beams' width, to keep the flat beams of one family apart; None: off).
 
     Returns the list of :class:`StageRecord`.
     """
@@ -215,7 +216,8 @@ def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOption
                 return stages
             mu_now = mu
         last = i == len(options.schedule) - 1
-        opts = OptimizeOptions(max_iterations=options.final_iterations if last else options.iterations, min_angle=min_angle)
+        opts = OptimizeOptions(max_iterations=options.final_iterations if last else options.iterations, min_angle=min_angle,
+                               min_clearance=min_clearance)
         every = options.checkpoint_every if last and after_stage is not None else 0
 
         def on_iteration(rec, mu=mu, every=every, limit=opts.max_iterations):
@@ -239,7 +241,8 @@ def guided_optimization(problem, hold: Hold, options: GuideOptions = GuideOption
         t0 = time.perf_counter()
         problem.w = replace(problem.w, beta=problem.w.beta * options.polish)
         problem._cache = {}
-        opts = OptimizeOptions(max_iterations=options.polish_iterations or options.final_iterations, min_angle=min_angle)
+        opts = OptimizeOptions(max_iterations=options.polish_iterations or options.final_iterations, min_angle=min_angle,
+                               min_clearance=min_clearance)
         every = options.checkpoint_every if after_stage is not None else 0
 
         def on_polish(rec, every=every, limit=opts.max_iterations):

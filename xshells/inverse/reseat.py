@@ -81,12 +81,12 @@ def seat(problem, onto_tracked, steps: int, direction: str) -> str:
 
 
 def optimize_reseated(problem, onto_tracked, steps: int, direction: str, options: ReseatOptions, min_angle=None,
-                      check=None, callback=None) -> dict:
+                      check=None, callback=None, min_clearance: float | None = None) -> dict:
     """One round: :func:`seat`, then ``options.iterations`` of design optimization (eq. 5) from there.
 
     ``check()`` is called every ``options.checkpoint_every`` iterations and at the end (the design as it
     stands; :class:`.checks.StageChecks`). ``callback(record)`` after every iteration; True stops.
-    Ctrl-C raises KeyboardInterrupt after the iteration it came in.
+    Ctrl-C raises KeyboardInterrupt after the iteration it came in. ``min_clearance``: the optimizer's.
 
     Returns
     -------
@@ -108,7 +108,8 @@ def optimize_reseated(problem, onto_tracked, steps: int, direction: str, options
             check()
         return stop
 
-    res = optimize(problem, OptimizeOptions(max_iterations=limit, min_angle=min_angle), callback=on_iteration)
+    res = optimize(problem, OptimizeOptions(max_iterations=limit, min_angle=min_angle, min_clearance=min_clearance),
+                   callback=on_iteration)
     if check is not None:
         check()
     if res.interrupted:

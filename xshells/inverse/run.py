@@ -135,9 +135,13 @@ class InverseOptions:
     guide : GuideOptions
     deploy_guide : bool
         Where a stage's deployment from flat is not close and the state the optimization tracks fits better,
-        deploy it again guided into that state (:mod:`xshells.deploy.guide`: held on it and let go) and keep
-        the better; a design kept so is written with its guide (``deploy_guide.txt``, the case's ``guide``).
+        hold the deployed shell on that state and let it go (:mod:`xshells.deploy.guide`), and keep the
+        better; a design kept so is written with its guide (``deploy_guide.txt``, the case's ``guide``).
         Default True.
+    clearance : bool
+        Keep the flat layout's beams of one family a beam's width apart while the design is optimized (a log
+        barrier, :class:`~xshells.design.optimize.OptimizeOptions`' ``min_clearance``): a stage design whose
+        flat beams overlap is refused by its check. Default True (where the material has a width).
     reseat : ReseatOptions
         Where the best design checked is not close once the load is let go, the optimization goes on from
         the state its own deployment from flat reaches (:mod:`.reseat`; ``ReseatOptions(rounds=0)``: never).
@@ -165,6 +169,7 @@ class InverseOptions:
     heavier: bool = True
     guide: GuideOptions = field(default_factory=GuideOptions)
     deploy_guide: bool = True
+    clearance: bool = True
     reseat: ReseatOptions = field(default_factory=ReseatOptions)
 
 
@@ -1319,7 +1324,8 @@ def _design_with_net(surface_path, out_dir, material_spec: dict, options: Invers
     interrupted = False
     stages = []
     try:
-        stages = guided_optimization(problem, hold, g, min_angle=eps, callback=on_iter, after_stage=after_stage)
+        stages = guided_optimization(problem, hold, g, min_angle=eps, callback=on_iter, after_stage=after_stage,
+                                     min_clearance=_clearance(options, width))
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -1480,6 +1486,11 @@ def _checks_beside(options: InverseOptions, segments: int) -> bool:
     return _workers(options) >= 2 and segments >= CHECKS_BESIDE_SEGMENTS
 
 
+def _clearance(options: InverseOptions, width: float) -> float | None:
+    """The optimization's ``min_clearance``: the beams' width, or None where it is off or there is no width."""
+    return width if options.clearance and width > 0 else None
+
+
 def _best_stage(checked: list, surface) -> dict:
     """The stage designs' figures (``checked``, as :meth:`.checks.StageChecks.results` gives them, in the order
     checked) and the best of them by :func:`stage_rank` (the first of equals), with why the last one that
@@ -1538,7 +1549,8 @@ def _reseat_rounds(problem, ctx, surface, T0, options: InverseOptions, segments:
         direction = seat_direction(checked, options.direction)
         try:
             r = optimize_reseated(problem, lambda Y: T0 @ place(surface, Y, tracked), options.steps, direction,
-                                  options.reseat, min_angle=min_angle, check=check, callback=on_iter)
+                                  options.reseat, min_angle=min_angle, check=check, callback=on_iter,
+                                  min_clearance=_clearance(options, ctx.width))
         except KeyboardInterrupt:
             checked += [(mu, {**c, "reseat": k}) for mu, c in checks.results(wait=False)]
             raise

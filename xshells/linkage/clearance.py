@@ -18,7 +18,7 @@ def beam_family(graph, b: int) -> int:
     return int(np.bincount(labels, minlength=2).argmax()) if labels.size else 0
 
 
-def _same_family_pairs(linkage, within: float):
+def same_family_pairs(linkage, within: float):
     """Pairs (m, 2) of rod points on two different beams of one family within ``within`` in the plane, with
     the points' positions (n, 2), segments (n,) and beams (n,)."""
     from scipy.spatial import cKDTree
@@ -46,7 +46,7 @@ def family_clearance(linkage, within: float) -> tuple[float, int, int]:
     (gap, beam_a, beam_b) : (float, int, int)
         ``(inf, -1, -1)`` when no two such points are within ``within``.
     """
-    pairs, pts, _, owner = _same_family_pairs(linkage, within)
+    pairs, pts, _, owner = same_family_pairs(linkage, within)
     if not len(pairs):
         return float("inf"), -1, -1
     d = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
@@ -56,7 +56,7 @@ def family_clearance(linkage, within: float) -> tuple[float, int, int]:
 
 def crowded_segments(linkage, width: float) -> np.ndarray:
     """The segments (sorted) with a rod point closer than ``width`` to a point of another beam of their family."""
-    pairs, pts, seg, _ = _same_family_pairs(linkage, width)
+    pairs, pts, seg, _ = same_family_pairs(linkage, width)
     if len(pairs):
         pairs = pairs[np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1) < width]
     return np.unique(seg[pairs.ravel()])
