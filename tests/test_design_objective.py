@@ -249,13 +249,17 @@ def test_a_predicted_start_that_goes_non_finite_falls_back_quietly(banana, monke
     assert np.isfinite(eq.L.get_vars()).all()
 
 
-def test_flat_clearance_is_a_smooth_minimum_with_adjoint_derivatives(banana):
+def test_flat_clearance_is_a_smooth_minimum_with_adjoint_derivatives():
     # the flat beams of one family: a smooth minimum of their in-plane distances, below the smallest one by at
-    # most s·log(pairs)·width, and its gradient in q (adjoint on the flat state) converging at second order
+    # most s·log(pairs)·width, and its gradient in q (adjoint on the flat state) converging at second order.
+    # A problem of its own: the banana's flat beams are 0.04 mm apart, and the equilibria reached from the
+    # designs other tests visited differ by more than these steps resolve
     from xshells.design.objective import CLEARANCE_REACH, CLEARANCE_SHARPNESS
     from xshells.linkage.clearance import family_clearance, same_family_pairs
 
-    prob = banana
+    L, D = banana_states()
+    prob = DesignProblem(L, np.radians(80), DesignWeights(gamma=0.3, beta=100.0),
+                         fitting=PointFit(D.joint_positions(), np.full(L.num_joints, 1.0 / L.num_joints)), deployed=D)
     rng = np.random.default_rng(3)
     q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
     v = rng.standard_normal(len(q))
@@ -267,7 +271,7 @@ def test_flat_clearance_is_a_smooth_minimum_with_adjoint_derivatives(banana):
     n = len(same_family_pairs(prob.flat.L, CLEARANCE_REACH * width)[0])
     assert gap - CLEARANCE_SHARPNESS * np.log(n) * width <= value <= gap and n > 1
     errors = []
-    for h in (4e-6, 2e-6, 1e-6):
+    for h in (2e-6, 1e-6, 5e-7):
         fd = (prob.flat_clearance(q + h * v, width)[0] - prob.flat_clearance(q - h * v, width)[0]) / (2 * h)
         errors.append(abs(fd - grad @ v) / abs(grad @ v))
     assert errors[-1] < 1e-4 and errors[0] / errors[1] > 3 and errors[1] / errors[2] > 3, errors

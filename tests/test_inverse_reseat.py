@@ -164,7 +164,8 @@ def test_ctrl_c_while_re_seating_keeps_the_best_design_checked_so_far(tmp_path, 
     _short_design(monkeypatch)
     monkeypatch.setattr(reseat, "wants_reseat", lambda best, diagonal: True)
 
-    def interrupted(problem, onto_tracked, steps, direction, options, min_angle=None, check=None, callback=None):
+    def interrupted(problem, onto_tracked, steps, direction, options, min_angle=None, check=None, callback=None,
+                    min_clearance=None):
         assert reseat.seat(problem, onto_tracked, steps, direction) == ""
         check()  # one design checked in the round, then Ctrl-C
         raise KeyboardInterrupt
