@@ -200,7 +200,7 @@ def deployed_fits(ctx: CheckContext, fwd, guess: np.ndarray, try_guide: bool) ->
         return res, None, None
     guided = None
     if res.guide is not None and res.guide.held and res.guide.moved > SAME_STATE:
-        # not followed, or let go it went back to the equilibrium reached unguided: nothing new
+        # followed, and let go it stayed in another equilibrium than the one reached unguided
         guided = (ctx.direction, *_placed(ctx.surface, fwd.joint_positions(), guess),
                   float(np.ptp(fwd.rods.points[:, 2])) / span)
     return res, fits["unguided"], guided
