@@ -252,14 +252,29 @@ class Session:
         while the mouse moves): the latest position waits and is solved next.
         The edit on release (:meth:`edit`) solves to full accuracy from it.
         """
+        self._preview(layout)
+
+    def _preview(self, layout: core.Layout, since: int | None = None) -> None:
+        """:meth:`preview`; ``since``: the full-solve count a finished preview saw when it asked for the next one."""
         if self.angle_deg is None or self._problems(layout):
             return
         with self._lock:
+            current = self.layout
+            if np.array_equal(layout.vertices, current.vertices) and np.array_equal(layout.edges, current.edges):
+                # the layout recorded (a drag's release): the full-accuracy solve shows it. A drag update that
+                # viser runs after the release (its callbacks run in a thread pool) reads the released position
+                # and asked for this; its preview, shown after the full solve, was the final state (CI, 2026-12-07)
+                return
+            generation = getattr(self, "_full_solves", 0)
+            if since is not None and since != generation:
+                # a full-accuracy solve was asked for after that preview's check and before this call (another
+                # thread): the waiting position is superseded, and a preview queued behind the full solve would
+                # be shown after it as the final state (CI, 2026-12-07)
+                return
             self._preview_next = layout
             if getattr(self, "_preview_busy", False):
                 return
             self._preview_busy = True
-            generation = getattr(self, "_full_solves", 0)
         angle = self.angle_deg
 
         def job(cancel, progress):
@@ -277,13 +292,13 @@ class Session:
         def done(view):
             with self._lock:
                 self._preview_busy = False
-                again = self._preview_next is not None
                 # a preview that finishes after a full-accuracy solve began (its cancel came too late) is stale
                 stale = getattr(self, "_full_solves", 0) != generation
+                waiting = None if stale else self._preview_next
             if view is not None and not stale:
                 self._deployed(view, stability=False)
-            if again:
-                self.preview(self._preview_next)
+            if waiting is not None:
+                self._preview(waiting, since=generation)
 
         def failed(exc):
             with self._lock:
@@ -431,7 +446,7 @@ class Session:
         if problems:
             raise InputError("cannot simulate: " + problems[0])
         self._emit("progress", (0.02, "loading the solver…"))
-        from .sim import Simulation, WarmOptions  # the first time: JAX, SciPy (about a second)
+        from .sim import Simulation, WarmOptions  # the first time: SciPy and the solver (about a second)
 
         self._emit("progress", (0.05, "cross-section stiffnesses…"))
         material = self.material
