@@ -249,32 +249,74 @@ def test_a_predicted_start_that_goes_non_finite_falls_back_quietly(banana, monke
     assert np.isfinite(eq.L.get_vars()).all()
 
 
-def test_flat_clearance_is_a_smooth_minimum_with_adjoint_derivatives():
+def _banana_problem_held_at(offset_deg: float = 0.0):
+    """The banana's design problem with its flat state held ``offset_deg`` more open than it settles (0: where it
+    settles, the problem's default), and the settled flat linkage."""
+    L, D = banana_states()
+    settled = copy.deepcopy(L)
+    prob = DesignProblem(L, np.radians(80), DesignWeights(gamma=0.3, beta=100.0),
+                         fitting=PointFit(D.joint_positions(), np.full(L.num_joints, 1.0 / L.num_joints)), deployed=D,
+                         flat_angle=L.average_angle() + np.radians(offset_deg))
+    return prob, settled
+
+
+@pytest.mark.parametrize("offset, spread, steps", [(0.0, 1e-3, (2e-6, 1e-6, 5e-7)), (0.5, 1e-4, (8e-5, 4e-5, 2e-5))])
+def test_flat_clearance_is_a_smooth_minimum_with_adjoint_derivatives(offset, spread, steps):
     # the flat beams of one family: a smooth minimum of their in-plane distances, below the smallest one by at
-    # most s·log(pairs)·width, and its gradient in q (adjoint on the flat state) converging at second order.
-    # A problem of its own: the banana's flat beams are 0.04 mm apart, and the equilibria reached from the
-    # designs other tests visited differ by more than these steps resolve
+    # most s·log(pairs)·width, and its gradient in q (adjoint) converging at second order. Measured on the held
+    # flat state where it pushes to open (offset 0, at these designs), on the released one where it pushes to
+    # close (held 0.5° more open than it settles; at designs nearer the start, since a change of 1e-3 to the
+    # rest lengths turns that torque round). A problem of its own: the banana's flat beams are 0.04 mm
+    # apart, and the equilibria reached from the designs other tests visited differ by more than these steps
     from xshells.design.objective import CLEARANCE_REACH, CLEARANCE_SHARPNESS
     from xshells.linkage.clearance import family_clearance, same_family_pairs
 
-    L, D = banana_states()
-    prob = DesignProblem(L, np.radians(80), DesignWeights(gamma=0.3, beta=100.0),
-                         fitting=PointFit(D.joint_positions(), np.full(L.num_joints, 1.0 / L.num_joints)), deployed=D)
+    prob, _ = _banana_problem_held_at(offset)
     rng = np.random.default_rng(3)
-    q = 1 + 1e-3 * rng.standard_normal(len(prob.p0))
+    q = 1 + spread * rng.standard_normal(len(prob.p0))
     v = rng.standard_normal(len(q))
     v /= np.linalg.norm(v)  # the banana's flat beams are 0.04 of 885 mm apart: tiny steps stay linear
     prob.set_q(q)
-    gap = family_clearance(prob.flat.L, np.inf)[0]
+    released = prob.released_flat()
+    assert (released is not None) == (offset > 0)
+    measured = prob.flat.L if released is None else released.L
+    gap = family_clearance(measured, np.inf)[0]
     width = 0.8 * gap
     value, grad = prob.flat_clearance(q, width)
-    n = len(same_family_pairs(prob.flat.L, CLEARANCE_REACH * width)[0])
+    n = len(same_family_pairs(measured, CLEARANCE_REACH * width)[0])
     assert gap - CLEARANCE_SHARPNESS * np.log(n) * width <= value <= gap and n > 1
     errors = []
-    for h in (2e-6, 1e-6, 5e-7):
+    for h in steps:  # (the released state's differences are at round-off, 4e-7, below 1e-5)
         fd = (prob.flat_clearance(q + h * v, width)[0] - prob.flat_clearance(q - h * v, width)[0]) / (2 * h)
         errors.append(abs(fd - grad @ v) / abs(grad @ v))
     assert errors[-1] < 1e-4 and errors[0] / errors[1] > 3 and errors[1] / errors[2] > 3, errors
     # no pair within reach: the value is the reach, and nothing moves it
     value, grad = prob.flat_clearance(q, 1e-3 * gap)
     assert value == CLEARANCE_REACH * 1e-3 * gap and not grad.any()
+
+
+def test_the_released_flat_state_is_where_the_layout_settles_let_go():
+    # held more open than it settles, the flat state pushes to close: let go (released_flat) it settles back to
+    # the state a linkage built from the design and settled reaches (banana_states settles it so, as the inverse
+    # design's checks and `xshells deploy` do); an unconstrained minimum, and a function of the design alone.
+    # Held more closed, it pushes to open: nothing is released (the held beams are the nearer)
+    prob, settled = _banana_problem_held_at(0.5)
+    eq = prob.released_flat()
+    assert eq is not None and eq.L is not prob.flat.L
+    span = np.ptp(settled.joint_positions(), axis=0).max()
+    assert np.degrees(prob.flat.L.average_angle() - eq.L.average_angle()) == pytest.approx(0.5, abs=1e-6)
+    assert np.abs(eq.L.joint_positions() - settled.joint_positions()).max() < 1e-6 * span
+    g = eq.L.gradient()
+    g[eq.pins] = 0.0
+    assert np.abs(g).max() <= eq.newton.gradient_tolerance
+    rng = np.random.default_rng(5)
+    q = 1 + 1e-4 * rng.standard_normal(len(prob.p0))  # (1e-3 turns the banana's closing torque round)
+    prob.set_q(q)
+    first = prob.released_flat().L.get_vars().copy()
+    assert np.array_equal(prob.released_flat().L.rest_lengths, q * prob.p0)
+    prob.set_q(q * (1 + 1e-4 * rng.standard_normal(len(q))))
+    assert prob.released_flat() is not None
+    prob.set_q(q)
+    assert np.abs(prob.released_flat().L.get_vars() - first).max() < 1e-6 * span
+    closed, _ = _banana_problem_held_at(-0.5)
+    assert closed.released_flat() is None

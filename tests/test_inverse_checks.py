@@ -333,3 +333,45 @@ def test_the_optimization_keeps_the_flat_beams_a_width_apart_unless_told_not_to(
     material = json.loads((tmp_path / "out" / "case.json").read_text())["material"]
     assert material["type"] == "rectangle" and len(seen) >= 2
     assert set(seen) == ({None} if flag else {max(material["params"])})  # the default section: 10 mm wide
+
+
+def test_the_clearance_is_measured_where_the_checks_settle_the_stage_designs(tmp_path, monkeypatch):
+    # the barrier's state is the flat layout let go where it pushes to close (DesignProblem.released_flat), which
+    # is where a stage check settles the design (checks.settled_flat, from its flat joints and rest lengths):
+    # the same angle and the same nearest beams. Where it pushes to open, the held state's beams are the nearer.
+    # Held at the flat angle only (the barrier's first form, 2026-12-07), the swimming ray's stage designs closed
+    # from 20.1° to 17.5° when let go, their nearest beams from 21.9 to 18.1 mm apart
+    from types import SimpleNamespace
+
+    import xshells.design.optimize as opt
+    import xshells.deploy.case as case
+    from xshells.inverse import checks
+    from xshells.linkage.clearance import family_clearance
+
+    _short_design(monkeypatch)
+    real, compared = opt.optimize, []
+    material = case.material_from_spec(dict(case.DEFAULT_MATERIAL))
+
+    def spy(problem, options, **kw):
+        res = real(problem, options, **kw)
+        L = problem.flat.L
+        made = checks.stage_arrays(L.vertex_positions(), L.rest_lengths, np.asarray(L.design.edges))
+        settled = checks.settled_flat(SimpleNamespace(material=material, subdivision=L.subdivision), *made)
+        eq = problem.released_flat()
+        compared.append((eq is not None, np.degrees(L.average_angle()),
+                         np.degrees((L if eq is None else eq.L).average_angle()), np.degrees(settled.average_angle()),
+                         family_clearance(L if eq is None else eq.L, np.inf)[0], family_clearance(settled, np.inf)[0],
+                         np.ptp(settled.joint_positions(), axis=0).max()))
+        return res
+
+    monkeypatch.setattr(opt, "optimize", spy)
+    main(["inverse", str(CAP), "--spacing", f"{DIAG / 6:.3f}", "--beams", "even", "--no-heavier", "--no-refine",
+          "--buckling", "0", "--workers", "1", "--out", str(tmp_path / "out"), "--no-progress"])
+    assert len(compared) >= 2, compared  # (on this short run every stage design pushes to open: the released
+    # state, where one pushes to close, is compared with the settled one in test_design_objective)
+    for released, held, measured, settled, gap, gap_settled, span in compared:
+        if released:  # the same state: the check's
+            assert measured < held and abs(measured - settled) < 1e-6, compared
+            assert abs(gap - gap_settled) < 1e-6 * span, compared
+        else:  # the check's opens, its beams no nearer than those the barrier holds apart
+            assert measured == held and settled > held and gap_settled > gap, compared

@@ -203,6 +203,7 @@ class DesignProblem:
         self._q = np.ones(len(self.p0))
         self._cache: dict = {}
         self.planar = None  # the planar branch at the deployed angle, with weights.buckling > 0
+        self._released = None  # the FreeEquilibrium that released_flat solves (built on first use)
         if weights.buckling > 0:
             self._init_planar(target_angle)
 
@@ -210,6 +211,41 @@ class DesignProblem:
     def equilibria(self) -> tuple:
         """The equilibria that follow the design: flat, deployed, and the planar one if the penalty is on."""
         return (self.flat, self.deployed) if self.planar is None else (self.flat, self.deployed, self.planar)
+
+    def released_flat(self):
+        """The flat state let go, where the held flat state pushes to close; None where it pushes to open.
+
+        The optimization holds its flat state at ᾱ₀. A layout built from the design and let go settles where
+        its energy is least, and that is what is built and what the inverse design's checks measure. Where the
+        held state's energy falls as the layout closes (``a·∇E > 0``), the released state is more closed and
+        its beams of one family nearer (measured on the swimming ray's stage designs: 20.1° held, 17.5°
+        released, the nearest beams 21.9 and 18.1 mm apart), so the clearance is measured there. Where it
+        falls as the layout opens, the released state is more open (up to 87° from a first stage design) and
+        the held state's clearance is the smaller: it is used, and the long release is not solved. At zero
+        torque the two states are one, so the clearance is continuous across the switch.
+
+        Solved afresh from the held state at every design (:class:`~.equilibrium.FreeEquilibrium`), so it is
+        a function of the design alone, not of the designs visited before. None also where that solve fails.
+        """
+        key = ("released",)
+        if key in self._cache:
+            return self._cache[key]
+        from ..linkage.state import restore, snapshot
+        from .equilibrium import FreeEquilibrium
+
+        flat, eq = self.flat, None
+        g = flat.L.gradient()
+        if float(flat.af @ g[flat.free]) > 0.0:  # closing lowers the energy
+            if self._released is None:
+                self._released = FreeEquilibrium(copy.deepcopy(flat.L), pins=flat.pins)
+            eq = self._released
+            restore(eq.L, snapshot(flat.L))
+            try:
+                eq.solve()
+            except (ArithmeticError, InputError):
+                eq = None
+        self._cache[key] = eq
+        return eq
 
     def _init_planar(self, target_angle: float, modes: int = 4) -> None:
         from .planar import buckling_block, out_of_plane_modes, planar_equilibrium
@@ -490,7 +526,8 @@ class DesignProblem:
         key = ("clearance", float(width))
         if key in self._cache:
             return self._cache[key]
-        L = self.flat.L
+        eq = self.released_flat() or self.flat
+        L = eq.L
         reach = CLEARANCE_REACH * width
         pairs, pts, _, _ = same_family_pairs(L, reach)
         if not len(pairs):
@@ -508,7 +545,7 @@ class DesignProblem:
             g_rod[: G.size] = G.ravel()
             gx = L._jacobian().T @ g_rod
             term = _StateTerm(lambda: ks * width, lambda: gx, None)
-            out = (float(ks * width), self._state_gradient_p(self.flat, term, ("clearance", float(width))) * self.p0)
+            out = (float(ks * width), self._state_gradient_p(eq, term, ("clearance", float(width))) * self.p0)
         self._cache[key] = out
         return out
 
