@@ -127,13 +127,13 @@ def test_mass_matrix_pattern_is_the_same_in_the_flat_and_a_moved_state():
     products that a moved state has, and a changing pattern cost a new union pattern every deployment step."""
     L = nonuniform()
     M_flat = L.mass_matrix()
-    J = L._jacobian()
+    J = L.rod_jacobian()
     D = L.rods.mass_matrix(L.rods.density / float(np.max(L.rods.density)))
     assert np.array_equal(M_flat.toarray(), (J.T @ D @ J).toarray())
     assert (M_flat.data == 0).any()  # structural zeros the product alone would drop
     perturbed(L, seed=3)
     M_moved = L.mass_matrix()
-    J = L._jacobian()
+    J = L.rod_jacobian()
     assert np.array_equal(M_moved.indptr, M_flat.indptr) and np.array_equal(M_moved.indices, M_flat.indices)
     assert np.array_equal(M_moved.toarray(), (J.T @ D @ J).toarray())
 
@@ -198,7 +198,7 @@ def _triple_product_hessian(L):
 
     from xshells.linkage import joint_kernels as jk
 
-    J = L._jacobian()
+    J = L.rod_jacobian()
     Hx = J.T @ L.rods.hessian() @ J
     w = L.rods.gradient()[L._inst_rows]
     Hj = jk.weighted_hessian(L._instance_q(L._x), L._inst_prm, w)

@@ -200,3 +200,19 @@ def test_stretch_terms_match_differences_of_the_kernel_hessian():
     assert errs[0] / errs[1] > 3.8 and errs[1] / errs[2] > 3.8 and errs[2] < 1e-5, errs
     assert np.allclose(ba, apply(H(q), A), rtol=1e-13, atol=1e-13)
     assert np.allclose(bb, apply(H(q), B), rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("make", [nonuniform, banana])
+def test_the_rod_jacobian_matches_central_differences_of_the_rod_variables(make):
+    # rod_jacobian carries gradients of rod-point functions to the linkage's variables (the clearance barrier's
+    # adjoint uses it): J δx against (rod_vars(x + hδx) − rod_vars(x − hδx)) / 2h, converging at second order
+    L = perturbed(make(), 11)
+    rng = np.random.default_rng(11)
+    dx, _ = scaled_direction(L, rng, False)
+    x = L.get_vars()
+    J = L.rod_jacobian()
+    assert J.shape == (L.rods.num_vars, L.num_vars)
+    exact = J @ dx
+    errors = [np.abs((L.rod_vars(x + h * dx) - L.rod_vars(x - h * dx)) / (2 * h) - exact).max() / np.abs(exact).max()
+              for h in (2.0, 1.0)]  # (steps of the scaled direction: 0.02 rad rotations at h = 2)
+    assert errors[1] < 1e-4 and errors[0] / errors[1] > 3.5, errors  # second order: the truncation halves twice

@@ -448,7 +448,7 @@ def _buckling_mode(state, held, f=None):
         x = np.zeros(work.num_vars)
         with np.errstate(all="ignore"):
             x[free] = spla.spsolve(H, np.asarray(f, float)[free])
-        return (work._jacobian() @ x)[: 3 * work.rods.num_vertices] if np.all(np.isfinite(x)) else None
+        return (work.rod_jacobian() @ x)[: 3 * work.rods.num_vertices] if np.all(np.isfinite(x)) else None
     try:
         shift = 1e-8 * abs(spla.eigsh(H, k=1, M=M, which="LM", return_eigenvectors=False)[0])
         _, vec = spla.eigsh(H, k=1, M=M, sigma=-shift, which="LM")
@@ -456,5 +456,5 @@ def _buckling_mode(state, held, f=None):
         return None
     x = np.zeros(work.num_vars)
     x[free] = vec[:, 0]
-    J = work._jacobian()
+    J = work.rod_jacobian()
     return (J @ x)[: 3 * work.rods.num_vertices]

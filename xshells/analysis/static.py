@@ -467,7 +467,7 @@ def critical_load_factor(linkage, f, held, options: StaticOptions = StaticOption
             return False, None, None
         t = np.zeros(work.num_vars)
         t[free] = chol.solve(f[free])
-        return True, t, (work._jacobian() @ t)[: 3 * V].reshape(-1, 3)
+        return True, t, (work.rod_jacobian() @ t)[: 3 * V].reshape(-1, 3)
 
     def step(lam_from, state, t, rate, lam, newton_first=False):
         """Predict from ``state`` (at ``lam_from``) to ``lam`` and correct: the new state, or None where the

@@ -543,7 +543,7 @@ class DesignProblem:
             np.add.at(G[:, :2], j, -u)
             g_rod = np.zeros(L.rods.num_vars)
             g_rod[: G.size] = G.ravel()
-            gx = L._jacobian().T @ g_rod
+            gx = L.rod_jacobian().T @ g_rod
             term = _StateTerm(lambda: ks * width, lambda: gx, None)
             out = (float(ks * width), self._state_gradient_p(eq, term, ("clearance", float(width))) * self.p0)
         self._cache[key] = out

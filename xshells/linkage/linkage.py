@@ -491,7 +491,7 @@ class Linkage:
             c["jac"] = jk.outputs_and_jacobian(self._instance_q(self._x), self._inst_prm)
         return c["jac"]
 
-    def _jacobian(self):
+    def rod_jacobian(self):
         """Rod variables' Jacobian with respect to ``x``: sparse (num rod vars, num_vars)."""
         _, jac = self._instance_jacobian()
         n_inst = jac.shape[2]
@@ -570,7 +570,7 @@ class Linkage:
             c[key] = H
             return H
         H = self.rods.hessian(with_rest_lengths)
-        J = self._jacobian()
+        J = self.rod_jacobian()
         J = sp.block_diag([J, self.rest_length_map], format="csr")
         Hx = J.T.tocsr() @ (H @ J)
         Hj = self._joint_hessian_blocks()
@@ -617,7 +617,7 @@ class Linkage:
         taken at unit (largest) density: a physical density (t/mm³, for self-weight) must not change how a
         deployment is solved. Measured: the manta ray at ρ = 1.9e-9 stalled at 62° with the unscaled mass.
         """
-        J = self._jacobian()
+        J = self.rod_jacobian()
         rho = float(np.max(self.rods.density)) or 1.0
         # divided before the masses are formed: one material gives densities of exactly 1 (and ½ on shared
         # edges), so the metric is the same to the last bit whatever the density (deployments that pass
@@ -656,7 +656,7 @@ class Linkage:
         ``g`` in the input's units (mm/s² for the bundled designs; then
         densities in t/mm³ give forces in N).
         """
-        return self._jacobian().T @ self.rods.gravity_force(g)
+        return self.rod_jacobian().T @ self.rods.gravity_force(g)
 
     def joint_force(self, forces) -> np.ndarray:
         """Generalized force of point forces at the joints: ``forces`` (nj, 3) → (num_vars,)."""
