@@ -61,6 +61,17 @@ class CheckContext:
     guide: bool = False
 
 
+#: Within this share of its span of the layout's plane a state is planar: the issue's bar for the flat state, and
+#: the mark of a deployment that never buckled
+PLANAR = 1e-6
+
+
+def flat_planarity(linkage) -> float:
+    """How far the linkage's rod points leave their mean plane z, over the rods' span (0 for a planar state)."""
+    pts = linkage.rods.points
+    return float(np.abs(pts[:, 2] - pts[:, 2].mean()).max()) / float(np.ptp(pts, axis=0).max())
+
+
 def stage_arrays(Pv: np.ndarray, p: np.ndarray, edges, ends=None):
     """The design a stage would write, from the flat linkage's vertices ``Pv`` (k, 3) and rest lengths ``p`` (s,):
     its flat vertices (k', 3) centred in the plane z = 0, segments (s', 2) and rest lengths (s',), with ``ends``
@@ -144,6 +155,10 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
     overlap = beam_overlaps(fwd, ctx.width) if ctx.width > 0 else ""
     if overlap:  # not buildable: the verification would refuse it
         return {"why": f"the flat layout is not buildable: {overlap}"}
+    flat_z = flat_planarity(fwd)
+    if flat_z > PLANAR:  # let go, it buckles out of its plane: the verification would find it invalid (the boat's
+        # fanned net, 2026-12-07: its last stage design was kept, 0.0014 of the span off the plane, status invalid)
+        return {"why": f"its flat state leaves the plane by {flat_z:.2g} of its span"}
     res, unguided, guided = deployed_fits(ctx, fwd, guess, bool(ctx.guide and try_guide))
     if not res.converged:
         return {"why": f"its deployment from flat stopped: {res.message}"}

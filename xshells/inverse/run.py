@@ -26,6 +26,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.export import atomic_write_text, finite_json
 from .board import CLOSE, close_misses, is_close
+from .checks import PLANAR, flat_planarity
 from .guide import GuideOptions, StageRecord
 from .reseat import ReseatOptions
 
@@ -35,9 +36,6 @@ MAX_SEGMENTS = 5000
 JACOBIAN_BYTES_PER_SEGMENT2 = 2 * 26 * 8
 #: the most designs per net (``--tries``): each one costs a whole design's time
 MAX_TRIES = 4
-# Within this share of its span of the layout's plane a state is planar: the issue's bar for the flat
-# state, and the mark of a deployment that never buckled
-PLANAR = 1e-6
 # What "deployed onto the surface" means (issue 18's bar for analytic targets): mean and largest joint
 # distance to the surface, relative to its bounding-box diagonal, and the area share within 0.75 spacing.
 REACH = {"fit_mean": 0.01, "fit_max": 0.03, "coverage": 0.90}
@@ -1629,7 +1627,7 @@ def _verify(out_dir, surface, net, material, options, spacing, width, guess, pro
     rod_d = surface_distances(surface, rods)
     cov = coverage(surface, rods, deployed.rods.edges, 0.75 * spacing)
     span = float(np.ptp(flat.rods.points, axis=0).max())
-    flat_z = float(np.abs(flat.rods.points[:, 2] - flat.rods.points[:, 2].mean()).max()) / span
+    flat_z = flat_planarity(flat)
     # how far the deployment left the layout's plane: where it did not, the design never buckled (its flat
     # state stayed stable up to the angle), whatever state the optimization had tracked
     rise = float(np.ptp(deployed.rods.points[:, 2])) / span
