@@ -137,7 +137,8 @@ def check_stage(ctx: CheckContext, Pv: np.ndarray, p: np.ndarray, guess: np.ndar
     Returns
     -------
     dict
-        ``{"why": ...}`` where the design cannot be kept (its flat layout overlaps, its deployment stops);
+        ``{"why": ...}`` where the design cannot be kept (its flat layout overlaps or leaves its plane,
+        its deployment stops);
         else ``fit`` and ``top`` (mean and largest joint distance, design units), ``rise`` (how far the
         deployment left the layout's plane, relative to the flat span: about 0 where it never buckled),
         ``design`` (Pf, edges, p), ``free_ends`` (attached), ``tracked`` (the placed deployed joints, (j, 3)) and
