@@ -728,6 +728,26 @@ def test_the_deploy_line_is_printed_only_for_a_verified_design(tmp_path, monkeyp
     assert ("case.json reproduces the deployment" in capsys.readouterr().out) == verified
 
 
+@pytest.mark.parametrize("status, code", [("complete", 0), ("missed", 1)])
+def test_the_commands_options_reach_the_design_and_its_status_the_exit_code(tmp_path, monkeypatch, status, code):
+    """What the real runs above no longer go through the command for: --max-iters, --polish, --workers and
+    --no-heavier become the options the design gets, and the status the exit code."""
+    import xshells.inverse.run as run
+
+    seen = []
+
+    def fake(surface, out, spec, options, **kw):
+        seen.append(options)
+        return {"status": status, "message": "m", "segments": 10, "joints": 9, "fit_mean": 0.02, "fit_max": 0.04,
+                "coverage": 0.95, "time_s": 3.0}
+
+    monkeypatch.setattr(run, "run_inverse", fake)
+    assert main(["inverse", str(CAP), "--beams", "even", "--max-iters", "2", "--polish", "0", "--workers", "2",
+                 "--no-heavier", "--out", str(tmp_path / "o"), "--no-progress"]) == code
+    (o,) = seen
+    assert (o.beams, o.max_iters, o.guide.polish, o.workers, o.heavier) == ("even", 2, 0.0, 2, False)
+
+
 _NARROW = {"status": "missed", "fit_mean": 0.0108, "fit_max": 0.0294, "coverage": 1.0, "spacing": 240.0,
            "developable": False}
 
